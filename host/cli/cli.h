@@ -1,0 +1,25 @@
+// The `xi` program's subcommands and the small argument reader they share.
+#pragma once
+#include <string>
+#include <vector>
+
+namespace xi::cli {
+
+// Reads `--flag value` pairs and positionals; every flag must be known to the command.
+class Args {
+ public:
+  Args(std::vector<std::string> argv, std::vector<std::string> valued, std::vector<std::string> switches);
+  bool has(const std::string& flag) const;
+  std::string get(const std::string& flag, const std::string& fallback = "") const;
+  int get_int(const std::string& flag, int fallback, int lo, int hi) const;
+  const std::vector<std::string>& positional() const { return positional_; }
+
+ private:
+  std::vector<std::pair<std::string, std::string>> values_;
+  std::vector<std::string> positional_;
+};
+
+int render(const std::vector<std::string>& args);
+int devices(const std::vector<std::string>& args);
+
+}  // namespace xi::cli

@@ -1,0 +1,175 @@
+// `xi render` and `xi devices`.
+#include <unistd.h>
+
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <map>
+
+#include "cli.h"
+#include "xi/error.h"
+#include "xi/image.h"
+#include "xi/render.h"
+
+namespace xi::cli {
+namespace {
+
+std::filesystem::path default_scene() {
+  std::error_code ec;
+  auto exe = std::filesystem::read_symlink("/proc/self/exe", ec).parent_path();
+  for (auto dir : {exe.parent_path() / "scenes", exe.parent_path() / "share/xi/scenes",
+                   std::filesystem::path(XI_SOURCE_SCENE_DIR)})
+    if (std::filesystem::exists(dir / "cornell-box.json")) return dir / "cornell-box.json";
+  throw Error("cannot find the bundled Cornell box", "pass a scene file");
+}
+
+void parse_resolution(const std::string& text, Scene* scene) {
+  int w = 0, h = 0;
+  char x = 0, extra = 0;
+  if (std::sscanf(text.c_str(), "%d%c%d%c", &w, &x, &h, &extra) != 3 || (x != 'x' && x != 'X') || w < 1 ||
+      h < 1 || w > 16384 || h > 16384)
+    throw Error("expected WxH with 1 <= W, H <= 16384, got '" + text + "'", "--resolution");
+  scene->width = w;
+  scene->height = h;
+}
+
+std::string format_seconds(double s) {
+  char buf[32];
+  if (s < 60) std::snprintf(buf, sizeof buf, "%.1fs", s);
+  else std::snprintf(buf, sizeof buf, "%dm%02ds", (int)s / 60, (int)s % 60);
+  return buf;
+}
+
+// One line, redrawn in place: [#####.....] 12/64 spp  1.23 Msamples/s  elapsed 3.0s  ETA 10.1s
+void draw_progress(int done, int total, double msps, double elapsed) {
+  const int width = 30;
+  int filled = (int)std::lround(width * (double)done / total);
+  std::string bar(filled, '#');
+  bar += std::string(width - filled, '.');
+  double eta = done > 0 ? elapsed * (total - done) / done : 0.0;
+  std::fprintf(stderr, "\r[%s] %d/%d spp  %.2f Msamples/s  elapsed %s  ETA %s   ", bar.c_str(), done, total,
+               msps, format_seconds(elapsed).c_str(), format_seconds(eta).c_str());
+  std::fflush(stderr);
+}
+
+void print_profile(const std::vector<Launch>& launches, double frame_seconds) {
+  struct Row {
+    size_t launches = 0, items = 0;
+    uint64_t ns = 0;
+  };
+  const char* order[] = {"generate", "extend", "shade", "shadow", "accumulate"};
+  std::map<std::string, Row> rows;
+  uint64_t total_ns = 0;
+  for (auto& l : launches) {
+    Row& r = rows[l.stage];
+    r.launches++;
+    r.items += l.items;
+    r.ns += l.end_ns - l.start_ns;
+    total_ns += l.end_ns - l.start_ns;
+  }
+  std::printf("%-11s %9s %11s %8s %14s\n", "stage", "launches", "total ms", "share", "Mitems/s");
+  for (const char* name : order) {
+    auto it = rows.find(name);
+    if (it == rows.end()) continue;
+    const Row& r = it->second;
+    std::printf("%-11s %9zu %11.1f %7.1f%% %14.2f\n", name, r.launches, r.ns * 1e-6,
+                100.0 * r.ns / (frame_seconds * 1e9), r.ns ? r.items / (r.ns * 1e-3) : 0.0);
+  }
+  std::printf("%-11s %9s %11.1f %7.1f%%\n", "kernels", "", total_ns * 1e-6, 100.0 * total_ns / (frame_seconds * 1e9));
+  std::printf("%-11s %9s %11.1f %7.1f%%\n", "host+other", "", frame_seconds * 1e3 - total_ns * 1e-6,
+              100.0 - 100.0 * total_ns / (frame_seconds * 1e9));
+}
+
+}  // namespace
+
+int render(const std::vector<std::string>& argv) {
+  Args args(argv,
+            {"-o", "--spp", "--seed", "--device", "--max-depth", "--resolution", "--sampler", "--strategy",
+             "--local-size"},
+            {"--profile", "--quiet", "--all-features"});
+  if (args.positional().size() > 1) throw Error("expected at most one scene file", args.positional()[1]);
+  std::filesystem::path scene_path = args.positional().empty() ? default_scene() : std::filesystem::path(args.positional()[0]);
+
+  // Check everything the user typed before the slow work starts.
+  Scene scene = load_scene(scene_path);
+  if (args.has("--resolution")) parse_resolution(args.get("--resolution"), &scene);
+  RenderOptions opt;
+  opt.spp = args.get_int("--spp", scene.render.spp, 1, 1 << 20);
+  opt.max_depth = args.get_int("--max-depth", scene.render.max_depth, 1, 64);
+  opt.seed = (uint32_t)args.get_int("--seed", (int)scene.render.seed, 0, INT32_MAX);
+  opt.sampler = parse_sampler(args.get("--sampler", scene.render.sampler));
+  opt.strategy = parse_strategy(args.get("--strategy", "mis"));
+  opt.local_size = (size_t)args.get_int("--local-size", (int)opt.local_size, 0, 1024);
+  opt.all_features = args.has("--all-features");
+  std::filesystem::path out = args.get("-o", scene_path.stem().string() + ".exr");
+  if (out.extension() != ".exr") throw Error("the output must be an .exr file", "-o " + out.string());
+  auto out_dir = out.has_parent_path() ? out.parent_path() : std::filesystem::path(".");
+  if (!std::filesystem::is_directory(out_dir)) throw Error("output folder does not exist", out_dir.string());
+  const bool quiet = args.has("--quiet");
+  const bool progress = !quiet && isatty(STDERR_FILENO);
+
+  Device device = Device::open(args.get("--device"));
+  Renderer renderer(device, scene, opt);
+  const CompiledScene& cs = renderer.compiled();
+  if (!quiet) {
+    std::printf("device: %s (%s, %d compute units)\n", device.info().name.c_str(), device.info().platform.c_str(),
+                device.info().compute_units);
+    std::printf("scene: %s, %zu triangles, %zu lights, features: %s\n", scene_path.string().c_str(),
+                scene.triangles.size(), cs.features.emitters ? cs.light_tri.size() : 0,
+                (opt.all_features ? Features::everything() : cs.features).describe().c_str());
+    std::printf("bvh: %zu nodes, %zu leaves, depth %d, built in %.2f ms\n", cs.bvh.stats.nodes, cs.bvh.stats.leaves,
+                cs.bvh.stats.depth, cs.bvh.stats.build_seconds * 1e3);
+    std::printf("kernels: %s in %.3f s\n", renderer.program().from_cache ? "loaded from cache" : "compiled",
+                renderer.program().build_seconds);
+    std::fflush(stdout);
+  }
+
+  auto start = std::chrono::steady_clock::now();
+  const double samples_per_pass = (double)scene.width * scene.height;
+  double seconds = 0.0;
+  for (int pass = 0; pass < opt.spp; ++pass) {
+    renderer.run_pass();
+    seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+    if (progress) draw_progress(pass + 1, opt.spp, samples_per_pass * (pass + 1) / seconds * 1e-6, seconds);
+  }
+  if (progress) std::fputs("\n", stderr);
+
+  Image image = renderer.mean();
+  Image variance = renderer.variance_of_mean();
+  ExrAttributes attrs{{"spp", opt.spp},
+                      {"renderSeconds", seconds},
+                      {"seed", (int)opt.seed},
+                      {"scene", std::filesystem::absolute(scene_path).string()},
+                      {"device", device.info().name},
+                      {"sampler", std::string(sampler_name(opt.sampler))},
+                      {"strategy", std::string(strategy_name(opt.strategy))},
+                      {"maxDepth", opt.max_depth}};
+  write_exr(out, {{"", &image}, {"variance", &variance}}, attrs);
+  auto png = out;
+  png.replace_extension(".png");
+  write_png(png, image);
+
+  if (uint32_t bad = renderer.nonfinite_samples())
+    std::fprintf(stderr, "xi: warning: %u non-finite samples were dropped\n", bad);
+  if (!quiet) {
+    const double rays = (double)(renderer.extend_rays() + renderer.shadow_rays());
+    std::printf("%dx%d, %d spp, %.2f s, %.2f Msamples/s, %.2f Mrays/s\n", scene.width, scene.height, opt.spp, seconds,
+                samples_per_pass * opt.spp / seconds * 1e-6, rays / seconds * 1e-6);
+    std::printf("wrote %s and %s\n", out.string().c_str(), png.string().c_str());
+    if (args.has("--profile")) print_profile(renderer.launches(), seconds);
+  }
+  return 0;
+}
+
+int devices(const std::vector<std::string>& argv) {
+  Args args(argv, {}, {});
+  auto list = list_devices();
+  if (list.empty()) throw Error("no OpenCL device found", "is an OpenCL driver installed? PoCL: apt-get install pocl-opencl-icd");
+  std::printf("%-3s %-44s %-12s %-6s %5s  %s\n", "#", "device", "type", "units", "", "OpenCL C / platform");
+  for (auto& d : list)
+    std::printf("%-3d %-44s %-12s %-6d %5s  %s / %s\n", d.index, d.name.c_str(), d.type.c_str(), d.compute_units, "",
+                d.opencl_c_version.c_str(), d.platform.c_str());
+  return 0;
+}
+
+}  // namespace xi::cli

@@ -1,0 +1,28 @@
+// Bounding volume hierarchy over triangles: binned SAH build on the host, flattened depth-first
+// into the node array the kernels traverse (kernels/shared/intersect.h).
+#pragma once
+#include <cstdint>
+#include <vector>
+
+#include "layout.h"
+#include "xi/scene.h"
+
+namespace xi {
+
+struct BvhStats {
+  double build_seconds = 0.0;
+  size_t nodes = 0;
+  size_t leaves = 0;
+  int depth = 0;          // longest root-to-leaf path, in edges
+  size_t max_leaf = 0;    // most triangles in one leaf
+};
+
+struct Bvh {
+  std::vector<BvhNode> nodes;
+  std::vector<uint32_t> order;  // order[i]: the scene triangle stored at position i
+  BvhStats stats;
+};
+
+Bvh build_bvh(const std::vector<Triangle>& triangles);
+
+}  // namespace xi

@@ -1,0 +1,54 @@
+// A scene flattened for the kernels: triangles in BVH order, materials, the light distribution,
+// the camera, and the set of features the kernels must be compiled with.
+#pragma once
+#include <cstdint>
+#include <string>
+#include <vector>
+
+#include "layout.h"
+#include "sampling.h"
+#include "xi/bvh.h"
+#include "xi/scene.h"
+
+namespace xi {
+
+// What a scene uses; each feature maps to one -D flag, so absent features compile no code.
+struct Features {
+  bool mirror = false;
+  bool dielectric = false;
+  bool normals = false;   // interpolated vertex normals
+  bool emitters = false;
+  bool lens = false;
+  static Features everything();
+  std::string describe() const;  // e.g. "diffuse mirror emitters"
+  bool operator==(const Features&) const = default;
+};
+
+// Light transport strategies: MIS combines light and BSDF sampling; nee uses light sampling alone
+// for direct light; bsdf uses BSDF sampling alone.
+enum class Strategy { Mis, Nee, Bsdf };
+Strategy parse_strategy(const std::string& name);   // throws xi::Error
+const char* strategy_name(Strategy s);
+int parse_sampler(const std::string& name);         // XI_SAMPLER_*; throws xi::Error
+const char* sampler_name(int sampler);
+
+// The -D flags for a feature set, sampler and strategy.
+std::vector<std::string> kernel_defines(const Features& f, int sampler, Strategy strategy);
+
+struct CompiledScene {
+  Bvh bvh;
+  std::vector<glm::vec4> tri_verts;    // 3 per triangle, BVH order
+  std::vector<glm::vec4> tri_normals;  // 3 per triangle (w = 1 where the triangle has them), or 1 dummy
+  std::vector<uint32_t> tri_material;
+  std::vector<MaterialData> materials;
+  std::vector<float> light_cdf;        // over emissive triangles, by power; last entry 1
+  std::vector<uint32_t> light_tri;     // their triangle indices (BVH order)
+  std::vector<float> tri_light_pdf;    // per triangle: P(pick it) / its area, 0 if not emissive
+  float light_power = 0.0f;            // total emitted power (luminance), for reports
+  CameraData camera{};
+  Features features;
+};
+
+CompiledScene compile_scene(const Scene& scene);
+
+}  // namespace xi

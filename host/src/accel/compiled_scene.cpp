@@ -1,0 +1,136 @@
+#include "xi/compiled_scene.h"
+
+#include <cmath>
+
+#include "xi/error.h"
+
+namespace xi {
+
+Features Features::everything() { return Features{true, true, true, true, true}; }
+
+std::string Features::describe() const {
+  std::string s = "diffuse";
+  if (mirror) s += " mirror";
+  if (dielectric) s += " glass";
+  if (normals) s += " normals";
+  if (emitters) s += " emitters";
+  if (lens) s += " lens";
+  return s;
+}
+
+Strategy parse_strategy(const std::string& name) {
+  if (name == "mis") return Strategy::Mis;
+  if (name == "nee") return Strategy::Nee;
+  if (name == "bsdf") return Strategy::Bsdf;
+  throw Error("unknown strategy '" + name + "'", "expected mis, nee or bsdf");
+}
+
+const char* strategy_name(Strategy s) {
+  return s == Strategy::Mis ? "mis" : s == Strategy::Nee ? "nee" : "bsdf";
+}
+
+int parse_sampler(const std::string& name) {
+  for (int s = XI_SAMPLER_RANDOM; s <= XI_SAMPLER_SOBOL; ++s)
+    if (name == sampler_name(s)) return s;
+  throw Error("unknown sampler '" + name + "'", "expected random, grid, stratified or sobol");
+}
+
+const char* sampler_name(int sampler) {
+  switch (sampler) {
+    case XI_SAMPLER_RANDOM: return "random";
+    case XI_SAMPLER_GRID: return "grid";
+    case XI_SAMPLER_STRATIFIED: return "stratified";
+    case XI_SAMPLER_SOBOL: return "sobol";
+  }
+  return "?";
+}
+
+std::vector<std::string> kernel_defines(const Features& f, int sampler, Strategy strategy) {
+  std::vector<std::string> d{"XI_SAMPLER=" + std::to_string(sampler)};
+  if (f.mirror) d.push_back("XI_HAS_MIRROR");
+  if (f.dielectric) d.push_back("XI_HAS_DIELECTRIC");
+  if (f.normals) d.push_back("XI_HAS_NORMALS");
+  if (f.lens) d.push_back("XI_HAS_LENS");
+  if (f.emitters) {
+    d.push_back("XI_HAS_EMITTERS");
+    if (strategy != Strategy::Bsdf) d.push_back("XI_NEE");
+    if (strategy == Strategy::Mis) d.push_back("XI_MIS");
+  }
+  return d;
+}
+
+CompiledScene compile_scene(const Scene& scene) {
+  CompiledScene cs;
+  cs.bvh = build_bvh(scene.triangles);
+  const size_t n = scene.triangles.size();
+
+  for (auto& m : scene.materials) {
+    MaterialData md{};
+    md.albedo = glm::vec4(m.albedo, m.ior);
+    md.emission = glm::vec4(m.emission, m.two_sided ? 1.0f : 0.0f);
+    md.type = (uint32_t)m.type;
+    cs.materials.push_back(md);
+    cs.features.mirror |= m.type == MaterialType::Mirror;
+    cs.features.dielectric |= m.type == MaterialType::Dielectric;
+  }
+
+  cs.tri_verts.resize(3 * n);
+  cs.tri_material.resize(n);
+  cs.tri_light_pdf.assign(n, 0.0f);
+  for (auto& t : scene.triangles) cs.features.normals |= t.has_normals;
+  if (cs.features.normals) cs.tri_normals.assign(3 * n, glm::vec4(0.0f));
+  std::vector<double> power;
+  for (size_t i = 0; i < n; ++i) {
+    const Triangle& t = scene.triangles[cs.bvh.order[i]];
+    for (int k = 0; k < 3; ++k) {
+      cs.tri_verts[3 * i + k] = glm::vec4(t.v[k], 0.0f);
+      if (t.has_normals) cs.tri_normals[3 * i + k] = glm::vec4(t.n[k], 1.0f);
+    }
+    cs.tri_material[i] = t.material;
+    const Material& m = scene.materials[t.material];
+    if (m.is_emitter()) {
+      double area = 0.5 * glm::length(glm::cross(t.v[1] - t.v[0], t.v[2] - t.v[0]));
+      double lum = 0.2126 * m.emission.x + 0.7152 * m.emission.y + 0.0722 * m.emission.z;
+      double p = lum * area * M_PI * (m.two_sided ? 2.0 : 1.0);
+      if (p > 0.0 && area > 0.0) {
+        cs.light_tri.push_back((uint32_t)i);
+        power.push_back(p);
+      }
+    }
+  }
+  if (cs.tri_normals.empty()) cs.tri_normals.assign(1, glm::vec4(0.0f));  // OpenCL needs a buffer
+
+  double total = 0.0;
+  for (double p : power) total += p;
+  cs.light_power = (float)total;
+  double acc = 0.0;
+  for (size_t k = 0; k < power.size(); ++k) {
+    acc += power[k];
+    cs.light_cdf.push_back(k + 1 == power.size() ? 1.0f : (float)(acc / total));
+    const Triangle& t = scene.triangles[cs.bvh.order[cs.light_tri[k]]];
+    double area = 0.5 * glm::length(glm::cross(t.v[1] - t.v[0], t.v[2] - t.v[0]));
+    cs.tri_light_pdf[cs.light_tri[k]] = (float)(power[k] / total / area);
+  }
+  cs.features.emitters = !cs.light_tri.empty();
+  if (cs.light_cdf.empty()) {  // OpenCL needs non-empty buffers
+    cs.light_cdf.push_back(1.0f);
+    cs.light_tri.push_back(0);
+  }
+
+  const Camera& c = scene.camera;
+  glm::vec3 forward = glm::normalize(c.look_at - c.position);
+  glm::vec3 right = glm::normalize(glm::cross(forward, c.up));
+  glm::vec3 up = glm::cross(right, forward);
+  float tan_half = std::tan(glm::radians(c.vfov_degrees) * 0.5f);
+  float aspect = (float)scene.width / (float)scene.height;
+  cs.camera.position = glm::vec4(c.position, 0.0f);
+  cs.camera.forward = glm::vec4(forward, c.aperture_radius);
+  cs.camera.right = glm::vec4(right * tan_half * aspect, c.focus_distance);
+  cs.camera.up = glm::vec4(up * tan_half, 0.0f);
+  cs.camera.width = (uint32_t)scene.width;
+  cs.camera.height = (uint32_t)scene.height;
+  cs.features.lens = c.aperture_radius > 0.0f;
+  return cs;
+}
+
+}  // namespace xi

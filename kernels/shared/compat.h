@@ -1,0 +1,85 @@
+// Lets the shared headers compile both as OpenCL C 1.2 (kernels) and as C++ (host and tests).
+// On the host the OpenCL vector types map to GLM, so a test can call the very function a kernel
+// calls. Shared headers stick to the common subset: no swizzles (use xyz()), constructors only
+// through make_float2/3/4, `static inline` functions, address-space qualifiers that vanish on host.
+#ifndef XI_COMPAT_H
+#define XI_COMPAT_H
+
+#ifdef __OPENCL_VERSION__
+
+#define XI_DEVICE 1
+#define make_float2(x, y) ((float2)((x), (y)))
+#define make_float3(x, y, z) ((float3)((x), (y), (z)))
+#define make_float4(x, y, z, w) ((float4)((x), (y), (z), (w)))
+#define make_uint4(x, y, z, w) ((uint4)((x), (y), (z), (w)))
+#define xyz(v) ((v).xyz)
+#define XI_CONSTANT __constant
+
+#else  // host C++
+
+#include <cmath>
+#include <cstdint>
+#include <cstring>
+#include <glm/glm.hpp>
+
+#define __global
+#define __local
+#define __constant
+#define __kernel
+#define XI_CONSTANT static const
+
+typedef uint32_t uint;
+typedef glm::vec2 float2;
+typedef glm::vec3 float3;
+typedef glm::vec4 float4;
+typedef glm::ivec3 int3;
+typedef glm::uvec4 uint4;
+
+using glm::cross;
+using glm::dot;
+using glm::length;
+using glm::normalize;
+using std::cos;
+using std::exp;
+using std::fabs;
+using std::floor;
+using std::fmax;
+using std::fmin;
+using std::log;
+using std::sin;
+using std::sqrt;
+using std::acos;
+using std::atan2;
+
+static inline float2 make_float2(float x, float y) { return float2(x, y); }
+static inline float3 make_float3(float x, float y, float z) { return float3(x, y, z); }
+static inline float4 make_float4(float x, float y, float z, float w) { return float4(x, y, z, w); }
+static inline uint4 make_uint4(uint x, uint y, uint z, uint w) { return uint4(x, y, z, w); }
+static inline float3 xyz(const float4& v) { return float3(v.x, v.y, v.z); }
+static inline float3 fmin(const float3& a, const float3& b) { return glm::min(a, b); }
+static inline float3 fmax(const float3& a, const float3& b) { return glm::max(a, b); }
+static inline float3 fabs(const float3& a) { return glm::abs(a); }
+static inline float clamp(float x, float lo, float hi) { return std::fmin(std::fmax(x, lo), hi); }
+static inline uint as_uint(float f) { uint u; std::memcpy(&u, &f, 4); return u; }
+static inline float as_float(uint u) { float f; std::memcpy(&f, &u, 4); return f; }
+static inline int as_int(float f) { int i; std::memcpy(&i, &f, 4); return i; }
+static inline float as_float_i(int i) { float f; std::memcpy(&f, &i, 4); return f; }
+static inline uint clz(uint x) { return x == 0 ? 32u : (uint)__builtin_clz(x); }
+static inline uint mul_hi(uint a, uint b) { return (uint)(((uint64_t)a * b) >> 32); }
+
+#endif
+
+#ifdef XI_DEVICE
+#define as_float_i(i) as_float(i)
+#endif
+
+#define XI_PI 3.14159265358979323846f
+#define XI_INV_PI 0.31830988618379067154f
+#define XI_ONE_MINUS_EPSILON 0x1.fffffep-1f  // the largest float below 1
+
+static inline float xi_max3(float3 v) { return fmax(v.x, fmax(v.y, v.z)); }
+static inline float xi_luminance(float3 c) { return 0.2126f * c.x + 0.7152f * c.y + 0.0722f * c.z; }
+// sqrt of a value that rounding may have pushed slightly below zero.
+static inline float xi_safe_sqrt(float x) { return sqrt(fmax(x, 0.0f)); }
+
+#endif

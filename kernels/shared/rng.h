@@ -1,0 +1,27 @@
+// Counter-based random numbers: a value is a pure function of (seed, pixel, sample, dimension),
+// so an image never depends on which thread ran which path.
+#ifndef XI_RNG_H
+#define XI_RNG_H
+#include "compat.h"
+
+// A 32-bit integer mixer with low bias (two multiply-xorshift rounds).
+static inline uint xi_mix32(uint x) {
+  x ^= x >> 16;
+  x *= 0x7feb352du;
+  x ^= x >> 15;
+  x *= 0x846ca68bu;
+  x ^= x >> 16;
+  return x;
+}
+
+static inline uint xi_hash4(uint a, uint b, uint c, uint d) {
+  uint h = xi_mix32(a ^ 0x9e3779b9u);
+  h = xi_mix32(h ^ b);
+  h = xi_mix32(h ^ c);
+  return xi_mix32(h ^ d);
+}
+
+// The top 24 bits as a float in [0, 1): the largest value is 1 - 2^-24, so ξ never reaches 1.
+static inline float xi_unit_float(uint bits) { return (float)(bits >> 8) * 0x1p-24f; }
+
+#endif

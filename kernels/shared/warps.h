@@ -1,0 +1,129 @@
+// Warps of the unit square [0,1)² to the domains the renderer samples, each with its pdf (with
+// respect to area on the disc/triangle, solid angle on the sphere) and, where one exists, its
+// inverse. Inputs at 0 and at the largest float below 1 give finite results.
+#ifndef XI_WARPS_H
+#define XI_WARPS_H
+#include "compat.h"
+
+// The angle of (x, y) in [0, 1) turns.
+static inline float xi_turns(float y, float x) {
+  float t = atan2(y, x) * (0.5f * XI_INV_PI);
+  return t < 0.0f ? t + 1.0f : fmin(t, XI_ONE_MINUS_EPSILON);
+}
+
+// --- Uniform sphere: z = 1 − 2ξ₁, φ = 2πξ₂.
+static inline float3 xi_square_to_sphere(float2 u) {
+  float z = 1.0f - 2.0f * u.x;
+  float r = xi_safe_sqrt(1.0f - z * z);
+  float phi = 2.0f * XI_PI * u.y;
+  return make_float3(r * cos(phi), r * sin(phi), z);
+}
+static inline float xi_sphere_pdf(void) { return 0.25f * XI_INV_PI; }
+static inline float2 xi_sphere_to_square(float3 d) {
+  return make_float2(clamp(0.5f * (1.0f - d.z), 0.0f, XI_ONE_MINUS_EPSILON), xi_turns(d.y, d.x));
+}
+
+// --- Uniform hemisphere about +z: z = ξ₁, φ = 2πξ₂.
+static inline float3 xi_square_to_hemisphere(float2 u) {
+  float z = u.x;
+  float r = xi_safe_sqrt(1.0f - z * z);
+  float phi = 2.0f * XI_PI * u.y;
+  return make_float3(r * cos(phi), r * sin(phi), z);
+}
+static inline float xi_hemisphere_pdf(float3 d) { return d.z >= 0.0f ? 0.5f * XI_INV_PI : 0.0f; }
+static inline float2 xi_hemisphere_to_square(float3 d) {
+  return make_float2(clamp(d.z, 0.0f, XI_ONE_MINUS_EPSILON), xi_turns(d.y, d.x));
+}
+
+// --- Uniform disc, polar: r = √ξ₁, θ = 2πξ₂ (the square root undoes the clustering at the centre).
+static inline float2 xi_square_to_disc(float2 u) {
+  float r = sqrt(u.x);
+  float theta = 2.0f * XI_PI * u.y;
+  return make_float2(r * cos(theta), r * sin(theta));
+}
+static inline float xi_disc_pdf(float2 p) { return p.x * p.x + p.y * p.y <= 1.0f ? XI_INV_PI : 0.0f; }
+static inline float2 xi_disc_to_square(float2 p) {
+  return make_float2(clamp(p.x * p.x + p.y * p.y, 0.0f, XI_ONE_MINUS_EPSILON), xi_turns(p.y, p.x));
+}
+
+// The lecture's "why not r = ξ₁": not uniform (density 1/(2πr)). Kept only so the χ² test can
+// show that it catches a wrong warp against the uniform pdf.
+static inline float2 xi_square_to_disc_naive(float2 u) {
+  float theta = 2.0f * XI_PI * u.y;
+  return make_float2(u.x * cos(theta), u.x * sin(theta));
+}
+
+// --- Concentric disc (Shirley–Chiu): squares of the domain map to rings, keeping strata compact.
+static inline float2 xi_square_to_concentric_disc(float2 u) {
+  float a = 2.0f * u.x - 1.0f, b = 2.0f * u.y - 1.0f;
+  if (a == 0.0f && b == 0.0f) return make_float2(0.0f, 0.0f);
+  float r, theta;
+  if (fabs(a) > fabs(b)) {
+    r = a;
+    theta = 0.25f * XI_PI * (b / a);
+  } else {
+    r = b;
+    theta = 0.5f * XI_PI - 0.25f * XI_PI * (a / b);
+  }
+  return make_float2(r * cos(theta), r * sin(theta));
+}
+static inline float xi_concentric_disc_pdf(float2 p) { return xi_disc_pdf(p); }
+static inline float2 xi_concentric_disc_to_square(float2 p) {
+  float r = sqrt(p.x * p.x + p.y * p.y);
+  float theta = atan2(p.y, p.x);  // (−π, π]
+  if (theta < -0.25f * XI_PI) theta += 2.0f * XI_PI;  // now in [−π/4, 7π/4)
+  float a, b;
+  if (theta < 0.25f * XI_PI) {          // right wedge: r = a
+    a = r;
+    b = theta * 4.0f * XI_INV_PI * r;
+  } else if (theta < 0.75f * XI_PI) {   // top wedge: r = b
+    b = r;
+    a = -(theta - 0.5f * XI_PI) * 4.0f * XI_INV_PI * r;
+  } else if (theta < 1.25f * XI_PI) {   // left wedge: r = −a
+    a = -r;
+    b = (theta - XI_PI) * 4.0f * XI_INV_PI * a;
+  } else {                              // bottom wedge: r = −b
+    b = -r;
+    a = -(theta - 1.5f * XI_PI) * 4.0f * XI_INV_PI * b;
+  }
+  return make_float2(clamp(0.5f * (a + 1.0f), 0.0f, XI_ONE_MINUS_EPSILON),
+                     clamp(0.5f * (b + 1.0f), 0.0f, XI_ONE_MINUS_EPSILON));
+}
+
+// --- Cosine-weighted hemisphere by Malley's method: a uniform disc sample projected up to the
+// hemisphere, z = √(1 − x² − y²). pdf = cos θ / π.
+static inline float3 xi_square_to_cosine_hemisphere(float2 u) {
+  float2 d = xi_square_to_concentric_disc(u);
+  return make_float3(d.x, d.y, xi_safe_sqrt(1.0f - d.x * d.x - d.y * d.y));
+}
+static inline float xi_cosine_hemisphere_pdf(float3 d) { return fmax(d.z, 0.0f) * XI_INV_PI; }
+static inline float2 xi_cosine_hemisphere_to_square(float3 d) {
+  return xi_concentric_disc_to_square(make_float2(d.x, d.y));
+}
+
+// --- Uniform triangle: barycentrics (b0, b1) with b0 = 1 − √ξ₁, b1 = ξ₂√ξ₁; pdf 1 / area.
+static inline float2 xi_square_to_triangle(float2 u) {
+  float su = sqrt(u.x);
+  return make_float2(1.0f - su, u.y * su);
+}
+static inline float2 xi_triangle_to_square(float2 b) {
+  float su = 1.0f - b.x;
+  return make_float2(clamp(su * su, 0.0f, XI_ONE_MINUS_EPSILON),
+                     su > 0.0f ? clamp(b.y / su, 0.0f, XI_ONE_MINUS_EPSILON) : 0.0f);
+}
+
+// An orthonormal basis around a unit normal (Duff et al. 2017, branchless).
+static inline void xi_basis(float3 n, float3* t, float3* b) {
+  float s = n.z >= 0.0f ? 1.0f : -1.0f;
+  float a = -1.0f / (s + n.z);
+  float c = n.x * n.y * a;
+  *t = make_float3(1.0f + s * n.x * n.x * a, s * c, -s * n.x);
+  *b = make_float3(c, s + n.y * n.y * a, -n.y);
+}
+static inline float3 xi_to_world(float3 v, float3 n) {
+  float3 t, b;
+  xi_basis(n, &t, &b);
+  return t * v.x + b * v.y + n * v.z;
+}
+
+#endif

@@ -1,0 +1,385 @@
+// Scene loader: the Cornell box file, shape generation, transforms, meshes and every kind of bad input.
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <filesystem>
+#include <fstream>
+#include <string>
+
+#include <glm/glm.hpp>
+#include <nlohmann/json.hpp>
+
+#include "xi/error.h"
+#include "xi/scene.h"
+
+namespace fs = std::filesystem;
+
+namespace {
+
+const std::string kCamera = R"("camera": {"position": [0, 0, -5], "look_at": [0, 0, 0], "up": [0, 1, 0], "fov": 40})";
+const std::string kMaterials = R"("materials": {"white": {"type": "diffuse", "albedo": [0.5, 0.5, 0.5]}})";
+const std::string kQuad = R"({"type": "quad", "material": "white", "vertices": [[0,0,0], [1,0,0], [1,1,0], [0,1,0]]})";
+
+// A complete scene from its parts, so each test only spells out what it is about.
+std::string scene_text(const std::string& shapes, const std::string& materials = kMaterials,
+                       const std::string& camera = kCamera) {
+  return "{" + camera + ", " + materials + ", \"shapes\": [" + shapes + "]}";
+}
+
+// A fresh directory per test (ctest may run tests in parallel).
+fs::path temp_dir() {
+  const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
+  fs::path dir = fs::temp_directory_path() / (std::string("xi_scene_") + info->test_suite_name() + "_" + info->name());
+  fs::remove_all(dir);
+  fs::create_directories(dir);
+  return dir;
+}
+
+xi::Scene parse(const std::string& text, const fs::path& dir = fs::temp_directory_path()) {
+  return xi::parse_scene(text, "test.json", dir);
+}
+
+glm::vec3 face_normal(const xi::Triangle& t) { return glm::cross(t.v[1] - t.v[0], t.v[2] - t.v[0]); }
+glm::vec3 centroid(const xi::Triangle& t) { return (t.v[0] + t.v[1] + t.v[2]) / 3.0f; }
+float area(const xi::Triangle& t) { return 0.5f * glm::length(face_normal(t)); }
+
+// The call must throw xi::Error (not some other exception) whose what() mentions `needle`.
+template <class F>
+void expect_error(F&& call, const std::string& needle) {
+  try {
+    call();
+    ADD_FAILURE() << "no exception; expected one mentioning " << needle;
+  } catch (const xi::Error& e) {
+    EXPECT_NE(std::string(e.what()).find(needle), std::string::npos) << "what(): " << e.what();
+  } catch (const std::exception& e) {
+    ADD_FAILURE() << "not an xi::Error: " << e.what();
+  }
+}
+void expect_parse_error(const std::string& text, const std::string& needle) {
+  expect_error([&] { parse(text); }, needle);
+}
+
+const xi::Material& material(const xi::Scene& s, const std::string& name) {
+  for (const auto& m : s.materials)
+    if (m.name == name) return m;
+  throw std::runtime_error("no material " + name);
+}
+
+void expect_vec(glm::vec3 a, glm::vec3 b, float eps = 1e-4f) {
+  EXPECT_NEAR(a.x, b.x, eps);
+  EXPECT_NEAR(a.y, b.y, eps);
+  EXPECT_NEAR(a.z, b.z, eps);
+}
+
+const std::string kCornell = std::string(XI_SCENE_DIR) + "/cornell-box.json";
+
+}  // namespace
+
+TEST(Scene, CornellBoxContents) {
+  const xi::Scene s = xi::load_scene(kCornell);
+  std::ifstream in(kCornell);
+  const auto doc = nlohmann::json::parse(in);
+  size_t quads = 0;
+  for (const auto& shape : doc["shapes"]) quads += shape["type"] == "quad";
+  EXPECT_EQ(quads, 16u);
+  EXPECT_EQ(s.triangles.size(), 2 * quads);
+
+  EXPECT_EQ(s.width, 512);
+  EXPECT_EQ(s.height, 512);
+  EXPECT_EQ(s.render.spp, 64);
+  EXPECT_EQ(s.render.max_depth, 8);
+  EXPECT_EQ(s.render.seed, 0u);
+  EXPECT_NEAR(s.camera.vfov_degrees, glm::degrees(2.0 * std::atan(12.5 / 35.0)), 1e-4);
+  EXPECT_NEAR(s.camera.vfov_degrees, 39.3077, 1e-3);
+  EXPECT_NEAR(s.camera.focus_distance, 800.0f, 1e-3);
+  EXPECT_EQ(s.camera.aperture_radius, 0.0f);
+
+  ASSERT_EQ(s.materials.size(), 4u);
+  expect_vec(material(s, "white").albedo, {0.725f, 0.71f, 0.68f}, 0.0f);
+  expect_vec(material(s, "red").albedo, {0.63f, 0.065f, 0.05f}, 0.0f);
+  expect_vec(material(s, "green").albedo, {0.14f, 0.45f, 0.091f}, 0.0f);
+  const xi::Material& light = material(s, "light");
+  EXPECT_EQ(light.type, xi::MaterialType::Diffuse);
+  expect_vec(light.emission, {17, 12, 4}, 0.0f);
+  expect_vec(light.albedo, {0.78f, 0.78f, 0.78f}, 0.0f);
+  EXPECT_FALSE(light.two_sided);
+  for (const auto& m : s.materials) EXPECT_EQ(m.is_emitter(), m.name == "light") << m.name;
+
+  // Exactly the two light triangles emit; they sit below the ceiling and face down.
+  int emitting = 0;
+  for (const auto& t : s.triangles) {
+    if (!s.materials[t.material].is_emitter()) continue;
+    ++emitting;
+    for (const auto& v : t.v) EXPECT_FLOAT_EQ(v.y, 548.7f);
+    expect_vec(glm::normalize(face_normal(t)), {0, -1, 0}, 1e-6f);
+  }
+  EXPECT_EQ(emitting, 2);
+}
+
+TEST(Scene, CornellBoxFacesPointInward) {
+  const xi::Scene s = xi::load_scene(kCornell);
+  ASSERT_EQ(s.triangles.size(), 32u);
+  // Walls, ceiling, floor and light (quads 0-5) face the box centre.
+  const glm::vec3 box_centre(278, 274, 280);
+  for (size_t i = 0; i < 12; ++i) {
+    const auto& t = s.triangles[i];
+    EXPECT_GT(glm::dot(glm::normalize(face_normal(t)), glm::normalize(box_centre - centroid(t))), 0.5f)
+        << "wall triangle " << i;
+  }
+  // Short block (quads 6-10) and tall block (quads 11-15) face away from their own centroid.
+  for (size_t first : {12u, 22u}) {
+    glm::vec3 block_centre(0.0f);
+    for (size_t i = first; i < first + 10; ++i) block_centre += centroid(s.triangles[i]) / 10.0f;
+    for (size_t i = first; i < first + 10; ++i) {
+      const auto& t = s.triangles[i];
+      EXPECT_GT(glm::dot(face_normal(t), centroid(t) - block_centre), 0.0f) << "block triangle " << i;
+    }
+  }
+  // The camera sees the front of the back wall.
+  EXPECT_LT(glm::dot(face_normal(s.triangles[6]), s.camera.look_at - s.camera.position), 0.0f);
+}
+
+TEST(Scene, SphereNormalsAreUnitAndOutward) {
+  const glm::vec3 c(1, 2, 3);
+  const float r = 2.0f;
+  const xi::Scene s = parse(scene_text(R"({"type": "sphere", "material": "white", "center": [1, 2, 3], "radius": 2})"));
+  ASSERT_EQ(s.triangles.size(), 20u * 256u);  // 20 · 4^4
+  double total = 0.0;
+  for (const auto& t : s.triangles) {
+    ASSERT_TRUE(t.has_normals);
+    for (int k = 0; k < 3; ++k) {
+      EXPECT_NEAR(glm::length(t.n[k]), 1.0f, 1e-6f);
+      expect_vec(t.n[k], (t.v[k] - c) / r, 1e-5f);  // exact sphere normal
+    }
+    ASSERT_GT(glm::dot(face_normal(t), centroid(t) - c), 0.0f);  // winding faces outward
+    total += area(t);
+  }
+  const double exact = 4.0 * M_PI * r * r;
+  EXPECT_NEAR(total / exact, 1.0, 0.01);
+  EXPECT_LT(total, exact);  // inscribed polyhedron
+
+  const xi::Scene coarse =
+      parse(scene_text(R"({"type": "sphere", "material": "white", "center": [0,0,0], "radius": 1, "subdivisions": 0})"));
+  EXPECT_EQ(coarse.triangles.size(), 20u);
+}
+
+TEST(Scene, TransformScaleRotateTranslate) {
+  // (1,0,0) → scale 2 → (2,0,0) → 90° about y → (0,0,-2) → translate → (1,2,1).
+  const xi::Scene s = parse(scene_text(R"({"type": "triangle", "material": "white",
+      "vertices": [[1,0,0], [0,1,0], [0,0,1]],
+      "transform": {"translate": [1,2,3], "scale": 2, "rotate": {"axis": [0,1,0], "degrees": 90}}})"));
+  ASSERT_EQ(s.triangles.size(), 1u);
+  expect_vec(s.triangles[0].v[0], {1, 2, 1});
+  expect_vec(s.triangles[0].v[1], {1, 4, 3});
+  expect_vec(s.triangles[0].v[2], {3, 2, 3});
+  EXPECT_FALSE(s.triangles[0].has_normals);
+
+  // The same transform as a row-major matrix.
+  const xi::Scene m = parse(scene_text(R"({"type": "triangle", "material": "white",
+      "vertices": [[1,0,0], [0,1,0], [0,0,1]],
+      "transform": {"matrix": [0,0,2,1, 0,2,0,2, -2,0,0,3, 0,0,0,1]}})"));
+  for (int k = 0; k < 3; ++k) expect_vec(m.triangles[0].v[k], s.triangles[0].v[k]);
+
+  // Per-axis scale.
+  const xi::Scene a = parse(scene_text(R"({"type": "triangle", "material": "white",
+      "vertices": [[1,1,1], [0,1,0], [0,0,1]], "transform": {"scale": [2,3,4]}})"));
+  expect_vec(a.triangles[0].v[0], {2, 3, 4});
+}
+
+TEST(Scene, TransformNormalsAndMirroring) {
+  // Non-uniform scale: normals follow the inverse transpose and stay unit length.
+  const xi::Scene s = parse(scene_text(R"({"type": "sphere", "material": "white", "center": [0,0,0], "radius": 1,
+      "subdivisions": 2, "transform": {"scale": [1, 3, 1]}})"));
+  for (const auto& t : s.triangles)
+    for (int k = 0; k < 3; ++k) {
+      EXPECT_NEAR(glm::length(t.n[k]), 1.0f, 1e-5f);
+      // Ellipsoid x² + y²/9 + z² = 1: normal ∝ (x, y/9, z).
+      expect_vec(t.n[k], glm::normalize(t.v[k] * glm::vec3(1, 1.0f / 9.0f, 1)), 1e-5f);
+    }
+  // A mirroring scale keeps the front face outward (the winding is swapped with it).
+  const xi::Scene m = parse(scene_text(R"({"type": "sphere", "material": "white", "center": [0,0,0], "radius": 1,
+      "subdivisions": 1, "transform": {"scale": [-1, 1, 1]}})"));
+  for (const auto& t : m.triangles) {
+    EXPECT_GT(glm::dot(face_normal(t), centroid(t)), 0.0f);
+    EXPECT_GT(glm::dot(t.n[0], t.v[0]), 0.0f);
+  }
+}
+
+TEST(Scene, MeshLoadsThroughAssimp) {
+  const fs::path dir = temp_dir();
+  fs::create_directories(dir / "meshes");
+  std::ofstream(dir / "meshes" / "cube.obj") << R"(# unit cube, 6 quads → 12 triangles
+v 0 0 0
+v 1 0 0
+v 1 1 0
+v 0 1 0
+v 0 0 1
+v 1 0 1
+v 1 1 1
+v 0 1 1
+f 1 4 3 2
+f 5 6 7 8
+f 1 2 6 5
+f 4 8 7 3
+f 1 5 8 4
+f 2 3 7 6
+)";
+  const xi::Scene s = parse(scene_text(R"({"type": "mesh", "material": "white", "file": "meshes/cube.obj"})"), dir);
+  ASSERT_EQ(s.triangles.size(), 12u);
+  float total = 0.0f;
+  glm::vec3 lo(1e9f), hi(-1e9f);
+  for (const auto& t : s.triangles) {
+    EXPECT_FALSE(t.has_normals);  // the file has no vn lines
+    EXPECT_GT(glm::dot(face_normal(t), centroid(t) - glm::vec3(0.5f)), 0.0f);  // faces listed outward
+    total += area(t);
+    for (const auto& v : t.v) lo = glm::min(lo, v), hi = glm::max(hi, v);
+  }
+  EXPECT_NEAR(total, 6.0f, 1e-5f);
+  expect_vec(lo, {0, 0, 0}, 0.0f);
+  expect_vec(hi, {1, 1, 1}, 0.0f);
+
+  // With a transform, and through load_scene so the path is relative to the scene file.
+  std::ofstream(dir / "scene.json")
+      << scene_text(R"({"type": "mesh", "material": "white", "file": "meshes/cube.obj", "transform": {"scale": 2}})");
+  const xi::Scene big = xi::load_scene(dir / "scene.json");
+  total = 0.0f;
+  for (const auto& t : big.triangles) total += area(t);
+  EXPECT_NEAR(total, 24.0f, 1e-4f);
+
+  // Vertex normals in the file are kept.
+  std::ofstream(dir / "tri.obj") << "v 0 0 0\nv 1 0 0\nv 0 1 0\nvn 0 0 1\nf 1//1 2//1 3//1\n";
+  const xi::Scene n = parse(scene_text(R"({"type": "mesh", "material": "white", "file": "tri.obj"})"), dir);
+  ASSERT_EQ(n.triangles.size(), 1u);
+  EXPECT_TRUE(n.triangles[0].has_normals);
+  expect_vec(n.triangles[0].n[0], {0, 0, 1}, 0.0f);
+  fs::remove_all(dir);
+}
+
+TEST(Scene, DefaultsAndOptionalFields) {
+  const xi::Scene s = parse("{" + kCamera + R"(, "materials": {
+      "white": {"type": "diffuse", "albedo": [0.5, 0.5, 0.5], "radiance": [1, 2, 3], "two_sided": true},
+      "m": {"type": "mirror"}, "g": {"type": "glass", "ior": 1.33},
+      "e": {"type": "emitter", "radiance": [4, 5, 6]}},
+      "shapes": [)" + kQuad + "]}");
+  EXPECT_EQ(s.width, 512);
+  EXPECT_EQ(s.height, 512);
+  EXPECT_EQ(s.render.sampler, "sobol");
+  EXPECT_EQ(s.camera.vfov_degrees, 40.0f);
+  EXPECT_FLOAT_EQ(s.camera.focus_distance, 5.0f);
+  expect_vec(s.background, {0, 0, 0}, 0.0f);
+  EXPECT_EQ(material(s, "m").type, xi::MaterialType::Mirror);
+  expect_vec(material(s, "m").albedo, {1, 1, 1}, 0.0f);
+  EXPECT_EQ(material(s, "g").type, xi::MaterialType::Dielectric);
+  EXPECT_FLOAT_EQ(material(s, "g").ior, 1.33f);
+  expect_vec(material(s, "e").albedo, {0, 0, 0}, 0.0f);
+  expect_vec(material(s, "e").emission, {4, 5, 6}, 0.0f);
+  EXPECT_TRUE(material(s, "white").two_sided);
+  expect_vec(material(s, "white").emission, {1, 2, 3}, 0.0f);
+  // Triangles point at their material by index.
+  EXPECT_EQ(s.materials[s.triangles[0].material].name, "white");
+  // Quad split: v0 v1 v2 and v0 v2 v3, winding kept.
+  expect_vec(s.triangles[1].v[2], {0, 1, 0}, 0.0f);
+  expect_vec(glm::normalize(face_normal(s.triangles[0])), {0, 0, 1}, 0.0f);
+  expect_vec(glm::normalize(face_normal(s.triangles[1])), {0, 0, 1}, 0.0f);
+}
+
+TEST(SceneErrors, MalformedJson) {
+  expect_parse_error(R"({"camera": {"position": [0, 0,, 0]}})", "line 1, column 31");
+  expect_parse_error(R"({"camera": {"position": [0, 0,, 0]}})", "test.json: byte 31");
+  expect_parse_error(R"({"camera": )", "test.json");
+}
+
+TEST(SceneErrors, MissingFile) {
+  expect_error([] { xi::load_scene("/nonexistent/dir/no-such-scene.json"); }, "no-such-scene.json");
+}
+
+TEST(SceneErrors, MissingMeshFile) {
+  expect_parse_error(scene_text(R"({"type": "mesh", "material": "white", "file": "missing-mesh.obj"})"),
+                     "missing-mesh.obj");
+  expect_parse_error(scene_text(R"({"type": "mesh", "material": "white", "file": "missing-mesh.obj"})"),
+                     "test.json: /shapes/0/file");
+}
+
+TEST(SceneErrors, AssimpFailure) {
+  const fs::path dir = temp_dir();
+  std::ofstream(dir / "garbage.obj") << "this is not\x01 a mesh {{{\n";
+  std::ofstream(dir / "empty.obj") << "# no faces\nv 0 0 0\n";
+  expect_error([&] { parse(scene_text(R"({"type": "mesh", "material": "white", "file": "empty.obj"})"), dir); },
+               "/shapes/0/file");
+  expect_error([&] { parse(scene_text(R"({"type": "mesh", "material": "white", "file": "garbage.obj"})"), dir); },
+               "/shapes/0/file");
+  fs::remove_all(dir);
+}
+
+TEST(SceneErrors, UnknownMaterial) {
+  expect_parse_error(scene_text(kQuad + R"(, {"type": "quad", "material": "whte",
+      "vertices": [[0,0,0], [1,0,0], [1,1,0], [0,1,0]]})"), "unknown material 'whte' (test.json: /shapes/1/material)");
+}
+
+TEST(SceneErrors, UnknownKey) {
+  expect_parse_error(scene_text(kQuad, R"("materials": {"white": {"type": "diffuse", "albdeo": [0.5, 0.5, 0.5]}})"),
+                     "/materials/white/albdeo");
+  EXPECT_NO_THROW(parse(scene_text(kQuad)));  // the base scene itself is fine
+  expect_parse_error("{\"films\": {}, " + scene_text(kQuad).substr(1), "unknown key 'films' (test.json: /films)");
+  expect_parse_error(scene_text(R"({"type": "quad", "material": "white", "vertices": [[0,0,0], [1,0,0], [1,1,0], [0,1,0]],
+      "transform": {"rotate": {"axis": [0,1,0], "degree": 90}}})"), "/shapes/0/transform/rotate/degree");
+}
+
+TEST(SceneErrors, HugeNumber) {
+  expect_parse_error(scene_text(kQuad, R"("materials": {"white": {"type": "diffuse", "albedo": [0.5, 1e999, 0.5]}})"),
+                     "test.json: /materials/white/albedo/1");
+  expect_parse_error(scene_text(kQuad, R"("materials": {"white": {"type": "diffuse", "albedo": [0.5, 0.5, 0.5],
+      "radiance": [-1e999, 0, 0]}})"), "test.json: /materials/white/radiance/0");
+  expect_parse_error(scene_text(kQuad + R"(, {"type": "sphere", "material": "white", "center": [0, 0, 0], "radius": 1e999})"),
+                     "test.json: /shapes/1/radius");
+  expect_parse_error(scene_text(R"({"type": "triangle", "material": "white", "vertices": [[0,0,0], [1,1e999,0], [0,1,0]]})"),
+                     "test.json: /shapes/0/vertices/1/1");
+  // Finite as a double, infinite as a float.
+  expect_parse_error(scene_text(R"({"type": "triangle", "material": "white", "vertices": [[0,0,0], [1e300,0,0], [0,1,0]]})"),
+                     "/shapes/0/vertices/1/0");
+}
+
+TEST(SceneErrors, WrongType) {
+  expect_parse_error(scene_text(kQuad, R"("materials": {"white": {"type": "diffuse", "albedo": [0.5, "0.5", 0.5]}})"),
+                     "expected a number (test.json: /materials/white/albedo/1)");
+  expect_parse_error(scene_text(kQuad).replace(1, 0, R"("film": {"width": 512.5}, )"), "/film/width");
+}
+
+TEST(SceneErrors, AlbedoAboveOne) {
+  expect_parse_error(scene_text(kQuad, R"("materials": {"white": {"type": "diffuse", "albedo": [0.5, 0.5, 1.2]}})"),
+                     "/materials/white/albedo/2");
+}
+
+TEST(SceneErrors, EmptyShapes) {
+  expect_parse_error(scene_text(""), "test.json: /shapes");
+}
+
+TEST(SceneErrors, ZeroAreaQuad) {
+  expect_parse_error(scene_text(kQuad + R"(, {"type": "quad", "material": "white",
+      "vertices": [[0,0,0], [1,1,1], [2,2,2], [3,3,3]]})"), "/shapes/1/vertices");
+  // Non-zero area overall, but the second triangle (v0 v2 v3) is degenerate.
+  expect_parse_error(scene_text(R"({"type": "quad", "material": "white",
+      "vertices": [[0,0,0], [1,0,0], [1,1,0], [0.5,0.5,0]]})"), "/shapes/0/vertices");
+}
+
+TEST(SceneErrors, FovOutOfRange) {
+  const std::string cam = R"("camera": {"position": [0,0,-5], "look_at": [0,0,0], "up": [0,1,0], "fov": 180})";
+  expect_parse_error(scene_text(kQuad, kMaterials, cam), "/camera/fov");
+}
+
+TEST(SceneErrors, BadCameraAndTransform) {
+  expect_parse_error(scene_text(kQuad, kMaterials,
+      R"("camera": {"position": [0,0,-5], "look_at": [0,0,0], "up": [0,0,2], "fov": 40})"), "/camera/up");
+  expect_parse_error(scene_text(kQuad, kMaterials,
+      R"("camera": {"position": [0,0,0], "look_at": [0,0,0], "up": [0,1,0], "fov": 40})"), "/camera/look_at");
+  expect_parse_error(scene_text(kQuad, kMaterials,
+      R"("camera": {"position": [0,0,-5], "look_at": [0,0,0], "up": [0,1,0]})"), "/camera");
+  expect_parse_error(scene_text(R"({"type": "quad", "material": "white", "vertices": [[0,0,0], [1,0,0], [1,1,0], [0,1,0]],
+      "transform": {"scale": [1, 0, 1]}})"), "/shapes/0/transform");
+  expect_parse_error(scene_text(R"({"type": "quad", "material": "white", "vertices": [[0,0,0], [1,0,0], [1,1,0], [0,1,0]],
+      "transform": {"matrix": [1,0,0,0, 0,1,0,0, 0,0,1,0, 5,0,0,1]}})"), "/shapes/0/transform/matrix");
+  expect_parse_error(scene_text(kQuad, R"("materials": {"white": {"type": "glass", "ior": 0.5}})"),
+                     "/materials/white/ior");
+  expect_parse_error(scene_text(kQuad).replace(1, 0, R"("render": {"sampler": "halton"}, )"), "/render/sampler");
+  expect_parse_error(scene_text(kQuad).replace(1, 0, R"("render": {"seed": 4294967296}, )"), "/render/seed");
+}
