@@ -21,5 +21,7 @@ class Args {
 
 int render(const std::vector<std::string>& args);
 int devices(const std::vector<std::string>& args);
+int warp(const std::vector<std::string>& args);
+int diff(const std::vector<std::string>& args);
 
 }  // namespace xi::cli

@@ -84,6 +84,18 @@ static const char* kUsage =
     "      --profile             print a per-stage timing table\n"
     "      --quiet               no progress bar and no summary\n"
     "  devices               list OpenCL platforms and devices\n"
+    "  warp                  draw a sample set warped by a map (as PNG) or write it as CSV\n"
+    "      --map NAME            square | sphere | hemisphere | cosine-hemisphere | disc |\n"
+    "                            concentric-disc | triangle | disc-naive\n"
+    "      --sampler NAME        random | grid | stratified | sobol (default stratified)\n"
+    "      -n N                  number of points (default 1024)\n"
+    "      --seed S              random seed\n"
+    "      -o FILE.png|FILE.csv  output: a picture, or one x,y,z line per point\n"
+    "  diff IMAGE.exr REFERENCE.exr   error of an image against a reference\n"
+    "      --metric NAME         mse | rmse | relmse | mae | mrse (default: all)\n"
+    "      --crop x0,y0,x1,y1    only pixels x0 <= x < x1, y0 <= y < y1\n"
+    "      --heatmap OUT.png     write the per-pixel error in false colour\n"
+    "      --layer NAME          compare an EXR layer (e.g. variance) instead of RGB\n"
     "  help                  this text\n";
 
 int main(int argc, char** argv) {
@@ -97,6 +109,8 @@ int main(int argc, char** argv) {
   try {
     if (command == "render") return xi::cli::render(args);
     if (command == "devices") return xi::cli::devices(args);
+    if (command == "warp") return xi::cli::warp(args);
+    if (command == "diff") return xi::cli::diff(args);
     throw xi::Error("unknown command '" + command + "'", "xi help lists the commands");
   } catch (const xi::Error& e) {
     std::fprintf(stderr, "xi: error: %s\n", e.what());

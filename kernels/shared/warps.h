@@ -112,6 +112,47 @@ static inline float2 xi_triangle_to_square(float2 b) {
                      su > 0.0f ? clamp(b.y / su, 0.0f, XI_ONE_MINUS_EPSILON) : 0.0f);
 }
 
+// Every warp by number, for tools and tests (`xi warp`, the χ² tests): 2D maps return z = 0.
+#define XI_MAP_SQUARE 0
+#define XI_MAP_SPHERE 1
+#define XI_MAP_HEMISPHERE 2
+#define XI_MAP_COSINE_HEMISPHERE 3
+#define XI_MAP_DISC 4
+#define XI_MAP_CONCENTRIC_DISC 5
+#define XI_MAP_TRIANGLE 6
+#define XI_MAP_DISC_NAIVE 7  // the lecture's wrong r = ξ₁, for the test that the χ² test can fail
+
+static inline float3 xi_warp(int map, float2 u) {
+  float2 d;
+  switch (map) {
+    case XI_MAP_SPHERE: return xi_square_to_sphere(u);
+    case XI_MAP_HEMISPHERE: return xi_square_to_hemisphere(u);
+    case XI_MAP_COSINE_HEMISPHERE: return xi_square_to_cosine_hemisphere(u);
+    case XI_MAP_DISC: d = xi_square_to_disc(u); break;
+    case XI_MAP_CONCENTRIC_DISC: d = xi_square_to_concentric_disc(u); break;
+    case XI_MAP_TRIANGLE: d = xi_square_to_triangle(u); break;
+    case XI_MAP_DISC_NAIVE: d = xi_square_to_disc_naive(u); break;
+    default: d = u; break;
+  }
+  return make_float3(d.x, d.y, 0.0f);
+}
+
+// The density of xi_warp(map, ·) at p, with respect to area (2D maps; the triangle map returns
+// barycentrics, a point of the half unit square) or solid angle (sphere and hemispheres). The naive
+// disc deliberately claims the uniform disc's pdf.
+static inline float xi_warp_pdf(int map, float3 p) {
+  switch (map) {
+    case XI_MAP_SPHERE: return xi_sphere_pdf();
+    case XI_MAP_HEMISPHERE: return xi_hemisphere_pdf(p);
+    case XI_MAP_COSINE_HEMISPHERE: return xi_cosine_hemisphere_pdf(p);
+    case XI_MAP_DISC:
+    case XI_MAP_CONCENTRIC_DISC:
+    case XI_MAP_DISC_NAIVE: return xi_disc_pdf(make_float2(p.x, p.y));
+    case XI_MAP_TRIANGLE: return p.x >= 0.0f && p.y >= 0.0f && p.x + p.y <= 1.0f ? 2.0f : 0.0f;
+    default: return p.x >= 0.0f && p.x < 1.0f && p.y >= 0.0f && p.y < 1.0f ? 1.0f : 0.0f;
+  }
+}
+
 // An orthonormal basis around a unit normal (Duff et al. 2017, branchless).
 static inline void xi_basis(float3 n, float3* t, float3* b) {
   float s = n.z >= 0.0f ? 1.0f : -1.0f;
