@@ -46,6 +46,7 @@ struct CompiledScene {
   std::vector<float> tri_light_pdf;    // per triangle: P(pick it) / its area, 0 if not emissive
   float light_power = 0.0f;            // total emitted power (luminance), for reports
   CameraData camera{};
+  glm::vec4 background{0.0f};          // radiance of escaped rays
   Features features;
 };
 

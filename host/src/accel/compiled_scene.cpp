@@ -130,6 +130,7 @@ CompiledScene compile_scene(const Scene& scene) {
   cs.camera.width = (uint32_t)scene.width;
   cs.camera.height = (uint32_t)scene.height;
   cs.features.lens = c.aperture_radius > 0.0f;
+  cs.background = glm::vec4(scene.background, 0.0f);
   return cs;
 }
 

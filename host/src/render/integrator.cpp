@@ -86,7 +86,6 @@ void Renderer::run_pass() {
   cl::CommandQueue& q = device_.queue();
   const uint32_t sample = (uint32_t)passes_;
   SamplerParams sp = xi_make_sampler_params(options_.seed, (uint32_t)options_.spp);
-  const glm::vec4 background(0.0f);
   for (size_t first = 0; first < pixels_; first += wave_) {
     const uint32_t count = (uint32_t)std::min(wave_, pixels_ - first);
     int arg = bind_path_state(generate_);
@@ -130,7 +129,7 @@ void Renderer::run_pass() {
       shade_.setArg(arg++, (uint32_t)first);
       shade_.setArg(arg++, sample);
       shade_.setArg(arg++, (uint32_t)options_.max_depth);
-      shade_.setArg(arg++, background);
+      shade_.setArg(arg++, scene_.background);
       launch(shade_, "shade", bounce, rays);
 
       uint32_t counts[2];
