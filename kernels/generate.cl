@@ -29,5 +29,7 @@ __kernel void generate(XI_PATH_PARAMS __global uint* restrict queue, CameraData 
   throughput[slot] = (float4)(1.0f, 1.0f, 1.0f, 0.0f);
   radiance[slot] = (float4)(0.0f);
   depth[slot] = 0u;
+  aov_albedo[slot] = (float4)(0.0f);
+  aov_normal[slot] = (float4)(0.0f);
   queue[slot] = slot;
 }

@@ -84,6 +84,11 @@ __kernel void shade(XI_PATH_PARAMS __global const uint* restrict queue_in, uint 
   }
 #endif
 
+  if (d == 0u) {
+    aov_albedo[slot] = (float4)(m.albedo.xyz, 0.0f);
+    aov_normal[slot] = (float4)(n, 0.0f);
+  }
+
   float3 wi;
   float pdf = 0.0f;  // stays 0 for specular lobes
   bool transmitted = false;

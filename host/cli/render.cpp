@@ -5,10 +5,13 @@
 #include <cmath>
 #include <cstdio>
 #include <map>
+#include <optional>
 
 #include "cli.h"
 #include "xi/error.h"
 #include "xi/image.h"
+#include "xi/metrics.h"
+#include "xi/profile.h"
 #include "xi/render.h"
 
 namespace xi::cli {
@@ -52,40 +55,12 @@ void draw_progress(int done, int total, double msps, double elapsed) {
   std::fflush(stderr);
 }
 
-void print_profile(const std::vector<Launch>& launches, double frame_seconds) {
-  struct Row {
-    size_t launches = 0, items = 0;
-    uint64_t ns = 0;
-  };
-  const char* order[] = {"generate", "extend", "shade", "shadow", "accumulate"};
-  std::map<std::string, Row> rows;
-  uint64_t total_ns = 0;
-  for (auto& l : launches) {
-    Row& r = rows[l.stage];
-    r.launches++;
-    r.items += l.items;
-    r.ns += l.end_ns - l.start_ns;
-    total_ns += l.end_ns - l.start_ns;
-  }
-  std::printf("%-11s %9s %11s %8s %14s\n", "stage", "launches", "total ms", "share", "Mitems/s");
-  for (const char* name : order) {
-    auto it = rows.find(name);
-    if (it == rows.end()) continue;
-    const Row& r = it->second;
-    std::printf("%-11s %9zu %11.1f %7.1f%% %14.2f\n", name, r.launches, r.ns * 1e-6,
-                100.0 * r.ns / (frame_seconds * 1e9), r.ns ? r.items / (r.ns * 1e-3) : 0.0);
-  }
-  std::printf("%-11s %9s %11.1f %7.1f%%\n", "kernels", "", total_ns * 1e-6, 100.0 * total_ns / (frame_seconds * 1e9));
-  std::printf("%-11s %9s %11.1f %7.1f%%\n", "host+other", "", frame_seconds * 1e3 - total_ns * 1e-6,
-              100.0 - 100.0 * total_ns / (frame_seconds * 1e9));
-}
-
 }  // namespace
 
 int render(const std::vector<std::string>& argv) {
   Args args(argv,
             {"-o", "--spp", "--seed", "--device", "--max-depth", "--resolution", "--sampler", "--strategy",
-             "--local-size"},
+             "--local-size", "--reference", "--convergence", "--trace"},
             {"--profile", "--quiet", "--all-features"});
   if (args.positional().size() > 1) throw Error("expected at most one scene file", args.positional()[1]);
   std::filesystem::path scene_path = args.positional().empty() ? default_scene() : std::filesystem::path(args.positional()[0]);
@@ -105,6 +80,16 @@ int render(const std::vector<std::string>& argv) {
   if (out.extension() != ".exr") throw Error("the output must be an .exr file", "-o " + out.string());
   auto out_dir = out.has_parent_path() ? out.parent_path() : std::filesystem::path(".");
   if (!std::filesystem::is_directory(out_dir)) throw Error("output folder does not exist", out_dir.string());
+  // Error tracking against a reference, after every pass.
+  std::optional<Image> reference;
+  if (args.has("--reference")) {
+    reference = read_exr(args.get("--reference"));
+    if (reference->width != scene.width || reference->height != scene.height)
+      throw Error("reference is " + std::to_string(reference->width) + "x" + std::to_string(reference->height) +
+                      " but the render is " + std::to_string(scene.width) + "x" + std::to_string(scene.height),
+                  "--reference " + args.get("--reference"));
+  }
+  if (args.has("--convergence") && !reference) throw Error("--convergence needs --reference", "--convergence");
   const bool quiet = args.has("--quiet");
   const bool progress = !quiet && isatty(STDERR_FILENO);
 
@@ -124,18 +109,39 @@ int render(const std::vector<std::string>& argv) {
     std::fflush(stdout);
   }
 
-  auto start = std::chrono::steady_clock::now();
+  // The convergence log: one row per pass; the time spent measuring the error is not counted.
+  std::string csv;
+  if (reference) {
+    csv = "pass,spp,seconds";
+    for (Metric m : all_metrics()) csv += std::string(",") + metric_name(m);
+    csv += "\n";
+  }
+  std::map<std::string, double> last_error;
+
   const double samples_per_pass = (double)scene.width * scene.height;
   double seconds = 0.0;
   for (int pass = 0; pass < opt.spp; ++pass) {
+    auto t0 = std::chrono::steady_clock::now();
     renderer.run_pass();
-    seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+    seconds += std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+    if (reference && (args.has("--convergence") || pass + 1 == opt.spp)) {
+      Image now = renderer.mean();
+      char row[64];
+      std::snprintf(row, sizeof row, "%d,%d,%.6f", pass, pass + 1, seconds);
+      csv += row;
+      for (Metric m : all_metrics()) {
+        double e = image_metric(now, *reference, m);
+        last_error[metric_name(m)] = e;
+        std::snprintf(row, sizeof row, ",%.9g", e);
+        csv += row;
+      }
+      csv += "\n";
+    }
     if (progress) draw_progress(pass + 1, opt.spp, samples_per_pass * (pass + 1) / seconds * 1e-6, seconds);
   }
   if (progress) std::fputs("\n", stderr);
 
-  Image image = renderer.mean();
-  Image variance = renderer.variance_of_mean();
+  Renderer::Film film = renderer.film();
   ExrAttributes attrs{{"spp", opt.spp},
                       {"renderSeconds", seconds},
                       {"seed", (int)opt.seed},
@@ -144,10 +150,19 @@ int render(const std::vector<std::string>& argv) {
                       {"sampler", std::string(sampler_name(opt.sampler))},
                       {"strategy", std::string(strategy_name(opt.strategy))},
                       {"maxDepth", opt.max_depth}};
-  write_exr(out, {{"", &image}, {"variance", &variance}}, attrs);
+  for (auto& [name, value] : last_error) attrs["error." + name] = value;
+  write_exr(out, {{"", &film.mean}, {"variance", &film.variance}, {"albedo", &film.albedo}, {"normal", &film.normal}},
+            attrs);
   auto png = out;
   png.replace_extension(".png");
-  write_png(png, image);
+  write_png(png, film.mean);
+  if (args.has("--convergence")) {
+    write_atomically(args.get("--convergence"), [&](const std::filesystem::path& tmp) {
+      std::FILE* f = std::fopen(tmp.c_str(), "w");
+      if (!f || std::fputs(csv.c_str(), f) < 0 || std::fclose(f) != 0) throw Error("cannot write file", tmp.string());
+    });
+  }
+  if (args.has("--trace")) write_chrome_trace(args.get("--trace"), renderer.launches());
 
   if (uint32_t bad = renderer.nonfinite_samples())
     std::fprintf(stderr, "xi: warning: %u non-finite samples were dropped\n", bad);
@@ -156,7 +171,8 @@ int render(const std::vector<std::string>& argv) {
     std::printf("%dx%d, %d spp, %.2f s, %.2f Msamples/s, %.2f Mrays/s\n", scene.width, scene.height, opt.spp, seconds,
                 samples_per_pass * opt.spp / seconds * 1e-6, rays / seconds * 1e-6);
     std::printf("wrote %s and %s\n", out.string().c_str(), png.string().c_str());
-    if (args.has("--profile")) print_profile(renderer.launches(), seconds);
+    if (reference) std::printf("error vs reference: rmse %.6g, relmse %.6g\n", last_error["rmse"], last_error["relmse"]);
+    if (args.has("--profile")) print_profile(stdout, renderer.launches(), seconds);
   }
   return 0;
 }

@@ -41,7 +41,9 @@ typedef struct {
   F(float4, hit)        /* t (< 0: miss), barycentric u, v, as_float(tri) */ \
   F(float4, throughput) /* rgb; w: solid-angle pdf of the last BSDF sample, 0 if specular */ \
   F(float4, radiance)   /* rgb gathered so far */                           \
-  F(uint, depth)        /* bounces so far */
+  F(uint, depth)        /* bounces so far */                              \
+  F(float4, aov_albedo) /* rgb: reflectance at the first hit (for denoisers) */ \
+  F(float4, aov_normal) /* xyz: shading normal at the first hit, facing the camera */
 
 // Shadow rays queued by shade, traced by shadow. Compact: item i lives at index i.
 #define XI_SHADOW_STATE(F)                                  \

@@ -42,8 +42,13 @@ class Renderer {
   void run_pass();
   int passes_done() const { return passes_; }
 
-  Image mean() const;              // film sums / sample count
-  Image variance_of_mean() const;  // per-pixel sample variance / sample count
+  // The film resolved to images: per pixel, the mean radiance, the variance of that mean (sample
+  // variance / sample count), and the mean first-hit albedo and normal.
+  struct Film {
+    Image mean, variance, albedo, normal;
+  };
+  Film film() const;
+  Image mean() const;  // the first of the above, for cheap per-pass error tracking
   uint32_t nonfinite_samples() const;
 
   const std::vector<Launch>& launches() const { return launches_; }
@@ -54,10 +59,18 @@ class Renderer {
   uint64_t shadow_rays() const { return shadow_rays_; }
 
  private:
+  // The stages: each binds its kernel's arguments and launches it (through launch(), which times it).
+  void generate(uint32_t first, uint32_t count);
+  void extend(const cl::Buffer& queue, uint32_t count, int bounce);
+  void shade(const cl::Buffer& queue_in, uint32_t count, const cl::Buffer& queue_out, uint32_t first, int bounce);
+  void shadow(uint32_t count, int bounce);
+  void accumulate(uint32_t first, uint32_t count);
+  void warm_up();
   void launch(cl::Kernel& kernel, const char* stage, int bounce, size_t items);
+  SamplerParams sampler_params() const;
   int bind_path_state(cl::Kernel& kernel);               // returns the next argument index
   int bind_shadow_state(cl::Kernel& kernel, int arg);
-  void read_film(std::vector<glm::vec4>* sum, std::vector<glm::vec4>* sum_sq) const;
+  std::vector<glm::vec4> read(const cl::Buffer& film) const;
 
   Device& device_;
   RenderOptions options_;
@@ -77,7 +90,7 @@ class Renderer {
   cl::Buffer queue_a_, queue_b_, counters_;
   cl::Buffer nodes_, tri_verts_, tri_normals_, tri_material_, materials_;
   cl::Buffer light_cdf_, light_tri_, tri_light_pdf_;
-  cl::Buffer film_sum_, film_sum_sq_;
+  cl::Buffer film_sum_, film_sum_sq_, film_albedo_, film_normal_;
 };
 
 }  // namespace xi

@@ -1,4 +1,5 @@
 #include <algorithm>
+#include <chrono>
 
 #include "xi/error.h"
 #include "xi/render.h"
@@ -50,11 +51,16 @@ Renderer::Renderer(Device& device, const Scene& scene, const RenderOptions& opti
   tri_light_pdf_ = upload(ctx, scene_.tri_light_pdf);
   film_sum_ = cl::Buffer(ctx, CL_MEM_READ_WRITE, sizeof(glm::vec4) * pixels_);
   film_sum_sq_ = cl::Buffer(ctx, CL_MEM_READ_WRITE, sizeof(glm::vec4) * pixels_);
+  film_albedo_ = cl::Buffer(ctx, CL_MEM_READ_WRITE, sizeof(glm::vec4) * pixels_);
+  film_normal_ = cl::Buffer(ctx, CL_MEM_READ_WRITE, sizeof(glm::vec4) * pixels_);
   cl::CommandQueue& q = device.queue();
-  q.enqueueFillBuffer(film_sum_, 0.0f, 0, sizeof(glm::vec4) * pixels_);
-  q.enqueueFillBuffer(film_sum_sq_, 0.0f, 0, sizeof(glm::vec4) * pixels_);
+  for (cl::Buffer* b : {&film_sum_, &film_sum_sq_, &film_albedo_, &film_normal_})
+    q.enqueueFillBuffer(*b, 0.0f, 0, sizeof(glm::vec4) * pixels_);
   q.enqueueFillBuffer(counters_, 0u, 0, sizeof(uint32_t) * XI_COUNTER_COUNT);
   q.finish();
+  auto start = std::chrono::steady_clock::now();
+  warm_up();
+  program_.build_seconds += std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
 }
 
 int Renderer::bind_path_state(cl::Kernel& kernel) {
@@ -72,122 +78,153 @@ int Renderer::bind_shadow_state(cl::Kernel& kernel, int arg) {
 
 void Renderer::launch(cl::Kernel& kernel, const char* stage, int bounce, size_t items) {
   size_t local = options_.local_size;
-  size_t global = local ? (items + local - 1) / local * local : items;
+  // Zero items still launches one group (the kernels return at once): used to warm up the driver.
+  size_t global = std::max<size_t>(local ? (items + local - 1) / local * local : items, local ? local : 1);
   cl::Event event;
   device_.queue().enqueueNDRangeKernel(kernel, cl::NullRange, cl::NDRange(global),
                                        local ? cl::NDRange(local) : cl::NullRange, nullptr, &event);
-  event.wait();  // keeps the timings per stage honest; the queue would serialise them anyway
-  launches_.push_back(Launch{stage, passes_, bounce, items,
-                             event.getProfilingInfo<CL_PROFILING_COMMAND_START>(),
-                             event.getProfilingInfo<CL_PROFILING_COMMAND_END>()});
+  event.wait();  // keeps the timings per stage honest; the in-order queue serialises them anyway
+  if (items > 0)
+    launches_.push_back(Launch{stage, passes_, bounce, items, event.getProfilingInfo<CL_PROFILING_COMMAND_START>(),
+                               event.getProfilingInfo<CL_PROFILING_COMMAND_END>()});
 }
 
+// Each stage's arguments in the order its kernel declares them.
+
+void Renderer::generate(uint32_t first, uint32_t count) {
+  int arg = bind_path_state(generate_);
+  generate_.setArg(arg++, queue_a_);
+  generate_.setArg(arg++, scene_.camera);
+  generate_.setArg(arg++, sampler_params());
+  generate_.setArg(arg++, first);
+  generate_.setArg(arg++, count);
+  generate_.setArg(arg++, (uint32_t)passes_);
+  launch(generate_, "generate", -1, count);
+}
+
+void Renderer::extend(const cl::Buffer& queue, uint32_t count, int bounce) {
+  int arg = bind_path_state(extend_);
+  extend_.setArg(arg++, queue);
+  extend_.setArg(arg++, count);
+  extend_.setArg(arg++, nodes_);
+  extend_.setArg(arg++, tri_verts_);
+  launch(extend_, "extend", bounce, count);
+  extend_rays_ += count;
+}
+
+void Renderer::shade(const cl::Buffer& queue_in, uint32_t count, const cl::Buffer& queue_out, uint32_t first,
+                     int bounce) {
+  static const uint32_t zeros[2] = {0, 0};  // the output queue and the shadow queue start empty
+  device_.queue().enqueueWriteBuffer(counters_, CL_TRUE, sizeof(uint32_t) * XI_COUNTER_RAYS_OUT, sizeof zeros, zeros);
+  int arg = bind_path_state(shade_);
+  shade_.setArg(arg++, queue_in);
+  shade_.setArg(arg++, count);
+  shade_.setArg(arg++, queue_out);
+  arg = bind_shadow_state(shade_, arg);
+  shade_.setArg(arg++, counters_);
+  shade_.setArg(arg++, materials_);
+  shade_.setArg(arg++, tri_verts_);
+  shade_.setArg(arg++, tri_material_);
+  shade_.setArg(arg++, tri_normals_);
+  shade_.setArg(arg++, light_cdf_);
+  shade_.setArg(arg++, light_tri_);
+  shade_.setArg(arg++, tri_light_pdf_);
+  shade_.setArg(arg++, scene_.features.emitters ? (uint32_t)scene_.light_tri.size() : 0u);
+  shade_.setArg(arg++, sampler_params());
+  shade_.setArg(arg++, first);
+  shade_.setArg(arg++, (uint32_t)passes_);
+  shade_.setArg(arg++, (uint32_t)options_.max_depth);
+  shade_.setArg(arg++, scene_.background);
+  launch(shade_, "shade", bounce, count);
+}
+
+void Renderer::shadow(uint32_t count, int bounce) {
+  int arg = bind_shadow_state(shadow_, bind_path_state(shadow_));
+  shadow_.setArg(arg++, count);
+  shadow_.setArg(arg++, nodes_);
+  shadow_.setArg(arg++, tri_verts_);
+  launch(shadow_, "shadow", bounce, count);
+  shadow_rays_ += count;
+}
+
+void Renderer::accumulate(uint32_t first, uint32_t count) {
+  int arg = bind_path_state(accumulate_);
+  accumulate_.setArg(arg++, film_sum_);
+  accumulate_.setArg(arg++, film_sum_sq_);
+  accumulate_.setArg(arg++, film_albedo_);
+  accumulate_.setArg(arg++, film_normal_);
+  accumulate_.setArg(arg++, counters_);
+  accumulate_.setArg(arg++, first);
+  accumulate_.setArg(arg++, count);
+  launch(accumulate_, "accumulate", -1, count);
+}
+
+SamplerParams Renderer::sampler_params() const {
+  return xi_make_sampler_params(options_.seed, (uint32_t)options_.spp);
+}
+
+// The wavefront: generate; extend, shade and shadow until no path is left; accumulate.
 void Renderer::run_pass() {
-  cl::CommandQueue& q = device_.queue();
-  const uint32_t sample = (uint32_t)passes_;
-  SamplerParams sp = xi_make_sampler_params(options_.seed, (uint32_t)options_.spp);
   for (size_t first = 0; first < pixels_; first += wave_) {
     const uint32_t count = (uint32_t)std::min(wave_, pixels_ - first);
-    int arg = bind_path_state(generate_);
-    generate_.setArg(arg++, queue_a_);
-    generate_.setArg(arg++, scene_.camera);
-    generate_.setArg(arg++, sp);
-    generate_.setArg(arg++, (uint32_t)first);
-    generate_.setArg(arg++, count);
-    generate_.setArg(arg++, sample);
-    launch(generate_, "generate", -1, count);
-
-    cl::Buffer* in = &queue_a_;
-    cl::Buffer* out = &queue_b_;
+    generate((uint32_t)first, count);
+    const cl::Buffer* in = &queue_a_;
+    const cl::Buffer* out = &queue_b_;
     uint32_t rays = count;
     for (int bounce = 0; rays > 0; ++bounce) {
-      arg = bind_path_state(extend_);
-      extend_.setArg(arg++, *in);
-      extend_.setArg(arg++, rays);
-      extend_.setArg(arg++, nodes_);
-      extend_.setArg(arg++, tri_verts_);
-      launch(extend_, "extend", bounce, rays);
-      extend_rays_ += rays;
-
-      static const uint32_t zeros[2] = {0, 0};
-      q.enqueueWriteBuffer(counters_, CL_TRUE, sizeof(uint32_t) * XI_COUNTER_RAYS_OUT, sizeof zeros, zeros);
-      arg = bind_path_state(shade_);
-      shade_.setArg(arg++, *in);
-      shade_.setArg(arg++, rays);
-      shade_.setArg(arg++, *out);
-      arg = bind_shadow_state(shade_, arg);
-      shade_.setArg(arg++, counters_);
-      shade_.setArg(arg++, materials_);
-      shade_.setArg(arg++, tri_verts_);
-      shade_.setArg(arg++, tri_material_);
-      shade_.setArg(arg++, tri_normals_);
-      shade_.setArg(arg++, light_cdf_);
-      shade_.setArg(arg++, light_tri_);
-      shade_.setArg(arg++, tri_light_pdf_);
-      shade_.setArg(arg++, scene_.features.emitters ? (uint32_t)scene_.light_tri.size() : 0u);
-      shade_.setArg(arg++, sp);
-      shade_.setArg(arg++, (uint32_t)first);
-      shade_.setArg(arg++, sample);
-      shade_.setArg(arg++, (uint32_t)options_.max_depth);
-      shade_.setArg(arg++, scene_.background);
-      launch(shade_, "shade", bounce, rays);
-
-      uint32_t counts[2];
-      q.enqueueReadBuffer(counters_, CL_TRUE, sizeof(uint32_t) * XI_COUNTER_RAYS_OUT, sizeof counts, counts);
-      const uint32_t shadows = counts[XI_COUNTER_SHADOW - XI_COUNTER_RAYS_OUT];
-      if (shadows > 0) {
-        arg = bind_shadow_state(shadow_, bind_path_state(shadow_));
-        shadow_.setArg(arg++, shadows);
-        shadow_.setArg(arg++, nodes_);
-        shadow_.setArg(arg++, tri_verts_);
-        launch(shadow_, "shadow", bounce, shadows);
-        shadow_rays_ += shadows;
-      }
+      extend(*in, rays, bounce);
+      shade(*in, rays, *out, (uint32_t)first, bounce);
+      uint32_t counts[2];  // rays out, shadow rays
+      device_.queue().enqueueReadBuffer(counters_, CL_TRUE, sizeof(uint32_t) * XI_COUNTER_RAYS_OUT, sizeof counts,
+                                        counts);
+      if (counts[1] > 0) shadow(counts[1], bounce);
       rays = counts[0];
       std::swap(in, out);
     }
-
-    arg = bind_path_state(accumulate_);
-    accumulate_.setArg(arg++, film_sum_);
-    accumulate_.setArg(arg++, film_sum_sq_);
-    accumulate_.setArg(arg++, counters_);
-    accumulate_.setArg(arg++, (uint32_t)first);
-    accumulate_.setArg(arg++, count);
-    launch(accumulate_, "accumulate", -1, count);
+    accumulate((uint32_t)first, count);
   }
   passes_++;
 }
 
-void Renderer::read_film(std::vector<glm::vec4>* sum, std::vector<glm::vec4>* sum_sq) const {
-  sum->resize(pixels_);
-  device_.queue().enqueueReadBuffer(film_sum_, CL_TRUE, 0, sizeof(glm::vec4) * pixels_, sum->data());
-  if (sum_sq) {
-    sum_sq->resize(pixels_);
-    device_.queue().enqueueReadBuffer(film_sum_sq_, CL_TRUE, 0, sizeof(glm::vec4) * pixels_, sum_sq->data());
-  }
+// Launches every stage once with no work, so a driver that compiles per launch configuration
+// (PoCL) does it now, counted in the kernel build, not in the first pass.
+void Renderer::warm_up() {
+  generate(0, 0);
+  extend(queue_a_, 0, 0);
+  shade(queue_a_, 0, queue_b_, 0, 0);
+  shadow(0, 0);
+  accumulate(0, 0);
+}
+
+std::vector<glm::vec4> Renderer::read(const cl::Buffer& film) const {
+  std::vector<glm::vec4> v(pixels_);
+  device_.queue().enqueueReadBuffer(film, CL_TRUE, 0, sizeof(glm::vec4) * pixels_, v.data());
+  return v;
 }
 
 Image Renderer::mean() const {
-  std::vector<glm::vec4> sum;
-  read_film(&sum, nullptr);
+  auto sum = read(film_sum_);
   Image img((int)scene_.camera.width, (int)scene_.camera.height);
   for (size_t i = 0; i < pixels_; ++i)
-    img.pixels[i] = sum[i].w > 0.0f ? glm::vec3(sum[i]) / sum[i].w : glm::vec3(0.0f);
+    if (sum[i].w > 0.0f) img.pixels[i] = glm::vec3(sum[i]) / sum[i].w;  // w: the sample count
   return img;
 }
 
-Image Renderer::variance_of_mean() const {
-  std::vector<glm::vec4> sum, sq;
-  read_film(&sum, &sq);
-  Image img((int)scene_.camera.width, (int)scene_.camera.height);
+Renderer::Film Renderer::film() const {
+  auto sum = read(film_sum_), sq = read(film_sum_sq_), albedo = read(film_albedo_), normal = read(film_normal_);
+  const int w = (int)scene_.camera.width, h = (int)scene_.camera.height;
+  Film f{Image(w, h), Image(w, h), Image(w, h), Image(w, h)};
   for (size_t i = 0; i < pixels_; ++i) {
     float n = sum[i].w;
-    if (n < 2.0f) continue;
+    if (n <= 0.0f) continue;
     glm::vec3 m = glm::vec3(sum[i]) / n;
-    glm::vec3 s2 = glm::max((glm::vec3(sq[i]) - n * m * m) / (n - 1.0f), glm::vec3(0.0f));
-    img.pixels[i] = s2 / n;
+    f.mean.pixels[i] = m;
+    f.albedo.pixels[i] = glm::vec3(albedo[i]) / n;
+    glm::vec3 nn = glm::vec3(normal[i]);
+    f.normal.pixels[i] = glm::length(nn) > 0.0f ? glm::normalize(nn) : nn;
+    if (n >= 2.0f) f.variance.pixels[i] = glm::max((glm::vec3(sq[i]) - n * m * m) / (n - 1.0f), glm::vec3(0.0f)) / n;
   }
-  return img;
+  return f;
 }
 
 uint32_t Renderer::nonfinite_samples() const {
