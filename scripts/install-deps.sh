@@ -1,6 +1,8 @@
 #!/usr/bin/env bash
 # Installs xi's build and run-time dependencies from Debian 12 packages.
 # Idempotent: packages already present are skipped, apt-get runs only when something is missing.
+# --bench adds what only bench/ uses: Embree (the ray-tracing ceiling), Assimp's test models (a
+# larger mesh) and matplotlib (plots).
 set -euo pipefail
 
 packages=(
@@ -9,6 +11,9 @@ packages=(
   libglm-dev nlohmann-json3-dev libopenexr-dev libassimp-dev libpng-dev zlib1g-dev
   libgtest-dev googletest
 )
+if [ "${1:-}" = "--bench" ]; then
+  packages+=(libembree-dev assimp-testmodels python3-matplotlib python3-numpy)
+fi
 
 missing=()
 for p in "${packages[@]}"; do

@@ -46,6 +46,7 @@ using std::floor;
 using std::fmax;
 using std::fmin;
 using std::log;
+using std::nextafter;
 using std::sin;
 using std::sqrt;
 using std::acos;

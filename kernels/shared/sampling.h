@@ -110,6 +110,14 @@ static inline uint xi_padded_index(SamplerParams p, uint pixel, uint index, uint
   return xi_permute(index, p.spp, xi_hash4(p.seed, pixel, pair, 0x5eed5u));
 }
 
+// (cell + j) / n for j in [0, 1), kept strictly inside the cell: rounding may carry a j close to 1
+// onto the next cell's edge.
+static inline float xi_in_cell(uint cell, float j, uint n) {
+  float x = ((float)cell + j) / (float)n;
+  float next = (float)(cell + 1u) / (float)n;
+  return x < next ? x : nextafter(next, 0.0f);
+}
+
 static inline float2 xi_sample_2d(int sampler, SamplerParams p, uint pixel, uint index, uint pair) {
   if (sampler == XI_SAMPLER_RANDOM) {
     return make_float2(xi_unit_float(xi_hash4(p.seed, pixel, index, 2u * pair)),
@@ -127,9 +135,7 @@ static inline float2 xi_sample_2d(int sampler, SamplerParams p, uint pixel, uint
     jx = xi_unit_float(xi_hash4(p.seed, pixel, index, 2u * pair));
     jy = xi_unit_float(xi_hash4(p.seed, pixel, index, 2u * pair + 1u));
   }
-  float x = ((float)(s % p.nx) + jx) / (float)p.nx;
-  float y = ((float)(s / p.nx) + jy) / (float)p.ny;
-  return make_float2(fmin(x, XI_ONE_MINUS_EPSILON), fmin(y, XI_ONE_MINUS_EPSILON));
+  return make_float2(xi_in_cell(s % p.nx, jx, p.nx), xi_in_cell(s / p.nx, jy, p.ny));
 }
 
 #endif

@@ -8,7 +8,8 @@
 // The angle of (x, y) in [0, 1) turns.
 static inline float xi_turns(float y, float x) {
   float t = atan2(y, x) * (0.5f * XI_INV_PI);
-  return t < 0.0f ? t + 1.0f : fmin(t, XI_ONE_MINUS_EPSILON);
+  // A tiny negative angle would round t + 1 up to exactly 1.
+  return fmin(t < 0.0f ? t + 1.0f : t, XI_ONE_MINUS_EPSILON);
 }
 
 // --- Uniform sphere: z = 1 − 2ξ₁, φ = 2πξ₂.

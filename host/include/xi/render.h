@@ -22,6 +22,11 @@ struct RenderOptions {
   size_t local_size = 64;
   bool all_features = false;    // compile every feature in, whatever the scene uses
   size_t wave_pixels = 1 << 20; // most paths in flight at once (memory bound)
+  int record_bounce = -1;       // if >= 0, keep the rays entering extend at this bounce (bench/)
+};
+
+struct RayBatch {
+  std::vector<glm::vec4> org, dir;  // xyz used
 };
 
 // One kernel launch, timed by OpenCL profiling events (nanoseconds on the device clock).
@@ -56,6 +61,10 @@ class Renderer {
   const CompiledScene& compiled() const { return scene_; }
   const RenderOptions& options() const { return options_; }
   uint64_t extend_rays() const { return extend_rays_; }
+  const RayBatch& recorded_rays() const { return recorded_; }
+  // Runs the extend stage alone on the given rays (at most wave size); returns the kernel's time in
+  // seconds and the hits (t or −1, u, v, triangle in BVH order as float bits).
+  double trace_closest(const RayBatch& rays, std::vector<glm::vec4>* hits);
   uint64_t shadow_rays() const { return shadow_rays_; }
 
  private:
@@ -66,6 +75,7 @@ class Renderer {
   void shadow(uint32_t count, int bounce);
   void accumulate(uint32_t first, uint32_t count);
   void warm_up();
+  void record(const cl::Buffer& queue, uint32_t count);
   void launch(cl::Kernel& kernel, const char* stage, int bounce, size_t items);
   SamplerParams sampler_params() const;
   int bind_path_state(cl::Kernel& kernel);               // returns the next argument index
@@ -81,6 +91,7 @@ class Renderer {
   int passes_ = 0;
   uint64_t extend_rays_ = 0, shadow_rays_ = 0;
   std::vector<Launch> launches_;
+  RayBatch recorded_;
 
   cl::Kernel generate_, extend_, shade_, shadow_, accumulate_;
 #define XI_DECLARE_BUFFER(type, name) cl::Buffer name##_;

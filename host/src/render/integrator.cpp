@@ -172,6 +172,7 @@ void Renderer::run_pass() {
     const cl::Buffer* out = &queue_b_;
     uint32_t rays = count;
     for (int bounce = 0; rays > 0; ++bounce) {
+      if (bounce == options_.record_bounce) record(*in, rays);
       extend(*in, rays, bounce);
       shade(*in, rays, *out, (uint32_t)first, bounce);
       uint32_t counts[2];  // rays out, shadow rays
@@ -184,6 +185,35 @@ void Renderer::run_pass() {
     accumulate((uint32_t)first, count);
   }
   passes_++;
+}
+
+void Renderer::record(const cl::Buffer& queue, uint32_t count) {
+  std::vector<uint32_t> slots(count);
+  std::vector<glm::vec4> org(wave_), dir(wave_);
+  cl::CommandQueue& q = device_.queue();
+  q.enqueueReadBuffer(queue, CL_TRUE, 0, sizeof(uint32_t) * count, slots.data());
+  q.enqueueReadBuffer(ray_org_, CL_TRUE, 0, sizeof(glm::vec4) * wave_, org.data());
+  q.enqueueReadBuffer(ray_dir_, CL_TRUE, 0, sizeof(glm::vec4) * wave_, dir.data());
+  for (uint32_t s : slots) {
+    recorded_.org.push_back(org[s]);
+    recorded_.dir.push_back(dir[s]);
+  }
+}
+
+double Renderer::trace_closest(const RayBatch& rays, std::vector<glm::vec4>* hits) {
+  const size_t n = rays.org.size();
+  if (n > wave_ || rays.dir.size() != n) throw Error("ray batch larger than the wave or malformed");
+  cl::CommandQueue& q = device_.queue();
+  std::vector<uint32_t> identity(n);
+  for (size_t i = 0; i < n; ++i) identity[i] = (uint32_t)i;
+  q.enqueueWriteBuffer(ray_org_, CL_TRUE, 0, sizeof(glm::vec4) * n, rays.org.data());
+  q.enqueueWriteBuffer(ray_dir_, CL_TRUE, 0, sizeof(glm::vec4) * n, rays.dir.data());
+  q.enqueueWriteBuffer(queue_a_, CL_TRUE, 0, sizeof(uint32_t) * n, identity.data());
+  extend(queue_a_, (uint32_t)n, 0);
+  const Launch& l = launches_.back();
+  hits->resize(n);
+  q.enqueueReadBuffer(hit_, CL_TRUE, 0, sizeof(glm::vec4) * n, hits->data());
+  return (l.end_ns - l.start_ns) * 1e-9;
 }
 
 // Launches every stage once with no work, so a driver that compiles per launch configuration

@@ -1,0 +1,356 @@
+// BVH build and host-side traversal: the tree's invariants on three kinds of input, then closest-
+// and any-hit queries of xi_trace (intersect.h, run on the host over the arrays compile_scene lays
+// out for the kernels) against a brute-force loop over every triangle.
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <cmath>
+#include <cstring>
+#include <random>
+#include <string>
+#include <vector>
+
+#include <glm/glm.hpp>
+
+#include "intersect.h"
+#include "xi/bvh.h"
+#include "xi/compiled_scene.h"
+#include "xi/scene.h"
+
+namespace {
+
+using glm::vec3;
+
+xi::Scene cornell() { return xi::load_scene(XI_SCENE_DIR "/cornell-box.json"); }
+
+xi::Scene icosphere() {  // subdivisions 5: 20 · 4^5 = 20480 triangles
+  return xi::parse_scene(R"({
+    "camera": {"position": [0, 0, -5], "look_at": [0, 0, 0], "up": [0, 1, 0], "fov": 40},
+    "materials": {"white": {"type": "diffuse", "albedo": [0.5, 0.5, 0.5]}},
+    "shapes": [{"type": "sphere", "material": "white", "center": [0.3, -0.2, 0.1], "radius": 1.5,
+                "subdivisions": 5}]})",
+                         "icosphere.json", ".");
+}
+
+xi::Scene with_triangles(std::vector<xi::Triangle> tris) {
+  xi::Scene s;
+  s.materials.push_back(xi::Material{.name = "white", .albedo = vec3(0.5f)});
+  s.triangles = std::move(tris);
+  return s;
+}
+
+xi::Triangle triangle(vec3 a, vec3 b, vec3 c) {
+  xi::Triangle t{};
+  t.v[0] = a, t.v[1] = b, t.v[2] = c;
+  return t;
+}
+
+// Triangles of mixed sizes (0.05 to 3 units) scattered through a 20-unit cube; they overlap freely.
+xi::Scene soup(size_t n, uint32_t seed) {
+  std::mt19937 rng(seed);
+  std::uniform_real_distribution<float> pos(-10.0f, 10.0f), unit(-1.0f, 1.0f), log_size(std::log(0.05f), std::log(3.0f));
+  std::vector<xi::Triangle> tris;
+  for (size_t i = 0; i < n; ++i) {
+    vec3 c(pos(rng), pos(rng), pos(rng));
+    float s = std::exp(log_size(rng));
+    vec3 v[3];
+    for (auto& p : v) p = c + s * vec3(unit(rng), unit(rng), unit(rng));
+    tris.push_back(triangle(v[0], v[1], v[2]));
+  }
+  return with_triangles(std::move(tris));
+}
+
+struct Bounds {
+  vec3 lo{INFINITY}, hi{-INFINITY};
+  void grow(vec3 p) { lo = glm::min(lo, p), hi = glm::max(hi, p); }
+  bool operator==(const Bounds&) const = default;
+};
+Bounds node_bounds(const BvhNode& n) { return {vec3(n.bmin), vec3(n.bmax)}; }
+Bounds scene_bounds(const xi::Scene& s) {
+  Bounds b;
+  for (auto& t : s.triangles)
+    for (auto& v : t.v) b.grow(v);
+  return b;
+}
+
+struct Walk {
+  size_t nodes = 0, leaves = 0, max_leaf = 0;
+  int depth = 0;
+};
+
+// Walks the flattened tree from the root, checking the layout (left child at node + 1, right child
+// at `index`, leaves own disjoint ranges of `order` covering it once) and that every box is exactly
+// the bounds of what it holds (so it contains it), and returns what the walk counted.
+Walk check_tree(const xi::Bvh& bvh, const std::vector<xi::Triangle>& tris) {
+  const size_t n = tris.size();
+  EXPECT_EQ(bvh.order.size(), n);
+  std::vector<int> seen_tri(n), seen_pos(n), seen_node(bvh.nodes.size());
+  for (uint32_t t : bvh.order)
+    if (t < n) seen_tri[t]++;
+  EXPECT_EQ((size_t)std::count(seen_tri.begin(), seen_tri.end(), 1), n) << "order is not a permutation";
+
+  Walk w;
+  size_t loose_boxes = 0;
+  struct Item { uint32_t node; int depth; };
+  std::vector<Item> stack{{0u, 0}};
+  while (!stack.empty()) {
+    auto [i, depth] = stack.back();
+    stack.pop_back();
+    if (i >= bvh.nodes.size() || seen_node[i]++) {
+      ADD_FAILURE() << "node " << i << " is out of range or reached twice";
+      return w;
+    }
+    const BvhNode& node = bvh.nodes[i];
+    const uint32_t index = as_uint(node.bmin.w), count = as_uint(node.bmax.w);
+    w.nodes++;
+    w.depth = std::max(w.depth, depth);
+    Bounds content;
+    if (count > 0) {
+      w.leaves++;
+      w.max_leaf = std::max<size_t>(w.max_leaf, count);
+      if (index >= n || count > n - index) {
+        ADD_FAILURE() << "leaf " << i << " holds [" << index << ", +" << count << ") beyond " << n;
+        return w;
+      }
+      for (uint32_t p = index; p < index + count; ++p) {
+        seen_pos[p]++;
+        for (auto& v : tris[bvh.order[p]].v) content.grow(v);
+      }
+    } else {
+      if (index <= i + 1 || index >= bvh.nodes.size()) {
+        ADD_FAILURE() << "interior node " << i << " has right child " << index;
+        return w;
+      }
+      for (uint32_t c : {i + 1, index}) {
+        Bounds b = node_bounds(bvh.nodes[c]);
+        content.grow(b.lo), content.grow(b.hi);
+        stack.push_back({c, depth + 1});
+      }
+    }
+    // Box = exact min/max of its triangles' vertices or its children's boxes (min/max do not round).
+    if (!(node_bounds(node) == content)) loose_boxes++;
+  }
+  EXPECT_EQ(loose_boxes, 0u) << "boxes that are not exactly the bounds of their content";
+  EXPECT_EQ((size_t)std::count(seen_pos.begin(), seen_pos.end(), 1), n) << "positions not in exactly one leaf";
+  EXPECT_EQ((size_t)std::count(seen_node.begin(), seen_node.end(), 1), bvh.nodes.size()) << "unreachable nodes";
+  return w;
+}
+
+void check_stats(const xi::Bvh& bvh, const Walk& w, bool degenerate) {
+  EXPECT_EQ(bvh.stats.nodes, w.nodes);
+  EXPECT_EQ(bvh.stats.nodes, bvh.nodes.size());
+  EXPECT_EQ(bvh.stats.leaves, w.leaves);
+  EXPECT_EQ(bvh.stats.depth, w.depth);
+  EXPECT_EQ(bvh.stats.max_leaf, w.max_leaf);
+  EXPECT_EQ(w.nodes, 2 * w.leaves - 1);  // a binary tree
+  EXPECT_LE(w.depth, 56);                // the builder's cap, below the traversal stack (XI_BVH_STACK)
+  if (!degenerate) EXPECT_LE(w.max_leaf, 8u);
+}
+
+struct HostHit {
+  uint32_t tri = XI_NO_HIT;  // scene order
+  float t = INFINITY, u = 0.0f, v = 0.0f;
+};
+
+// The reference: xi_intersect_triangle on every triangle. A conservative bounding-sphere test
+// (distance from the ray's line to the triangle's centroid, with slack far above float rounding)
+// first skips triangles the line cannot touch; it only saves time (check_queries compares it with
+// the unculled loop on a sample of rays).
+struct BruteForce {
+  std::vector<xi::Triangle> tris;
+  std::vector<float> cx, cy, cz, r2;
+  explicit BruteForce(const std::vector<xi::Triangle>& t) : tris(t) {
+    for (auto& tri : tris) {
+      vec3 c = (tri.v[0] + tri.v[1] + tri.v[2]) / 3.0f;
+      float r = 0.0f;
+      for (auto& v : tri.v) r = std::max(r, glm::length(v - c));
+      cx.push_back(c.x), cy.push_back(c.y), cz.push_back(c.z), r2.push_back(1.01f * r * r);
+    }
+  }
+  // Every hit of the ray (unit d) in (0, tmax), nearest first.
+  std::vector<HostHit> hits(vec3 o, vec3 d, float tmax, bool cull = true) const {
+    const size_t n = tris.size();
+    std::vector<uint8_t> near(n);
+    for (size_t i = 0; i < n; ++i) {  // vectorisable: no branches
+      float px = cx[i] - o.x, py = cy[i] - o.y, pz = cz[i] - o.z;
+      float qx = py * d.z - pz * d.y, qy = pz * d.x - px * d.z, qz = px * d.y - py * d.x;
+      near[i] = !cull || qx * qx + qy * qy + qz * qz <= r2[i] + 1e-5f * (px * px + py * py + pz * pz);
+    }
+    RayShear s = xi_ray_shear(d);
+    std::vector<HostHit> out;
+    for (uint32_t i = 0; i < n; ++i) {
+      HostHit h{i};
+      if (near[i] && xi_intersect_triangle(o, s, tris[i].v[0], tris[i].v[1], tris[i].v[2], tmax, &h.t, &h.u, &h.v))
+        out.push_back(h);
+    }
+    std::sort(out.begin(), out.end(), [](const HostHit& a, const HostHit& b) { return a.t < b.t; });
+    return out;
+  }
+};
+
+// Directions uniform on the sphere, except that one ray in ten lies along an axis or in an axis
+// plane (zero components exercise xi_safe_inverse).
+vec3 random_direction(std::mt19937& rng) {
+  std::normal_distribution<float> g;
+  vec3 d(g(rng), g(rng), g(rng));
+  uint32_t kind = rng() % 20;
+  if (kind == 0) d = vec3(0.0f), d[rng() % 3] = (rng() & 1) ? 1.0f : -1.0f;
+  if (kind == 1) d[rng() % 3] = 0.0f;
+  return glm::normalize(d);
+}
+
+// 10^4 random rays from inside and around the scene: closest hit and any hit of xi_trace over the
+// compiled (BVH-ordered) arrays against brute force over the scene's own triangles.
+void check_queries(const xi::Scene& scene, const xi::CompiledScene& cs, uint32_t seed) {
+  const auto& tris = scene.triangles;
+  BruteForce brute(tris);
+  Bounds b = scene_bounds(scene);
+  vec3 margin = 0.25f * (b.hi - b.lo);
+  const float diag = glm::length(b.hi - b.lo);
+  std::mt19937 rng(seed);
+  std::uniform_real_distribution<float> unit(0.0f, 1.0f);
+
+  const int kRays = 10000;
+  int hits = 0, ties = 0, any_hits = 0;
+  for (int r = 0; r < kRays; ++r) {
+    vec3 o = b.lo - margin + vec3(unit(rng), unit(rng), unit(rng)) * (b.hi - b.lo + 2.0f * margin);
+    vec3 d = random_direction(rng);
+    SCOPED_TRACE(testing::Message() << "ray " << r);
+    auto ref = brute.hits(o, d, INFINITY);
+    if (r < 100) {  // the culled reference finds exactly what testing every triangle finds
+      auto all = brute.hits(o, d, INFINITY, false);
+      ASSERT_EQ(ref.size(), all.size());
+      for (size_t k = 0; k < ref.size(); ++k) ASSERT_EQ(ref[k].tri, all[k].tri);
+    }
+
+    float t = -1, u = 0, v = 0;
+    uint32_t pos = xi_trace(cs.bvh.nodes.data(), cs.tri_verts.data(), o, d, INFINITY, false, &t, &u, &v);
+    if (ref.empty()) {
+      EXPECT_EQ(pos, XI_NO_HIT);  // misses agree exactly
+    } else if (pos == XI_NO_HIT || pos >= tris.size()) {
+      ADD_FAILURE() << "missed triangle " << ref[0].tri << " at t = " << ref[0].t;
+    } else {
+      hits++;
+      uint32_t tri = cs.bvh.order[pos];
+      // Ties: another triangle within 1e-5 relative t of the nearest (shared edges and vertices);
+      // there the BVH may legitimately report either.
+      auto same = std::find_if(ref.begin(), ref.end(), [&](const HostHit& h) { return h.tri == tri; });
+      bool tie = ref.size() > 1 && ref[1].t <= ref[0].t * (1.0f + 1e-5f);
+      ties += tie;
+      if (!tie) EXPECT_EQ(tri, ref[0].tri) << "t = " << t << " vs " << ref[0].t;
+      if (same == ref.end() || same->t > ref[0].t * (1.0f + 1e-5f)) {
+        ADD_FAILURE() << "BVH hit triangle " << tri << " is not among the nearest hits";
+      } else {
+        EXPECT_NEAR(t, ref[0].t, 1e-5f * ref[0].t);  // same function on the same floats: only ties differ
+        EXPECT_NEAR(u, same->u, 1e-6f);              // barycentrics of that very triangle: identical arithmetic
+        EXPECT_NEAR(v, same->v, 1e-6f);
+      }
+    }
+
+    // Any hit before a random tmax: hit/no-hit agrees with brute force, and the hit is genuine.
+    float tmax = unit(rng) * diag;
+    float ta = -1;
+    uint32_t apos = xi_trace(cs.bvh.nodes.data(), cs.tri_verts.data(), o, d, tmax, true, &ta, &u, &v);
+    bool occluded = !ref.empty() && ref[0].t < tmax;
+    EXPECT_EQ(apos != XI_NO_HIT, occluded) << "tmax = " << tmax;  // same triangle test, same tmax: exact
+    if (apos != XI_NO_HIT && apos < tris.size()) {
+      any_hits++;
+      uint32_t tri = cs.bvh.order[apos];
+      auto same = std::find_if(ref.begin(), ref.end(), [&](const HostHit& h) { return h.tri == tri; });
+      EXPECT_TRUE(same != ref.end() && same->t == ta && ta < tmax) << "any-hit reported a triangle the ray misses";
+    }
+  }
+  // The ray sets must exercise both outcomes, or the comparisons above prove little.
+  EXPECT_GT(hits, kRays / 10);
+  EXPECT_LT(hits, kRays);
+  EXPECT_GT(any_hits, kRays / 20);
+  EXPECT_LT(ties, kRays / 1000 + 1);  // random rays hit an edge or a crossing within 1e-5 only rarely
+}
+
+void check_scene(const xi::Scene& scene, uint32_t seed) {
+  xi::CompiledScene cs = xi::compile_scene(scene);
+  ASSERT_EQ(cs.tri_verts.size(), 3 * scene.triangles.size());
+  // compile_scene stores triangle order[i] at position i.
+  for (size_t i = 0; i < scene.triangles.size(); ++i)
+    for (int k = 0; k < 3; ++k)
+      ASSERT_EQ(vec3(cs.tri_verts[3 * i + k]), scene.triangles[cs.bvh.order[i]].v[k]) << "position " << i;
+  Walk w = check_tree(cs.bvh, scene.triangles);
+  check_stats(cs.bvh, w, false);
+  EXPECT_TRUE(node_bounds(cs.bvh.nodes[0]) == scene_bounds(scene));  // the root box is the scene's bounds
+  check_queries(scene, cs, seed);
+}
+
+TEST(BvhBuild, CornellBox) {
+  xi::Scene s = cornell();
+  ASSERT_EQ(s.triangles.size(), 32u);
+  check_scene(s, 1);
+}
+
+TEST(BvhBuild, Icosphere) {
+  xi::Scene s = icosphere();
+  ASSERT_EQ(s.triangles.size(), 20480u);
+  check_scene(s, 2);
+}
+
+TEST(BvhBuild, RandomSoup) {
+  xi::Scene s = soup(20000, 3);
+  check_scene(s, 4);
+  EXPECT_GT(xi::build_bvh(s.triangles).stats.depth, 10);  // a real hierarchy, not one flat leaf list
+}
+
+TEST(BvhBuild, IsDeterministic) {
+  xi::Scene s = soup(5000, 5);
+  xi::Bvh a = xi::build_bvh(s.triangles), b = xi::build_bvh(s.triangles);
+  EXPECT_EQ(a.order, b.order);
+  ASSERT_EQ(a.nodes.size(), b.nodes.size());
+  EXPECT_EQ(std::memcmp(a.nodes.data(), b.nodes.data(), sizeof(BvhNode) * a.nodes.size()), 0);
+}
+
+// 100 copies of one triangle: every centroid coincides, so no SAH split separates them.
+TEST(BvhBuild, CoincidentCopies) {
+  xi::Triangle t = triangle(vec3(0, 0, 0), vec3(1, 0, 0), vec3(0, 1, 0));
+  xi::Scene s = with_triangles(std::vector<xi::Triangle>(100, t));
+  xi::CompiledScene cs = xi::compile_scene(s);
+  Walk w = check_tree(cs.bvh, s.triangles);
+  check_stats(cs.bvh, w, true);
+
+  const vec3 o(0.25f, 0.25f, -1.0f), d(0, 0, 1);
+  float tt, u, v;
+  uint32_t pos = xi_trace(cs.bvh.nodes.data(), cs.tri_verts.data(), o, d, INFINITY, false, &tt, &u, &v);
+  ASSERT_LT(pos, 100u);
+  EXPECT_FLOAT_EQ(tt, 1.0f);  // the plane z = 0 is one unit along the ray
+
+  // Each copy is reachable by traversal: with every other copy collapsed to a point (which no ray
+  // hits) but the same tree, the ray must still find it, in whichever leaf it was put.
+  for (uint32_t keep = 0; keep < 100; ++keep) {
+    std::vector<glm::vec4> verts(cs.tri_verts.size(), glm::vec4(0.1f, 0.1f, 0.0f, 0.0f));
+    for (int k = 0; k < 3; ++k) verts[3 * keep + k] = cs.tri_verts[3 * keep + k];
+    EXPECT_EQ(xi_trace(cs.bvh.nodes.data(), verts.data(), o, d, INFINITY, false, &tt, &u, &v), keep);
+    EXPECT_EQ(xi_trace(cs.bvh.nodes.data(), verts.data(), o, d, 2.0f, true, &tt, &u, &v), keep);
+  }
+}
+
+// Triangles at x = 1.5^i (sizes from 0.1 to 10^16; beyond ~10^19 the edge functions' products
+// overflow float): binned SAH peels a few off per level, giving a deep, lopsided tree.
+TEST(BvhBuild, ExponentialSpacing) {
+  std::vector<xi::Triangle> tris;
+  for (int i = 0; i < 100; ++i) {
+    float x = std::pow(1.5f, (float)i), s = 0.1f * x;
+    tris.push_back(triangle(vec3(x, 0, 0), vec3(x + s, 0, 0), vec3(x, s, 0)));
+  }
+  xi::Scene scene = with_triangles(tris);
+  xi::CompiledScene cs = xi::compile_scene(scene);
+  Walk w = check_tree(cs.bvh, tris);
+  check_stats(cs.bvh, w, false);
+  EXPECT_GT(w.depth, 10);  // lopsided: a balanced tree over 100 triangles would be ~5 deep
+  // Every triangle is still found, by a ray straight at it through the plane z = 0.
+  for (uint32_t i = 0; i < tris.size(); ++i) {
+    float x = tris[i].v[0].x, s = 0.1f * x, t, u, v;
+    vec3 o(x + 0.25f * s, 0.25f * s, -1.0f);
+    uint32_t pos = xi_trace(cs.bvh.nodes.data(), cs.tri_verts.data(), o, vec3(0, 0, 1), INFINITY, false, &t, &u, &v);
+    ASSERT_LT(pos, tris.size()) << "triangle " << i;
+    EXPECT_EQ(cs.bvh.order[pos], i);
+  }
+}
+
+}  // namespace

@@ -1,0 +1,515 @@
+// Each wavefront stage kernel run alone on the OpenCL CPU device with fixed inputs, its outputs
+// compared with the same quantities computed on the host (the shared headers compile as C++).
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <array>
+#include <bit>
+#include <cmath>
+#include <cstring>
+#include <numeric>
+#include <optional>
+#include <random>
+#include <string>
+#include <vector>
+
+#include <glm/glm.hpp>
+
+#include "intersect.h"
+#include "layout.h"
+#include "sampling.h"
+#include "xi/compiled_scene.h"
+#include "xi/device.h"
+#include "xi/scene.h"
+
+namespace {
+
+using glm::vec3;
+using glm::vec4;
+
+constexpr size_t kLocal = 64;  // the renderer's work-group size; global sizes are rounded up to it
+constexpr uint32_t kGarbage = 0xdeadbeefu;  // fills buffers so that unwritten values show
+
+size_t round_up(size_t n) { return (n + kLocal - 1) / kLocal * kLocal; }
+
+template <class T>
+std::vector<T> garbage(size_t n) {
+  std::vector<T> v(n);
+  std::vector<uint32_t> words(sizeof(T) * n / 4, kGarbage);
+  std::memcpy(v.data(), words.data(), sizeof(T) * n);
+  return v;
+}
+
+template <class T>
+bool same_bits(const T& a, const T& b) { return std::memcmp(&a, &b, sizeof(T)) == 0; }
+
+// One program with every stage, built once for the suite. Features of the Cornell box (emitters,
+// no lens), so generate is the pinhole camera.
+class Kernel : public ::testing::Test {
+ protected:
+  static void SetUpTestSuite() {
+    device_.emplace(xi::Device::open(""));
+    xi::Features f = xi::compile_scene(xi::load_scene(XI_SCENE_DIR "/cornell-box.json")).features;
+    program_.emplace(xi::build_program(*device_, {"generate.cl", "extend.cl", "shade.cl", "shadow.cl", "accumulate.cl"},
+                                       xi::kernel_defines(f, XI_SAMPLER_RANDOM, xi::Strategy::Mis)));
+  }
+  static void TearDownTestSuite() {  // release OpenCL objects before the driver unloads
+    program_.reset();
+    device_.reset();
+  }
+
+  cl::Context& ctx() { return device_->context(); }
+  cl::CommandQueue& queue() { return device_->queue(); }
+  cl::Kernel kernel(const char* name) { return cl::Kernel(program_->program, name); }
+
+  template <class T>
+  cl::Buffer buffer(const std::vector<T>& data) {
+    return cl::Buffer(ctx(), CL_MEM_READ_WRITE | CL_MEM_COPY_HOST_PTR, sizeof(T) * data.size(),
+                      const_cast<T*>(data.data()));
+  }
+  template <class T>
+  std::vector<T> read(const cl::Buffer& b, size_t n) {
+    std::vector<T> v(n);
+    queue().enqueueReadBuffer(b, CL_TRUE, 0, sizeof(T) * n, v.data());
+    return v;
+  }
+  void launch(cl::Kernel& k, size_t items) {
+    queue().enqueueNDRangeKernel(k, cl::NullRange, cl::NDRange(round_up(items)), cl::NDRange(kLocal));
+    queue().finish();
+  }
+
+  // The path state, one buffer per XI_PATH_STATE field, of `slots` entries filled with garbage;
+  // bind() sets them as a kernel's first arguments, in macro order, as the renderer does.
+  struct PathState {
+#define XI_FIELD(type, name) std::vector<type> name;
+    XI_PATH_STATE(XI_FIELD)
+#undef XI_FIELD
+    explicit PathState(size_t slots) {
+#define XI_FILL(type, name) name = garbage<type>(slots);
+      XI_PATH_STATE(XI_FILL)
+#undef XI_FILL
+    }
+  };
+  struct PathBuffers {
+#define XI_FIELD(type, name) cl::Buffer name;
+    XI_PATH_STATE(XI_FIELD)
+#undef XI_FIELD
+  };
+  PathBuffers upload(const PathState& s) {
+    PathBuffers b;
+#define XI_UPLOAD(type, name) b.name = buffer(s.name);
+    XI_PATH_STATE(XI_UPLOAD)
+#undef XI_UPLOAD
+    return b;
+  }
+  static int bind(cl::Kernel& k, const PathBuffers& b) {
+    int arg = 0;
+#define XI_BIND(type, name) k.setArg(arg++, b.name);
+    XI_PATH_STATE(XI_BIND)
+#undef XI_BIND
+    return arg;
+  }
+  PathState download(const PathBuffers& b, size_t slots) {
+    PathState s(slots);
+#define XI_READ(type, name) s.name = read<type>(b.name, slots);
+    XI_PATH_STATE(XI_READ)
+#undef XI_READ
+    return s;
+  }
+
+  static std::optional<xi::Device> device_;
+  static std::optional<xi::Program> program_;
+};
+std::optional<xi::Device> Kernel::device_;
+std::optional<xi::Program> Kernel::program_;
+
+// --- Host reference for ray casting: xi_intersect_triangle on every triangle ---------------------
+
+struct HostHit {
+  uint32_t tri;  // scene order
+  float t, u, v;
+};
+
+// A conservative bounding-sphere test (the ray line's distance to the centroid, with slack far above
+// float rounding) skips the exact test for triangles the line cannot touch; it only saves time
+// (ExtendMatchesBruteForce checks it against the unculled loop on a sample of rays).
+struct BruteForce {
+  std::vector<xi::Triangle> tris;
+  std::vector<float> cx, cy, cz, r2;
+  explicit BruteForce(const std::vector<xi::Triangle>& t) : tris(t) {
+    for (auto& tri : tris) {
+      vec3 c = (tri.v[0] + tri.v[1] + tri.v[2]) / 3.0f;
+      float r = 0.0f;
+      for (auto& v : tri.v) r = std::max(r, glm::length(v - c));
+      cx.push_back(c.x), cy.push_back(c.y), cz.push_back(c.z), r2.push_back(1.01f * r * r);
+    }
+  }
+  // Every hit of the ray (unit d) in (0, tmax), nearest first.
+  std::vector<HostHit> hits(vec3 o, vec3 d, float tmax, bool cull = true) const {
+    const size_t n = tris.size();
+    std::vector<uint8_t> near(n);
+    for (size_t i = 0; i < n; ++i) {  // vectorisable: no branches
+      float px = cx[i] - o.x, py = cy[i] - o.y, pz = cz[i] - o.z;
+      float qx = py * d.z - pz * d.y, qy = pz * d.x - px * d.z, qz = px * d.y - py * d.x;
+      near[i] = !cull || qx * qx + qy * qy + qz * qz <= r2[i] + 1e-5f * (px * px + py * py + pz * pz);
+    }
+    RayShear s = xi_ray_shear(d);
+    std::vector<HostHit> out;
+    for (uint32_t i = 0; i < n; ++i) {
+      HostHit h{i, 0, 0, 0};
+      if (near[i] && xi_intersect_triangle(o, s, tris[i].v[0], tris[i].v[1], tris[i].v[2], tmax, &h.t, &h.u, &h.v))
+        out.push_back(h);
+    }
+    std::sort(out.begin(), out.end(), [](const HostHit& a, const HostHit& b) { return a.t < b.t; });
+    return out;
+  }
+};
+
+vec3 random_direction(std::mt19937& rng) {
+  std::normal_distribution<float> g;
+  return glm::normalize(vec3(g(rng), g(rng), g(rng)));
+}
+
+// A box of 12 triangles, rotated about `axis`.
+void add_box(std::vector<xi::Triangle>& out, vec3 center, vec3 half, vec3 axis, float radians) {
+  vec3 a = glm::normalize(axis);
+  auto rot = [&](vec3 p) {  // Rodrigues
+    return p * std::cos(radians) + glm::cross(a, p) * std::sin(radians) + a * glm::dot(a, p) * (1 - std::cos(radians));
+  };
+  vec3 c[8];
+  for (int i = 0; i < 8; ++i)
+    c[i] = center + rot(half * vec3(i & 1 ? 1 : -1, i & 2 ? 1 : -1, i & 4 ? 1 : -1));
+  const int faces[6][4] = {{0, 2, 3, 1}, {4, 5, 7, 6}, {0, 1, 5, 4}, {2, 6, 7, 3}, {0, 4, 6, 2}, {1, 3, 7, 5}};
+  for (auto& f : faces)
+    for (auto [i, j, k] : {std::array{f[0], f[1], f[2]}, std::array{f[0], f[2], f[3]}}) {
+      xi::Triangle t{};
+      t.v[0] = c[i], t.v[1] = c[j], t.v[2] = c[k];
+      out.push_back(t);
+    }
+}
+
+// --- extend --------------------------------------------------------------------------------------
+
+// 10^5 random rays against an icosphere of 20480 triangles and three boxes (one cutting into the
+// sphere, one thin slab under it, one rotated), in a shuffled queue; hits against brute force.
+TEST_F(Kernel, ExtendMatchesBruteForce) {
+  xi::Scene scene = xi::parse_scene(R"({
+    "camera": {"position": [0, 0, -5], "look_at": [0, 0, 0], "up": [0, 1, 0], "fov": 40},
+    "materials": {"white": {"type": "diffuse", "albedo": [0.5, 0.5, 0.5]}},
+    "shapes": [{"type": "sphere", "material": "white", "center": [0, 0, 0], "radius": 1, "subdivisions": 5}]})",
+                                    "extend.json", ".");
+  add_box(scene.triangles, vec3(0.9f, 0.6f, 0.2f), vec3(0.4f, 0.3f, 0.5f), vec3(0, 0, 1), 0.0f);
+  add_box(scene.triangles, vec3(0.0f, -1.3f, 0.0f), vec3(2.0f, 0.05f, 2.0f), vec3(0, 1, 0), 0.0f);
+  add_box(scene.triangles, vec3(-1.6f, 0.4f, 0.8f), vec3(0.3f, 0.7f, 0.2f), vec3(1, 2, 3), 0.7f);
+  ASSERT_EQ(scene.triangles.size(), 20480u + 36u);
+  xi::CompiledScene cs = xi::compile_scene(scene);
+
+  const uint32_t n = 100000, extra = 64, slots = n + extra;
+  std::mt19937 rng(11);
+  std::uniform_real_distribution<float> box(-2.5f, 2.5f);
+  PathState state(slots);
+  for (uint32_t i = 0; i < slots; ++i) {
+    state.ray_org[i] = vec4(box(rng), box(rng), box(rng), 0.0f);
+    state.ray_dir[i] = vec4(random_direction(rng), 0.0f);
+  }
+  // Queue entries [0, n) are the rays in shuffled order; the entries past `count` point at the extra
+  // slots, which the work items beyond `count` in the rounded-up launch must not touch.
+  std::vector<uint32_t> q(slots);
+  std::iota(q.begin(), q.end(), 0u);
+  std::shuffle(q.begin(), q.begin() + n, rng);
+
+  PathBuffers b = upload(state);
+  cl::Buffer qb = buffer(q), nodes = buffer(cs.bvh.nodes), verts = buffer(cs.tri_verts);
+  cl::Kernel k = kernel("extend");
+  int arg = bind(k, b);
+  k.setArg(arg++, qb);
+  k.setArg(arg++, n);
+  k.setArg(arg++, nodes);
+  k.setArg(arg++, verts);
+  launch(k, n);
+  std::vector<vec4> hit = read<vec4>(b.hit, slots);
+
+  BruteForce brute(scene.triangles);
+  int hits = 0, ties = 0, bad = 0;
+  for (uint32_t i = 0; i < n && bad < 10; ++i) {
+    const vec3 o(state.ray_org[i]), d(state.ray_dir[i]);
+    auto ref = brute.hits(o, d, INFINITY);
+    if (i < 200) {  // the culled reference finds exactly what testing every triangle finds
+      auto all = brute.hits(o, d, INFINITY, false);
+      ASSERT_EQ(ref.size(), all.size());
+      for (size_t j = 0; j < ref.size(); ++j) ASSERT_EQ(ref[j].tri, all[j].tri);
+    }
+    const vec4 h = hit[i];
+    SCOPED_TRACE(testing::Message() << "slot " << i << ", hit (" << h.x << ", " << h.y << ", " << h.z << ", "
+                                    << as_uint(h.w) << ")");
+    if (ref.empty()) {
+      bad += !same_bits(h, vec4(-1.0f, 0.0f, 0.0f, 0.0f));
+      EXPECT_TRUE(same_bits(h, vec4(-1.0f, 0.0f, 0.0f, 0.0f))) << "brute force misses";  // misses agree exactly
+      continue;
+    }
+    hits++;
+    // A tie: the two nearest hits within 1e-5 relative t (a shared edge or vertex); the kernel may
+    // report either, and its float contraction (-cl-mad-enable) may move the edge by an ulp.
+    bool tie = ref.size() > 1 && ref[1].t <= ref[0].t * (1.0f + 1e-5f);
+    ties += tie;
+    uint32_t pos = as_uint(h.w);
+    if (!(h.x > 0.0f) || pos >= cs.bvh.order.size()) {
+      bad++;
+      ADD_FAILURE() << "kernel missed triangle " << ref[0].tri << " at t = " << ref[0].t;
+      continue;
+    }
+    uint32_t tri = cs.bvh.order[pos];
+    auto same = std::find_if(ref.begin(), ref.end(), [&](const HostHit& r) { return r.tri == tri; });
+    if (tie ? (same == ref.end() || same->t > ref[0].t * (1.0f + 1e-5f)) : tri != ref[0].tri) {
+      bad++;
+      ADD_FAILURE() << "kernel hit triangle " << tri << ", nearest is " << ref[0].tri << " at t = " << ref[0].t;
+      continue;
+    }
+    // Same triangle test, but the device fuses multiply-adds: t is a quotient of sums of products of
+    // vertex coordinates relative to the origin, so its rounding error scales with the largest of
+    // those distances, not with t (origins close to a face give t ≪ scale).
+    float scale = same->t;
+    for (auto& v : scene.triangles[tri].v) scale = std::max(scale, glm::length(v - o));
+    bad += std::abs(h.x - same->t) > 1e-5f * scale;
+    EXPECT_NEAR(h.x, same->t, 1e-5f * scale);  // 1e-5 relative to the coordinates' scale: ~100 ulps
+    EXPECT_NEAR(h.y, same->u, 1e-4f);  // barycentrics: the same few-ulp differences, relative to O(1)
+    EXPECT_NEAR(h.z, same->v, 1e-4f);
+  }
+  EXPECT_EQ(bad, 0);
+  EXPECT_GT(hits, (int)n / 5);    // both outcomes well represented
+  EXPECT_LT(hits, (int)n * 9 / 10);
+  EXPECT_LT(ties, (int)n / 1000);  // edge ties are rare for random rays: < 0.1%
+  for (uint32_t i = n; i < slots; ++i) EXPECT_EQ(as_uint(hit[i].x), kGarbage) << "slot " << i << " is not queued";
+}
+
+// --- generate ------------------------------------------------------------------------------------
+
+TEST_F(Kernel, GenerateCameraRays) {
+  const int W = 37, H = 23;  // odd and non-square: catches swapped axes and off-by-one centring
+  const float vfov = 50.0f;
+  xi::Scene scene = xi::parse_scene(R"({
+    "camera": {"position": [1, 2, 3], "look_at": [0, 0.5, -1], "up": [0, 1, 0], "fov": 50},
+    "film": {"width": 37, "height": 23},
+    "materials": {"white": {"type": "diffuse", "albedo": [0.5, 0.5, 0.5]}},
+    "shapes": [{"type": "quad", "material": "white", "vertices": [[0,0,0], [1,0,0], [1,1,0], [0,1,0]]}]})",
+                                    "generate.json", ".");
+  xi::CompiledScene cs = xi::compile_scene(scene);
+  ASSERT_FALSE(cs.features.lens);
+  const CameraData cam = cs.camera;
+  const SamplerParams sp = xi_make_sampler_params(7, 16);
+  const uint32_t sample = 5, pixels = W * H, slots = 1024;
+
+  std::vector<vec3> org(pixels), dir(pixels);
+  // Two waves, the second starting mid-row, as the renderer splits large films.
+  for (auto [first, count] : {std::pair<uint32_t, uint32_t>{0, 500}, {500, pixels - 500}}) {
+    PathState state(slots);
+    PathBuffers b = upload(state);
+    cl::Buffer qb = buffer(garbage<uint32_t>(slots));
+    cl::Kernel k = kernel("generate");
+    int arg = bind(k, b);
+    k.setArg(arg++, qb);
+    k.setArg(arg++, cam);
+    k.setArg(arg++, sp);
+    k.setArg(arg++, first);
+    k.setArg(arg++, count);
+    k.setArg(arg++, sample);
+    launch(k, count);
+    PathState out = download(b, slots);
+    std::vector<uint32_t> q = read<uint32_t>(qb, slots);
+
+    for (uint32_t slot = 0; slot < count; ++slot) {
+      SCOPED_TRACE(testing::Message() << "slot " << slot << " of the wave at " << first);
+      const uint32_t pixel = first + slot;
+      // generate.cl's formula, evaluated on the host with the same sampler call.
+      float2 u = xi_sample_2d(XI_SAMPLER_RANDOM, sp, pixel, sample, XI_PAIR_PIXEL);
+      float sx = 2.0f * ((float)(pixel % W) + u.x) / (float)W - 1.0f;
+      float sy = 1.0f - 2.0f * ((float)(pixel / W) + u.y) / (float)H;
+      vec3 want = glm::normalize(vec3(cam.forward) + sx * vec3(cam.right) + sy * vec3(cam.up));
+      org[pixel] = vec3(out.ray_org[slot]);
+      dir[pixel] = vec3(out.ray_dir[slot]);
+      EXPECT_LE(glm::length(org[pixel] - vec3(cam.position)), 1e-5f);  // a pinhole: every ray starts at the eye
+      EXPECT_LE(glm::length(dir[pixel] - want), 1e-5f);  // unit vectors; fused multiply-adds move a few ulps
+      EXPECT_TRUE(same_bits(out.throughput[slot], vec4(1, 1, 1, 0)));  // exact constants
+      EXPECT_TRUE(same_bits(out.radiance[slot], vec4(0.0f)));
+      EXPECT_TRUE(same_bits(out.aov_albedo[slot], vec4(0.0f)));
+      EXPECT_TRUE(same_bits(out.aov_normal[slot], vec4(0.0f)));
+      EXPECT_EQ(out.depth[slot], 0u);
+      EXPECT_EQ(q[slot], slot);
+    }
+    for (uint32_t slot = count; slot < slots; ++slot) {  // beyond `count`, nothing is written
+      EXPECT_EQ(as_uint(out.ray_dir[slot].x), kGarbage);
+      EXPECT_EQ(q[slot], kGarbage);
+    }
+  }
+
+  // Geometry, independent of the formula: the camera frame from the scene's own vectors.
+  const xi::Camera& c = scene.camera;
+  const vec3 F = glm::normalize(c.look_at - c.position), R = glm::normalize(glm::cross(F, c.up)), U = glm::cross(R, F);
+  const float tan_v = std::tan(glm::radians(vfov) / 2), tan_h = tan_v * W / H;  // square pixels
+  auto tangents = [&](uint32_t pixel) {  // of the ray's horizontal and vertical angles to forward
+    vec3 d = dir[pixel];
+    return glm::vec2(glm::dot(d, R) / glm::dot(d, F), glm::dot(d, U) / glm::dot(d, F));
+  };
+  // The centre pixel (W, H odd) covers the film centre: its ray is within half a pixel of forward.
+  glm::vec2 centre = tangents((H / 2) * W + W / 2);
+  EXPECT_LE(std::abs(centre.x), tan_v / H + 1e-6f);  // half a pixel = tan(vfov/2) / H in tangent units
+  EXPECT_LE(std::abs(centre.y), tan_v / H + 1e-6f);
+  EXPECT_LE(std::acos(std::min(1.0f, glm::dot(dir[(H / 2) * W + W / 2], F))), std::atan(std::sqrt(2.0f) * tan_v / H) + 1e-5f);
+  // Corner pixels: the ray lies in the outermost pixel, so its angles are vfov/2 (and the horizontal
+  // counterpart) less at most one pixel; x grows to the right, y upwards, pixel 0 is top-left.
+  struct Corner { uint32_t pixel; float sx, sy; };
+  for (Corner k : {Corner{0, -1, 1}, Corner{W - 1, 1, 1}, Corner{(H - 1) * W, -1, -1}, Corner{H * W - 1, 1, -1}}) {
+    glm::vec2 t = tangents(k.pixel);
+    SCOPED_TRACE(testing::Message() << "corner pixel " << k.pixel << ", tangents " << t.x << ", " << t.y);
+    EXPECT_GE(k.sx * t.x, tan_h * (1 - 2.0f / W) - 1e-5f);  // 1e-5: float rounding of the frame and dot products
+    EXPECT_LE(k.sx * t.x, tan_h + 1e-5f);
+    EXPECT_GE(k.sy * t.y, tan_v * (1 - 2.0f / H) - 1e-5f);
+    EXPECT_LE(k.sy * t.y, tan_v + 1e-5f);
+    float angle = std::atan(k.sy * t.y);  // vertical angle to forward, in radians
+    EXPECT_LE(angle, glm::radians(vfov) / 2 + 1e-5f);
+    EXPECT_GE(angle, glm::radians(vfov) / 2 - std::atan(2.0f * tan_v / H) - 1e-5f);  // one pixel below the edge
+  }
+}
+
+// --- accumulate ----------------------------------------------------------------------------------
+
+// Two passes over overlapping pixel ranges of a film with random starting sums. Every film sum is
+// one float add per pass, so the host's sums in the same order must be bitwise equal.
+TEST_F(Kernel, AccumulateSumsAndDropsNonFinite) {
+  const uint32_t film = 1000, slots = 1024;
+  std::mt19937 rng(21);
+  std::uniform_real_distribution<float> value(0.0f, 10.0f);
+  auto random_film = [&] {
+    std::vector<vec4> f(film);
+    for (auto& v : f) v = vec4(value(rng), value(rng), value(rng), (float)(rng() % 50));
+    return f;
+  };
+  const std::vector<vec4> sum = random_film(), sum_sq = random_film(), albedo = random_film(), normal = random_film();
+  cl::Buffer sum_b = buffer(sum), sum_sq_b = buffer(sum_sq), albedo_b = buffer(albedo), normal_b = buffer(normal);
+  cl::Buffer counters_b = buffer(std::vector<uint32_t>{11, 22, 33, 44});
+
+  // The host reference. sum_sq has two, as the device may fuse `sum_sq += l * l` into an fma (OpenCL
+  // C allows contraction by default): the whole film must match one of them exactly.
+  std::vector<vec4> want_sum = sum, want_sq = sum_sq, want_sq_fma = sum_sq, want_albedo = albedo,
+                    want_normal = normal;
+  uint32_t nonfinite = 0;
+  const float kNonFinite[] = {NAN, INFINITY, -INFINITY};
+  for (auto [first, count] : {std::pair<uint32_t, uint32_t>{100, 700}, {450, 550}}) {
+    PathState state(slots);  // garbage in the fields accumulate does not read
+    for (uint32_t i = 0; i < count; ++i) {
+      vec4& r = state.radiance[i];
+      r = vec4(value(rng), value(rng), value(rng), value(rng));
+      if (rng() % 10 == 0) r.w = NAN;                             // w is not part of the sample
+      if (rng() % 40 == 0) r[rng() % 3] = kNonFinite[rng() % 3];  // NaN, +inf or -inf in one channel
+      state.aov_albedo[i] = vec4(value(rng), value(rng), value(rng), value(rng));
+      state.aov_normal[i] = vec4(value(rng), value(rng), value(rng), value(rng)) - 5.0f;
+    }
+    PathBuffers b = upload(state);
+    cl::Kernel k = kernel("accumulate");
+    int arg = bind(k, b);
+    for (cl::Buffer* f : {&sum_b, &sum_sq_b, &albedo_b, &normal_b}) k.setArg(arg++, *f);
+    k.setArg(arg++, counters_b);
+    k.setArg(arg++, first);
+    k.setArg(arg++, count);
+    launch(k, count);
+
+    for (uint32_t i = 0; i < count; ++i) {
+      const vec4 l(vec3(state.radiance[i]), 1.0f);
+      if (!std::isfinite(l.x) || !std::isfinite(l.y) || !std::isfinite(l.z)) {
+        nonfinite++;  // dropped whole: its AOVs too, so they stay averages over sum.w samples
+        continue;
+      }
+      const uint32_t p = first + i;
+      want_sum[p] += l;
+      want_sq[p] += l * l;
+      for (int c = 0; c < 4; ++c) want_sq_fma[p][c] = std::fma(l[c], l[c], want_sq_fma[p][c]);
+      want_albedo[p] += state.aov_albedo[i];
+      want_normal[p] += state.aov_normal[i];
+    }
+  }
+  ASSERT_GT(nonfinite, 10u);
+  const auto counters = read<uint32_t>(counters_b, 4);
+  EXPECT_EQ(counters[XI_COUNTER_NONFINITE], 44u + nonfinite);  // exactly one count per dropped sample
+  EXPECT_EQ(counters[0], 11u);                                 // the other counters are left alone
+  EXPECT_EQ(counters[1], 22u);
+  EXPECT_EQ(counters[2], 33u);
+  auto mismatches = [&](const cl::Buffer& b, const std::vector<vec4>& want) {
+    auto got = read<vec4>(b, film);
+    int bad = 0;
+    for (uint32_t p = 0; p < film; ++p) bad += !same_bits(got[p], want[p]);
+    return bad;
+  };
+  // Bitwise: the same float adds in the same order (w of the sum counts the finite samples; pixels
+  // 0..99 lie outside both passes and keep their starting values).
+  EXPECT_EQ(mismatches(sum_b, want_sum), 0);
+  EXPECT_EQ(mismatches(albedo_b, want_albedo), 0);
+  EXPECT_EQ(mismatches(normal_b, want_normal), 0);
+  int bad_sq = mismatches(sum_sq_b, want_sq), bad_sq_fma = mismatches(sum_sq_b, want_sq_fma);
+  EXPECT_TRUE(bad_sq == 0 || bad_sq_fma == 0) << bad_sq << " pixels differ from mul+add, " << bad_sq_fma
+                                              << " from fma";
+}
+
+// --- shadow --------------------------------------------------------------------------------------
+
+// Shadow rays between random points of the Cornell box's interior, occlusion known from brute
+// force: only unoccluded rays add their contribution to their path's radiance.
+TEST_F(Kernel, ShadowAddsOnlyUnoccluded) {
+  xi::Scene scene = xi::load_scene(XI_SCENE_DIR "/cornell-box.json");
+  xi::CompiledScene cs = xi::compile_scene(scene);
+  BruteForce brute(scene.triangles);
+  const uint32_t n = 500, slots = 1024, extra = 64;
+  std::mt19937 rng(31);
+  std::uniform_real_distribution<float> x(1.0f, 555.0f), y(1.0f, 548.0f), z(1.0f, 558.0f), value(0.0f, 5.0f);
+
+  PathState state(slots);
+  for (auto& r : state.radiance) r = vec4(value(rng), value(rng), value(rng), value(rng));
+  std::vector<uint32_t> slot_of(slots);
+  std::iota(slot_of.begin(), slot_of.end(), 0u);
+  std::shuffle(slot_of.begin(), slot_of.end(), rng);  // ray i feeds path slot_of[i], all distinct
+
+  std::vector<vec4> org(n + extra), dir(n + extra), contrib(n + extra);
+  std::vector<bool> occluded(n + extra);
+  int blocked = 0;
+  for (uint32_t i = 0; i < n + extra; ++i) {
+    for (;;) {
+      vec3 a(x(rng), y(rng), z(rng)), b(x(rng), y(rng), z(rng));
+      float tmax = glm::length(b - a);
+      vec3 d = glm::normalize(b - a);
+      auto hits = brute.hits(a, d, INFINITY);
+      // Skip the rare ray whose nearest hit is within 1e-4 of tmax: device rounding could flip it.
+      if (!hits.empty() && std::abs(hits[0].t - tmax) < 1e-4f * tmax) continue;
+      occluded[i] = !hits.empty() && hits[0].t < tmax;
+      org[i] = vec4(a, tmax);
+      dir[i] = vec4(d, 0.0f);
+      break;
+    }
+    contrib[i] = vec4(value(rng), value(rng), value(rng), as_float(slot_of[i]));
+    blocked += i < n && occluded[i];
+  }
+  // Both outcomes well represented.
+  ASSERT_GT(blocked, (int)n / 5);
+  ASSERT_LT(blocked, (int)n * 4 / 5);
+
+  PathBuffers b = upload(state);
+  cl::Buffer org_b = buffer(org), dir_b = buffer(dir), contrib_b = buffer(contrib);
+  cl::Buffer nodes = buffer(cs.bvh.nodes), verts = buffer(cs.tri_verts);
+  cl::Kernel k = kernel("shadow");
+  int arg = bind(k, b);
+  k.setArg(arg++, org_b);
+  k.setArg(arg++, dir_b);
+  k.setArg(arg++, contrib_b);
+  k.setArg(arg++, n);  // the entries past n must be ignored
+  k.setArg(arg++, nodes);
+  k.setArg(arg++, verts);
+  launch(k, n);
+  std::vector<vec4> got = read<vec4>(b.radiance, slots);
+
+  std::vector<vec4> want = state.radiance;
+  for (uint32_t i = 0; i < n; ++i)
+    if (!occluded[i]) want[slot_of[i]] += vec4(vec3(contrib[i]), 0.0f);
+  int bad = 0;
+  for (uint32_t s = 0; s < slots; ++s) bad += !same_bits(got[s], want[s]);  // one float add per channel: exact
+  EXPECT_EQ(bad, 0) << "of " << slots << " path slots, " << blocked << " rays occluded";
+}
+
+}  // namespace
