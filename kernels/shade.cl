@@ -5,20 +5,11 @@
 // normals), XI_HAS_EMITTERS, XI_NEE (light sampling), XI_MIS (combine it with BSDF sampling).
 #include "bsdf.h"
 #include "layout.h"
+#include "lights.h"
 #include "sampling.h"
 #include "warps.h"
 
 #define XI_ROULETTE_DEPTH 3u
-
-// Picks a light triangle by power: binary search of the normalised CDF over emissive triangles.
-static inline uint xi_pick_light(__global const float* cdf, uint n, float u) {
-  uint lo = 0u, hi = n - 1u;
-  while (lo < hi) {
-    uint mid = (lo + hi) >> 1;
-    if (u < cdf[mid]) hi = mid; else lo = mid + 1u;
-  }
-  return lo;
-}
 
 __kernel void shade(XI_PATH_PARAMS __global const uint* restrict queue_in, uint count,
                     __global uint* restrict queue_out, XI_SHADOW_PARAMS volatile __global uint* restrict counters,
@@ -58,9 +49,7 @@ __kernel void shade(XI_PATH_PARAMS __global const uint* restrict queue_in, uint 
 #ifdef XI_NEE
     if (prev_pdf > 0.0f) {
 #ifdef XI_MIS
-      float cos_l = fabs(dot(ng, wo));
-      float light_pdf = tri_light_pdf[tri] * h.x * h.x / fmax(cos_l, 1e-8f);
-      w = xi_power_heuristic(prev_pdf, light_pdf);
+      w = xi_power_heuristic(prev_pdf, xi_light_pdf(tri_light_pdf, tri, h.x, fabs(dot(ng, wo))));
 #else
       w = 0.0f;  // light sampling alone already counted this light
 #endif
@@ -98,30 +87,19 @@ __kernel void shade(XI_PATH_PARAMS __global const uint* restrict queue_in, uint 
     if (light_count > 0u) {
       float2 uc = xi_sample_2d(XI_SAMPLER, sampler, pixel, sample_index, XI_PAIR_BOUNCE(d, XI_BOUNCE_CHOICES));
       float2 ul = xi_sample_2d(XI_SAMPLER, sampler, pixel, sample_index, XI_PAIR_BOUNCE(d, XI_BOUNCE_LIGHT_POINT));
-      uint k = xi_pick_light(light_cdf, light_count, uc.x);
-      uint lt = light_tri[k];
-      float3 q0 = tri_verts[3u * lt].xyz, q1 = tri_verts[3u * lt + 1u].xyz, q2 = tri_verts[3u * lt + 2u].xyz;
-      float2 b = xi_square_to_triangle(ul);
-      float3 q = b.x * q0 + b.y * q1 + (1.0f - b.x - b.y) * q2;
-      float3 nl = normalize(cross(q1 - q0, q2 - q0));
       float3 org = xi_offset_ray_origin(p, n_geo);
-      float3 to_light = q - org;
-      float dist = length(to_light);
-      float3 wl = to_light / dist;
-      MaterialData lm = materials[tri_material[lt]];
-      float cos_l = -dot(nl, wl);
-      if (lm.emission.w > 0.0f) cos_l = fabs(cos_l);
-      float cos_s = dot(n, wl);
-      if (cos_l > 0.0f && cos_s > 0.0f && dot(n_geo, wl) > 0.0f) {
-        float light_pdf = tri_light_pdf[lt] * dist * dist / cos_l;
+      LightSample ls = xi_sample_light(light_cdf, light_tri, tri_light_pdf, tri_verts, tri_material, materials,
+                                       light_count, org, uc.x, ul);
+      float cos_s = dot(n, ls.wi);
+      if (ls.pdf > 0.0f && cos_s > 0.0f && dot(n_geo, ls.wi) > 0.0f) {
         float w = 1.0f;
 #ifdef XI_MIS
-        w = xi_power_heuristic(light_pdf, cos_s * XI_INV_PI);
+        w = xi_power_heuristic(ls.pdf, xi_lambert_pdf(n, ls.wi));
 #endif
-        float3 c = beta * m.albedo.xyz * XI_INV_PI * lm.emission.xyz * (cos_s * w / light_pdf);
+        float3 c = beta * m.albedo.xyz * XI_INV_PI * ls.radiance * (cos_s * w / ls.pdf);
         uint s = atomic_inc(&counters[XI_COUNTER_SHADOW]);
-        shadow_org[s] = (float4)(org, dist * 0.9999f);
-        shadow_dir[s] = (float4)(wl, 0.0f);
+        shadow_org[s] = (float4)(org, ls.dist * 0.9999f);  // stop short of the light itself
+        shadow_dir[s] = (float4)(ls.wi, 0.0f);
         shadow_contrib[s] = (float4)(c, as_float(slot));
       }
     }

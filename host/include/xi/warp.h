@@ -1,4 +1,4 @@
-// Sample sets warped on the device by kernels/warp.cl: the very code the renderer runs, for
+// Sample sets warped on the device by kernels/tools.cl: the very code the renderer runs, for
 // `xi warp` pictures and the χ² tests.
 #pragma once
 #include <cstdint>

@@ -26,7 +26,7 @@ bool warp_map_is_3d(int map) {
 WarpedSamples warp_samples(Device& device, int map, int sampler, uint32_t n, uint32_t seed, uint32_t pixel,
                            uint32_t pair) {
   if (n == 0) throw Error("the number of samples must be positive", "-n");
-  Program program = build_program(device, {"warp.cl"}, {});
+  Program program = build_program(device, {"tools.cl"}, {});
   cl::Kernel kernel(program.program, "warp_points");
   cl::Buffer points(device.context(), CL_MEM_WRITE_ONLY, sizeof(cl_float4) * n);
   cl::Buffer squares(device.context(), CL_MEM_WRITE_ONLY, sizeof(cl_float2) * n);

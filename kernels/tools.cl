@@ -1,0 +1,53 @@
+// Tool kernels, not wavefront stages: they run the renderer's own sampling routines on sample sets
+// so `xi warp` can draw them and the tests can check them against their pdfs (χ²).
+#include "bsdf.h"
+#include "layout.h"
+#include "lights.h"
+#include "sampling.h"
+#include "warps.h"
+
+// points[i] = (warped point, 0); squares[i] = (ξ₁, ξ₂) it came from; sample set of `sampler` with
+// spp = count, pixel `pixel`, dimension pair `pair`.
+__kernel void warp_points(__global float4* restrict points, __global float2* restrict squares, int map,
+                          int sampler, SamplerParams params, uint pixel, uint pair, uint count) {
+  uint i = get_global_id(0);
+  if (i >= count) return;
+  float2 u = xi_sample_2d(sampler, params, pixel, i, pair);
+  points[i] = (float4)(xi_warp(map, u), 0.0f);
+  squares[i] = u;
+}
+
+// Light sampling from `org` as shade does it: out[i] = (wi, solid-angle pdf); the random sampler
+// draws the light choice (pair 0, x) and the point (pair 1).
+__kernel void sample_lights(__global float4* restrict out, __global const float* restrict light_cdf,
+                            __global const uint* restrict light_tri, __global const float* restrict tri_light_pdf,
+                            __global const float4* restrict tri_verts, __global const uint* restrict tri_material,
+                            __global const MaterialData* restrict materials, uint light_count, float4 org,
+                            SamplerParams params, uint count) {
+  uint i = get_global_id(0);
+  if (i >= count) return;
+  float u_pick = xi_sample_2d(XI_SAMPLER_RANDOM, params, 0u, i, 0u).x;
+  float2 u_point = xi_sample_2d(XI_SAMPLER_RANDOM, params, 0u, i, 1u);
+  LightSample ls = xi_sample_light(light_cdf, light_tri, tri_light_pdf, tri_verts, tri_material, materials,
+                                   light_count, org.xyz, u_pick, u_point);
+  out[i] = (float4)(ls.wi, ls.pdf);
+}
+
+// BSDF sampling as shade does it, for a unit normal n and outgoing direction wo on n's side.
+// material: XI_MATERIAL_DIFFUSE → out[i] = (wi, pdf); XI_MATERIAL_DIELECTRIC (index `ior`, wo
+// outside when `entering`) → out[i] = (wi, 1 if reflected else 0).
+__kernel void sample_bsdf(__global float4* restrict out, uint material, float4 n, float4 wo, float ior,
+                          int entering, SamplerParams params, uint count) {
+  uint i = get_global_id(0);
+  if (i >= count) return;
+  float2 u = xi_sample_2d(XI_SAMPLER_RANDOM, params, 0u, i, 0u);
+  if (material == XI_MATERIAL_DIELECTRIC) {
+    bool reflected;
+    float3 wi = xi_dielectric_sample(wo.xyz, n.xyz, ior, entering != 0, u.x, &reflected);
+    out[i] = (float4)(wi, reflected ? 1.0f : 0.0f);
+  } else {
+    float pdf;
+    float3 wi = xi_lambert_sample(n.xyz, u, &pdf);
+    out[i] = (float4)(wi, pdf);
+  }
+}
