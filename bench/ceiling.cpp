@@ -1,0 +1,130 @@
+// The ceiling: xi's extend kernel against Embree's rtcIntersect1 on the same rays, same scene,
+// same run. Rays: camera rays and first-bounce rays recorded from a real render of the scene.
+// Prints Mrays/s for both (medians of several timed runs) and the ratio xi / Embree.
+#include <embree3/rtcore.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cstdio>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include "xi/error.h"
+#include "xi/render.h"
+
+namespace {
+
+double median(std::vector<double> v) {
+  std::sort(v.begin(), v.end());
+  return v[v.size() / 2];
+}
+
+struct Embree {
+  RTCDevice device = rtcNewDevice(nullptr);
+  RTCScene scene = rtcNewScene(device);
+
+  explicit Embree(const std::vector<glm::vec4>& tri_verts) {
+    const size_t n = tri_verts.size() / 3;
+    RTCGeometry geom = rtcNewGeometry(device, RTC_GEOMETRY_TYPE_TRIANGLE);
+    auto* v = (float*)rtcSetNewGeometryBuffer(geom, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3, 3 * sizeof(float),
+                                              3 * n);
+    auto* idx = (unsigned*)rtcSetNewGeometryBuffer(geom, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3,
+                                                   3 * sizeof(unsigned), n);
+    for (size_t i = 0; i < 3 * n; ++i) {
+      v[3 * i] = tri_verts[i].x;
+      v[3 * i + 1] = tri_verts[i].y;
+      v[3 * i + 2] = tri_verts[i].z;
+      idx[i] = (unsigned)i;
+    }
+    rtcCommitGeometry(geom);
+    rtcAttachGeometry(scene, geom);
+    rtcReleaseGeometry(geom);
+    rtcSetSceneBuildQuality(scene, RTC_BUILD_QUALITY_HIGH);
+    rtcCommitScene(scene);
+  }
+  ~Embree() {
+    rtcReleaseScene(scene);
+    rtcReleaseDevice(device);
+  }
+
+  // Closest hits on all cores; returns seconds; prim[i] = triangle or -1.
+  double trace(const xi::RayBatch& rays, std::vector<int>* prim) {
+    const size_t n = rays.org.size();
+    prim->assign(n, -1);
+    unsigned threads = std::max(1u, std::thread::hardware_concurrency());
+    auto start = std::chrono::steady_clock::now();
+    std::vector<std::thread> pool;
+    for (unsigned t = 0; t < threads; ++t)
+      pool.emplace_back([&, t] {
+        RTCIntersectContext ctx;
+        rtcInitIntersectContext(&ctx);
+        for (size_t i = t; i < n; i += threads) {
+          RTCRayHit rh{};
+          rh.ray.org_x = rays.org[i].x;
+          rh.ray.org_y = rays.org[i].y;
+          rh.ray.org_z = rays.org[i].z;
+          rh.ray.dir_x = rays.dir[i].x;
+          rh.ray.dir_y = rays.dir[i].y;
+          rh.ray.dir_z = rays.dir[i].z;
+          rh.ray.tnear = 0.0f;
+          rh.ray.tfar = INFINITY;
+          rh.ray.mask = ~0u;
+          rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
+          rtcIntersect1(scene, &ctx, &rh);
+          if (rh.hit.geomID != RTC_INVALID_GEOMETRY_ID) (*prim)[i] = (int)rh.hit.primID;
+        }
+      });
+    for (auto& th : pool) th.join();
+    return std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  }
+};
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  if (argc < 2) {
+    std::fprintf(stderr, "usage: xi_ceiling SCENE.json [RUNS] [WIDTHxHEIGHT]\n");
+    return 2;
+  }
+  try {
+    int runs = argc > 2 ? std::max(1, std::atoi(argv[2])) : 5;
+    xi::Scene scene = xi::load_scene(argv[1]);
+    if (argc > 3 && std::sscanf(argv[3], "%dx%d", &scene.width, &scene.height) != 2)
+      throw xi::Error("expected WIDTHxHEIGHT", argv[3]);
+    xi::Device device = xi::Device::open("");
+    std::printf("scene %s: %zu triangles, %dx%d; device %s; %u host threads for Embree\n", argv[1],
+                scene.triangles.size(), scene.width, scene.height, device.info().name.c_str(),
+                std::thread::hardware_concurrency());
+    for (int bounce : {0, 1}) {
+      xi::RenderOptions opt;
+      opt.spp = 1;
+      opt.record_bounce = bounce;
+      xi::Renderer recorder(device, scene, opt);
+      recorder.run_pass();
+      const xi::RayBatch& rays = recorder.recorded_rays();
+      Embree embree(recorder.compiled().tri_verts);
+      std::vector<double> xi_s, em_s;
+      std::vector<glm::vec4> hits;
+      std::vector<int> prim;
+      for (int r = 0; r < runs; ++r) {
+        xi_s.push_back(recorder.trace_closest(rays, &hits));
+        em_s.push_back(embree.trace(rays, &prim));
+      }
+      size_t agree = 0;
+      for (size_t i = 0; i < rays.org.size(); ++i) {
+        int ours = hits[i].x < 0.0f ? -1 : (int)as_uint(hits[i].w);
+        agree += ours == prim[i];
+      }
+      double n = (double)rays.org.size();
+      double xi_rate = n / median(xi_s) * 1e-6, em_rate = n / median(em_s) * 1e-6;
+      std::printf("%-13s %9zu rays  xi extend %7.2f Mrays/s  embree %7.2f Mrays/s  ratio %.3f  same hit %.3f%%\n",
+                  bounce == 0 ? "camera rays" : "bounce rays", rays.org.size(), xi_rate, em_rate, xi_rate / em_rate,
+                  100.0 * agree / n);
+    }
+  } catch (const std::exception& e) {
+    std::fprintf(stderr, "xi_ceiling: error: %s\n", e.what());
+    return 1;
+  }
+  return 0;
+}
