@@ -27,13 +27,18 @@ std::filesystem::path default_scene() {
 }
 
 void parse_resolution(const std::string& text, Scene* scene) {
-  int w = 0, h = 0;
-  char x = 0, extra = 0;
-  if (std::sscanf(text.c_str(), "%d%c%d%c", &w, &x, &h, &extra) != 3 || (x != 'x' && x != 'X') || w < 1 ||
-      h < 1 || w > 16384 || h > 16384)
-    throw Error("expected WxH with 1 <= W, H <= 16384, got '" + text + "'", "--resolution");
-  scene->width = w;
-  scene->height = h;
+  // Digits, 'x', digits: nothing else (no sign, spaces or overflow).
+  const Error bad("expected WxH with 1 <= W, H <= 16384, got '" + text + "'", "--resolution");
+  size_t x = text.find_first_of("xX");
+  auto number = [&](const std::string& digits) {
+    if (digits.empty() || digits.size() > 5 || digits.find_first_not_of("0123456789") != std::string::npos) throw bad;
+    int v = std::stoi(digits);
+    if (v < 1 || v > 16384) throw bad;
+    return v;
+  };
+  if (x == std::string::npos) throw bad;
+  scene->width = number(text.substr(0, x));
+  scene->height = number(text.substr(x + 1));
 }
 
 std::string format_seconds(double s) {
