@@ -430,3 +430,105 @@ TEST_F(CliCommands, UnknownCommandExits1) {
   const auto before = files();
   expect_user_error(run_xi({"frobnicate"}), {"unknown command", "frobnicate"}, before);
 }
+
+// ---------------------------------------------------------------------------------------------
+// Error tracking, profiling output, xi diff and xi warp.
+
+TEST_F(CliTest, ConvergenceLogTraceAndLayers) {
+  ASSERT_EQ(run_xi(concat({"render", "-o", "ref.exr", "--seed", "9"}, kFast)).code, 0);
+  auto r = run_xi(concat({"render", "-o", "img.exr", "--spp", "4", "--reference", "ref.exr", "--convergence", "c.csv",
+                          "--trace", "t.json"},
+                         {"--resolution", "32x32", "--quiet"}));
+  ASSERT_EQ(r.code, 0) << r.err;
+  // One CSV row per pass, spp counting up, seconds not decreasing.
+  std::istringstream csv(read_text(work_ / "c.csv"));
+  std::string line;
+  std::getline(csv, line);
+  EXPECT_EQ(line, "pass,spp,seconds,mse,rmse,relmse,mae,mrse");
+  int rows = 0;
+  double last_seconds = 0.0, last_rmse = 0.0;
+  while (std::getline(csv, line)) {
+    int pass = 0, spp = 0;
+    double seconds = 0, mse = 0, rmse = 0;
+    ASSERT_EQ(std::sscanf(line.c_str(), "%d,%d,%lf,%lf,%lf", &pass, &spp, &seconds, &mse, &rmse), 5) << line;
+    EXPECT_EQ(pass, rows);
+    EXPECT_EQ(spp, rows + 1);
+    EXPECT_GE(seconds, last_seconds);
+    EXPECT_NEAR(rmse, std::sqrt(mse), 1e-6 * rmse + 1e-12);
+    last_seconds = seconds;
+    last_rmse = rmse;
+    rows++;
+  }
+  EXPECT_EQ(rows, 4);
+  // The final row equals what xi diff says, and the EXR carries it.
+  auto d = run_xi({"diff", "img.exr", "ref.exr", "--metric", "rmse"});
+  ASSERT_EQ(d.code, 0) << d.err;
+  EXPECT_NEAR(std::stod(d.out), last_rmse, 1e-6 * last_rmse);
+  auto attrs = xi::read_exr_attributes(work_ / "img.exr");
+  EXPECT_NEAR(std::get<double>(attrs.at("error.rmse")), last_rmse, 1e-6 * last_rmse);
+  for (const char* layer : {"variance", "albedo", "normal"})
+    EXPECT_EQ(xi::read_exr(work_ / "img.exr", layer).width, 32) << layer;
+  // The trace is JSON with one complete event per launch: 4 passes of generate and accumulate.
+  json trace = json::parse(read_text(work_ / "t.json"));
+  int generate = 0, accumulate = 0, extend = 0;
+  for (auto& e : trace["traceEvents"]) {
+    EXPECT_EQ(e["ph"], "X");
+    EXPECT_GE(e["dur"].get<double>(), 0.0);
+    EXPECT_GT(e["args"]["items"].get<int>(), 0);
+    generate += e["name"] == "generate";
+    accumulate += e["name"] == "accumulate";
+    extend += e["name"] == "extend";
+  }
+  EXPECT_EQ(generate, 4);
+  EXPECT_EQ(accumulate, 4);
+  EXPECT_GE(extend, 4);
+}
+
+TEST_F(CliTest, ConvergenceNeedsAMatchingReference) {
+  ASSERT_EQ(run_xi(concat({"render", "-o", "ref.exr"}, kFast)).code, 0);
+  auto before = files();
+  expect_user_error(run_xi(concat({"render", "-o", "a.exr", "--convergence", "c.csv"}, kFast)), {"--reference"},
+                    before);
+  expect_user_error(run_xi({"render", "-o", "a.exr", "--spp", "1", "--resolution", "16x16", "--reference", "ref.exr",
+                            "--quiet"}),
+                    {"ref.exr", "32x32"}, before);
+}
+
+TEST_F(CliTest, DiffReportsMetricsHeatmapAndErrors) {
+  ASSERT_EQ(run_xi(concat({"render", "-o", "a.exr", "--seed", "1"}, kFast)).code, 0);
+  ASSERT_EQ(run_xi(concat({"render", "-o", "b.exr", "--seed", "2"}, kFast)).code, 0);
+  ASSERT_EQ(run_xi({"render", "-o", "small.exr", "--spp", "1", "--resolution", "16x16", "--quiet"}).code, 0);
+  auto same = run_xi({"diff", "a.exr", "a.exr", "--metric", "mse"});
+  EXPECT_EQ(same.code, 0);
+  EXPECT_EQ(std::stod(same.out), 0.0);
+  auto all = run_xi({"diff", "a.exr", "b.exr", "--heatmap", "h.png"});
+  EXPECT_EQ(all.code, 0) << all.err;
+  for (const char* m : {"mse", "rmse", "relmse", "mae", "mrse"}) EXPECT_NE(all.out.find(m), std::string::npos);
+  EXPECT_EQ(xi::read_png(work_ / "h.png").width, 32);
+  auto before = files();
+  expect_user_error(run_xi({"diff", "a.exr", "small.exr"}), {"differ in size"}, before);
+  expect_user_error(run_xi({"diff", "a.exr", "missing.exr"}), {"missing.exr"}, before);
+  expect_user_error(run_xi({"diff", "a.exr", "b.exr", "--metric", "psnr"}), {"psnr"}, before);
+  expect_user_error(run_xi({"diff", "a.exr", "b.exr", "--crop", "0,0,99,5"}), {"--crop"}, before);
+}
+
+TEST_F(CliTest, WarpWritesPointsInTheDomain) {
+  auto r = run_xi({"warp", "--map", "disc", "--sampler", "sobol", "-n", "256", "-o", "p.csv"});
+  ASSERT_EQ(r.code, 0) << r.err;
+  std::istringstream csv(read_text(work_ / "p.csv"));
+  std::string line;
+  int n = 0;
+  while (std::getline(csv, line)) {
+    double x, y, z;
+    ASSERT_EQ(std::sscanf(line.c_str(), "%lf,%lf,%lf", &x, &y, &z), 3) << line;
+    EXPECT_LE(x * x + y * y, 1.0 + 1e-6);
+    EXPECT_EQ(z, 0.0);
+    n++;
+  }
+  EXPECT_EQ(n, 256);
+  ASSERT_EQ(run_xi({"warp", "--map", "cosine-hemisphere", "-n", "512", "-o", "p.png"}).code, 0);
+  EXPECT_EQ(xi::read_png(work_ / "p.png").width, 512);
+  auto before = files();
+  expect_user_error(run_xi({"warp", "--map", "torus", "-o", "q.png"}), {"torus"}, before);
+  expect_user_error(run_xi({"warp", "--map", "disc", "-o", "q.txt"}), {".png or .csv"}, before);
+}
