@@ -22,7 +22,12 @@
 #include "xi/device.h"
 #include "xi/scene.h"
 
+#include "brute_force.h"
+
 namespace {
+
+using xi::test::BruteForce;
+using xi::test::HostHit;
 
 using glm::vec3;
 using glm::vec4;
@@ -125,45 +130,6 @@ std::optional<xi::Program> Kernel::program_;
 
 // --- Host reference for ray casting: xi_intersect_triangle on every triangle ---------------------
 
-struct HostHit {
-  uint32_t tri;  // scene order
-  float t, u, v;
-};
-
-// A conservative bounding-sphere test (the ray line's distance to the centroid, with slack far above
-// float rounding) skips the exact test for triangles the line cannot touch; it only saves time
-// (ExtendMatchesBruteForce checks it against the unculled loop on a sample of rays).
-struct BruteForce {
-  std::vector<xi::Triangle> tris;
-  std::vector<float> cx, cy, cz, r2;
-  explicit BruteForce(const std::vector<xi::Triangle>& t) : tris(t) {
-    for (auto& tri : tris) {
-      vec3 c = (tri.v[0] + tri.v[1] + tri.v[2]) / 3.0f;
-      float r = 0.0f;
-      for (auto& v : tri.v) r = std::max(r, glm::length(v - c));
-      cx.push_back(c.x), cy.push_back(c.y), cz.push_back(c.z), r2.push_back(1.01f * r * r);
-    }
-  }
-  // Every hit of the ray (unit d) in (0, tmax), nearest first.
-  std::vector<HostHit> hits(vec3 o, vec3 d, float tmax, bool cull = true) const {
-    const size_t n = tris.size();
-    std::vector<uint8_t> near(n);
-    for (size_t i = 0; i < n; ++i) {  // vectorisable: no branches
-      float px = cx[i] - o.x, py = cy[i] - o.y, pz = cz[i] - o.z;
-      float qx = py * d.z - pz * d.y, qy = pz * d.x - px * d.z, qz = px * d.y - py * d.x;
-      near[i] = !cull || qx * qx + qy * qy + qz * qz <= r2[i] + 1e-5f * (px * px + py * py + pz * pz);
-    }
-    RayShear s = xi_ray_shear(d);
-    std::vector<HostHit> out;
-    for (uint32_t i = 0; i < n; ++i) {
-      HostHit h{i, 0, 0, 0};
-      if (near[i] && xi_intersect_triangle(o, s, tris[i].v[0], tris[i].v[1], tris[i].v[2], tmax, &h.t, &h.u, &h.v))
-        out.push_back(h);
-    }
-    std::sort(out.begin(), out.end(), [](const HostHit& a, const HostHit& b) { return a.t < b.t; });
-    return out;
-  }
-};
 
 vec3 random_direction(std::mt19937& rng) {
   std::normal_distribution<float> g;
