@@ -128,9 +128,6 @@ class Kernel : public ::testing::Test {
 std::optional<xi::Device> Kernel::device_;
 std::optional<xi::Program> Kernel::program_;
 
-// --- Host reference for ray casting: xi_intersect_triangle on every triangle ---------------------
-
-
 vec3 random_direction(std::mt19937& rng) {
   std::normal_distribution<float> g;
   return glm::normalize(vec3(g(rng), g(rng), g(rng)));
