@@ -126,6 +126,8 @@ double normal_quantile(double p) {
 
 double sidak_alpha(double alpha, int tests) { return -std::expm1(std::log1p(-alpha) / tests); }
 
+double sidak_critical_z(double alpha, int tests) { return -normal_quantile(0.5 * sidak_alpha(alpha, tests)); }
+
 Chi2Result chi2_test(std::span<const double> observed, std::span<const double> expected, double min_expected) {
   Chi2Result r;
   std::vector<double> obs, exp;

@@ -26,6 +26,11 @@ double normal_quantile(double p);
 // `tests` independent tests at `alpha`: 1 − (1 − alpha)^(1/tests).
 double sidak_alpha(double alpha, int tests);
 
+// The two-sided critical value of a z-test run `tests` times at family-wise level `alpha`,
+// Šidák-corrected: Φ⁻¹(1 − α₁/2) with α₁ = sidak_alpha(alpha, tests). E.g. 2.5758 for one test at
+// 0.01, 3.2595 for nine.
+double sidak_critical_z(double alpha, int tests);
+
 struct Chi2Result {
   double statistic = 0.0;  // Pearson's Σ (O − E)² / E over the bins
   int dof = 0;             // bins − 1

@@ -38,7 +38,7 @@ std::vector<std::string> kernel_defines(const Features& f, int sampler, Strategy
 struct CompiledScene {
   Bvh bvh;
   std::vector<glm::vec4> tri_verts;    // 3 per triangle, BVH order
-  std::vector<glm::vec4> tri_normals;  // 3 per triangle (w = 1 where the triangle has them), or 1 dummy
+  std::vector<glm::vec4> tri_normals;  // 3 per triangle; w = 1 where the triangle has vertex normals
   std::vector<uint32_t> tri_material;
   std::vector<MaterialData> materials;
   std::vector<float> light_cdf;        // over emissive triangles, by power; last entry 1

@@ -78,7 +78,8 @@ CompiledScene compile_scene(const Scene& scene) {
   cs.tri_material.resize(n);
   cs.tri_light_pdf.assign(n, 0.0f);
   for (auto& t : scene.triangles) cs.features.normals |= t.has_normals;
-  if (cs.features.normals) cs.tri_normals.assign(3 * n, glm::vec4(0.0f));
+  // Always 3 per triangle: an --all-features build reads them even when no triangle has normals.
+  cs.tri_normals.assign(3 * n, glm::vec4(0.0f));
   std::vector<double> power;
   for (size_t i = 0; i < n; ++i) {
     const Triangle& t = scene.triangles[cs.bvh.order[i]];
@@ -98,7 +99,6 @@ CompiledScene compile_scene(const Scene& scene) {
       }
     }
   }
-  if (cs.tri_normals.empty()) cs.tri_normals.assign(1, glm::vec4(0.0f));  // OpenCL needs a buffer
 
   double total = 0.0;
   for (double p : power) total += p;
