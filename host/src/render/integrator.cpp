@@ -78,8 +78,10 @@ int Renderer::bind_shadow_state(cl::Kernel& kernel, int arg) {
 
 void Renderer::launch(cl::Kernel& kernel, const char* stage, int bounce, size_t items) {
   size_t local = options_.local_size;
-  // Zero items still launches one group (the kernels return at once): used to warm up the driver.
-  size_t global = std::max<size_t>(local ? (items + local - 1) / local * local : items, local ? local : 1);
+  // Zero items (the warm-up) launches a full wave whose work items return at once: PoCL specialises
+  // its compiled work-group functions on the launch size, so a small dummy launch would not do.
+  size_t n = items > 0 ? items : wave_;
+  size_t global = local ? (n + local - 1) / local * local : n;
   cl::Event event;
   device_.queue().enqueueNDRangeKernel(kernel, cl::NullRange, cl::NDRange(global),
                                        local ? cl::NDRange(local) : cl::NullRange, nullptr, &event);
