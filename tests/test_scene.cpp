@@ -311,6 +311,16 @@ TEST(SceneErrors, AssimpFailure) {
   fs::remove_all(dir);
 }
 
+TEST(SceneErrors, NonFiniteMeshData) {
+  // Assimp reads an overflowing coordinate as Inf; the mesh must be refused, naming file and triangle.
+  const fs::path dir = temp_dir();
+  std::ofstream(dir / "inf.obj") << "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 1e39\nf 1 2 3\nf 2 4 3\n";
+  const std::string text = scene_text(R"({"type": "mesh", "material": "white", "file": "inf.obj"})");
+  expect_error([&] { parse(text, dir); }, "inf.obj: triangle 1 has a non-finite vertex");
+  expect_error([&] { parse(text, dir); }, "/shapes/0/file");
+  fs::remove_all(dir);
+}
+
 TEST(SceneErrors, UnknownMaterial) {
   expect_parse_error(scene_text(kQuad + R"(, {"type": "quad", "material": "whte",
       "vertices": [[0,0,0], [1,0,0], [1,1,0], [0,1,0]]})"), "unknown material 'whte' (test.json: /shapes/1/material)");

@@ -359,8 +359,13 @@ void read_shape(const Node& n, const std::map<std::string, uint32_t>& materials,
     for (Triangle& t : tris) apply(xf, t);
   } else {
     const Node file = n.at("file");
-    for (Triangle& t : load_mesh(file, base_dir)) {
+    std::vector<Triangle> loaded = load_mesh(file, base_dir);
+    for (size_t i = 0; i < loaded.size(); ++i) {
+      Triangle& t = loaded[i];
       apply(xf, t);
+      for (const auto& v : t.v)  // NaN or Inf in the file's data (or overflow in the transform)
+        if (!std::isfinite(v.x + v.y + v.z))
+          file.fail("mesh " + file.string() + ": triangle " + std::to_string(i) + " has a non-finite vertex coordinate");
       if (degenerate(t)) continue;  // common in real meshes and harmless to drop
       for (const auto& nv : t.n) t.has_normals = t.has_normals && std::isfinite(nv.x + nv.y + nv.z);
       tris.push_back(t);
