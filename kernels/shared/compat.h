@@ -11,9 +11,7 @@
 #define make_float2(x, y) ((float2)((x), (y)))
 #define make_float3(x, y, z) ((float3)((x), (y), (z)))
 #define make_float4(x, y, z, w) ((float4)((x), (y), (z), (w)))
-#define make_uint4(x, y, z, w) ((uint4)((x), (y), (z), (w)))
 #define xyz(v) ((v).xyz)
-#define XI_CONSTANT __constant
 
 #else  // host C++
 
@@ -26,14 +24,12 @@
 #define __local
 #define __constant
 #define __kernel
-#define XI_CONSTANT static const
 
 typedef uint32_t uint;
 typedef glm::vec2 float2;
 typedef glm::vec3 float3;
 typedef glm::vec4 float4;
 typedef glm::ivec3 int3;
-typedef glm::uvec4 uint4;
 
 using glm::cross;
 using glm::dot;
@@ -55,7 +51,6 @@ using std::atan2;
 static inline float2 make_float2(float x, float y) { return float2(x, y); }
 static inline float3 make_float3(float x, float y, float z) { return float3(x, y, z); }
 static inline float4 make_float4(float x, float y, float z, float w) { return float4(x, y, z, w); }
-static inline uint4 make_uint4(uint x, uint y, uint z, uint w) { return uint4(x, y, z, w); }
 static inline float3 xyz(const float4& v) { return float3(v.x, v.y, v.z); }
 static inline float3 fmin(const float3& a, const float3& b) { return glm::min(a, b); }
 static inline float3 fmax(const float3& a, const float3& b) { return glm::max(a, b); }
@@ -65,8 +60,6 @@ static inline uint as_uint(float f) { uint u; std::memcpy(&u, &f, 4); return u; 
 static inline float as_float(uint u) { float f; std::memcpy(&f, &u, 4); return f; }
 static inline int as_int(float f) { int i; std::memcpy(&i, &f, 4); return i; }
 static inline float as_float_i(int i) { float f; std::memcpy(&f, &i, 4); return f; }
-static inline uint clz(uint x) { return x == 0 ? 32u : (uint)__builtin_clz(x); }
-static inline uint mul_hi(uint a, uint b) { return (uint)(((uint64_t)a * b) >> 32); }
 
 #endif
 
@@ -79,7 +72,6 @@ static inline uint mul_hi(uint a, uint b) { return (uint)(((uint64_t)a * b) >> 3
 #define XI_ONE_MINUS_EPSILON 0x1.fffffep-1f  // the largest float below 1
 
 static inline float xi_max3(float3 v) { return fmax(v.x, fmax(v.y, v.z)); }
-static inline float xi_luminance(float3 c) { return 0.2126f * c.x + 0.7152f * c.y + 0.0722f * c.z; }
 // sqrt of a value that rounding may have pushed slightly below zero.
 static inline float xi_safe_sqrt(float x) { return sqrt(fmax(x, 0.0f)); }
 

@@ -56,10 +56,9 @@ typedef struct {
 #define XI_SHADOW_PARAMS XI_SHADOW_STATE(XI_PARAM)
 
 // Counters in one small device buffer; queues ping-pong between two index buffers.
-#define XI_COUNTER_RAYS_IN 0
-#define XI_COUNTER_RAYS_OUT 1
-#define XI_COUNTER_SHADOW 2
-#define XI_COUNTER_NONFINITE 3
-#define XI_COUNTER_COUNT 4
+#define XI_COUNTER_RAYS_OUT 0
+#define XI_COUNTER_SHADOW 1  // must follow RAYS_OUT: the host reads the two together
+#define XI_COUNTER_NONFINITE 2
+#define XI_COUNTER_COUNT 3
 
 #endif

@@ -68,7 +68,6 @@ static inline float2 xi_square_to_concentric_disc(float2 u) {
   }
   return make_float2(r * cos(theta), r * sin(theta));
 }
-static inline float xi_concentric_disc_pdf(float2 p) { return xi_disc_pdf(p); }
 static inline float2 xi_concentric_disc_to_square(float2 p) {
   float r = sqrt(p.x * p.x + p.y * p.y);
   float theta = atan2(p.y, p.x);  // (−π, π]
