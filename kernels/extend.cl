@@ -2,10 +2,10 @@
 #include "intersect.h"
 #include "layout.h"
 
-__kernel void extend(XI_PATH_PARAMS __global const uint* restrict queue, uint count,
-                     __global const BvhNode* restrict nodes, __global const float4* restrict tri_verts) {
+__kernel void extend(XI_PATH_PARAMS __global const uint* restrict queue, __global const uint* restrict counters,
+                     uint bounce, __global const BvhNode* restrict nodes, __global const float4* restrict tri_verts) {
   uint i = get_global_id(0);
-  if (i >= count) return;
+  if (i >= counters[XI_COUNTER_RAYS(bounce)]) return;  // launched over an upper bound
   uint slot = queue[i];
   float t, u, v;
   uint tri = xi_trace(nodes, tri_verts, ray_org[slot].xyz, ray_dir[slot].xyz, INFINITY, false, &t, &u, &v);

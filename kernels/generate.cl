@@ -1,15 +1,17 @@
-// Stage 1, generate: one camera ray per pixel of the wave for sample `sample_index`, jittered
-// inside the pixel (box filter) by the sampler's first pair of dimensions; thin lens when compiled
-// with XI_HAS_LENS, the lens point drawn by the concentric disc map from the second pair.
+// Stage 1, generate: one camera ray per (pixel, sample) item of the wave, jittered inside the
+// pixel (box filter) by the sampler's first pair of dimensions; thin lens when compiled with
+// XI_HAS_LENS, the lens point drawn by the concentric disc map from the second pair.
 #include "layout.h"
 #include "sampling.h"
 #include "warps.h"
 
-__kernel void generate(XI_PATH_PARAMS __global uint* restrict queue, CameraData cam,
-                       SamplerParams sampler, uint first_pixel, uint count, uint sample_index) {
+__kernel void generate(XI_PATH_PARAMS __global uint* restrict queue, __global uint* restrict counters,
+                       CameraData cam, SamplerParams sampler, WaveParams wave) {
   uint slot = get_global_id(0);
+  uint count = wave.pixels * wave.samples;
+  if (slot == 0u) counters[XI_COUNTER_RAYS(0)] = count;
   if (slot >= count) return;
-  uint pixel = first_pixel + slot;
+  uint pixel = wave.first_pixel + slot % wave.pixels, sample_index = wave.first_sample + slot / wave.pixels;
   float px = (float)(pixel % cam.width), py = (float)(pixel / cam.width);
   float2 u = xi_sample_2d(XI_SAMPLER, sampler, pixel, sample_index, XI_PAIR_PIXEL);
   // Film coordinates in [-1, 1]², x to the right, y up; pixel (0, 0) is the top-left corner.

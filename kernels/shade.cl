@@ -9,20 +9,33 @@
 #include "sampling.h"
 #include "warps.h"
 
-#define XI_ROULETTE_DEPTH 3u
+// Russian roulette from this bounce on, as in Mitsuba 3 (rr_depth 5): earlier bounces carry most
+// of the image, and ending them early adds more variance than it saves time.
+#define XI_ROULETTE_DEPTH 5u
 
-__kernel void shade(XI_PATH_PARAMS __global const uint* restrict queue_in, uint count,
-                    __global uint* restrict queue_out, XI_SHADOW_PARAMS volatile __global uint* restrict counters,
-                    __global const MaterialData* restrict materials, __global const float4* restrict tri_verts,
-                    __global const uint* restrict tri_material, __global const float4* restrict tri_normals,
-                    __global const float* restrict light_cdf, __global const uint* restrict light_tri,
-                    __global const float* restrict tri_light_pdf, uint light_count,
-                    SamplerParams sampler, uint first_pixel, uint sample_index, uint max_depth,
-                    float4 background) {
-  uint i = get_global_id(0);
-  if (i >= count) return;
-  uint slot = queue_in[i];
-  uint pixel = first_pixel + slot;
+// What shading one path produced: whether it goes on (its new ray is in the path state) and
+// whether it queues a shadow ray.
+typedef struct {
+  bool next_ray;
+  bool shadow;
+  float4 shadow_org;      // xyz: origin; w: tmax
+  float4 shadow_dir;
+  float4 shadow_contrib;  // rgb; w: as_float(path slot)
+} ShadeResult;
+
+static inline ShadeResult xi_shade_path(XI_PATH_PARAMS uint slot, bool active, __global const MaterialData* restrict materials,
+                                        __global const float4* restrict tri_verts,
+                                        __global const uint* restrict tri_material,
+                                        __global const float4* restrict tri_normals,
+                                        __global const float* restrict light_cdf,
+                                        __global const uint* restrict light_tri,
+                                        __global const float* restrict tri_light_pdf, uint light_count,
+                                        SamplerParams sampler, uint pixel, uint sample_index, uint max_depth,
+                                        float4 background) {
+  ShadeResult r;
+  r.next_ray = false;
+  r.shadow = false;
+  if (!active) return r;
   uint d = depth[slot];
   float4 h = hit[slot];
   float4 beta4 = throughput[slot];
@@ -32,7 +45,7 @@ __kernel void shade(XI_PATH_PARAMS __global const uint* restrict queue_in, uint 
 
   if (h.x < 0.0f) {  // escaped: the background is not sampled as a light, so it has weight 1
     radiance[slot] = (float4)(L + beta * background.xyz, 0.0f);
-    return;
+    return r;
   }
 
   uint tri = as_uint(h.w);
@@ -60,7 +73,7 @@ __kernel void shade(XI_PATH_PARAMS __global const uint* restrict queue_in, uint 
 #endif
 
   radiance[slot] = (float4)(L, 0.0f);
-  if (d >= max_depth) return;
+  if (d >= max_depth) return r;
 
   float3 n_geo = front ? ng : -ng;  // geometric normal on the side of wo
   float3 n = n_geo;
@@ -82,7 +95,7 @@ __kernel void shade(XI_PATH_PARAMS __global const uint* restrict queue_in, uint 
   float pdf = 0.0f;  // stays 0 for specular lobes
   bool transmitted = false;
   if (m.type == XI_MATERIAL_DIFFUSE) {
-    if (xi_max3(m.albedo.xyz) <= 0.0f) return;
+    if (xi_max3(m.albedo.xyz) <= 0.0f) return r;
 #ifdef XI_NEE
     if (light_count > 0u) {
       float2 uc = xi_sample_2d(XI_SAMPLER, sampler, pixel, sample_index, XI_PAIR_BOUNCE(d, XI_BOUNCE_CHOICES));
@@ -97,22 +110,22 @@ __kernel void shade(XI_PATH_PARAMS __global const uint* restrict queue_in, uint 
         w = xi_power_heuristic(ls.pdf, xi_lambert_pdf(n, ls.wi));
 #endif
         float3 c = beta * m.albedo.xyz * XI_INV_PI * ls.radiance * (cos_s * w / ls.pdf);
-        uint s = atomic_inc(&counters[XI_COUNTER_SHADOW]);
-        shadow_org[s] = (float4)(org, ls.dist * 0.9999f);  // stop short of the light itself
-        shadow_dir[s] = (float4)(ls.wi, 0.0f);
-        shadow_contrib[s] = (float4)(c, as_float(slot));
+        r.shadow = true;
+        r.shadow_org = (float4)(org, ls.dist * 0.9999f);  // stop short of the light itself
+        r.shadow_dir = (float4)(ls.wi, 0.0f);
+        r.shadow_contrib = (float4)(c, as_float(slot));
       }
     }
 #endif
     float2 ub = xi_sample_2d(XI_SAMPLER, sampler, pixel, sample_index, XI_PAIR_BOUNCE(d, XI_BOUNCE_BSDF_DIR));
     wi = xi_lambert_sample(n, ub, &pdf);
-    if (dot(wi, n_geo) <= 0.0f || pdf <= 0.0f) return;  // shading normal pointed below the surface
+    if (dot(wi, n_geo) <= 0.0f || pdf <= 0.0f) return r;  // shading normal pointed below the surface
     beta *= m.albedo.xyz;
   }
 #ifdef XI_HAS_MIRROR
   else if (m.type == XI_MATERIAL_MIRROR) {
     wi = xi_reflect(wo, n);
-    if (dot(wi, n_geo) <= 0.0f) return;
+    if (dot(wi, n_geo) <= 0.0f) return r;
     beta *= m.albedo.xyz;
   }
 #endif
@@ -126,20 +139,60 @@ __kernel void shade(XI_PATH_PARAMS __global const uint* restrict queue_in, uint 
   }
 #endif
   else {
-    return;  // a material this build was not compiled for
+    return r;  // a material this build was not compiled for
   }
 
   if (d + 1u >= XI_ROULETTE_DEPTH) {
+    // The decision takes an independent uniform, whatever the sampler: a deterministic sample set
+    // (grid's cell centres) would make it a fixed cut, ending every path whose q is below them all.
     float q = fmin(xi_max3(beta), 0.95f);
-    float u = xi_sample_2d(XI_SAMPLER, sampler, pixel, sample_index, XI_PAIR_BOUNCE(d, XI_BOUNCE_ROULETTE)).x;
-    if (u >= q) return;
+    float u = xi_sample_2d(XI_SAMPLER_RANDOM, sampler, pixel, sample_index, XI_PAIR_BOUNCE(d, XI_BOUNCE_ROULETTE)).x;
+    if (u >= q) return r;
     beta /= q;
   }
-  if (xi_max3(beta) <= 0.0f) return;
+  if (xi_max3(beta) <= 0.0f) return r;
 
   ray_org[slot] = (float4)(xi_offset_ray_origin(p, transmitted ? -n_geo : n_geo), 0.0f);
   ray_dir[slot] = (float4)(wi, 0.0f);
   throughput[slot] = (float4)(beta, pdf);
   depth[slot] = d + 1u;
-  queue_out[atomic_inc(&counters[XI_COUNTER_RAYS_OUT])] = slot;
+  r.next_ray = true;
+  return r;
+}
+
+__kernel void shade(XI_PATH_PARAMS __global const uint* restrict queue_in, __global uint* restrict queue_out,
+                    XI_SHADOW_PARAMS volatile __global uint* restrict counters, uint bounce,
+                    __global const MaterialData* restrict materials, __global const float4* restrict tri_verts,
+                    __global const uint* restrict tri_material, __global const float4* restrict tri_normals,
+                    __global const float* restrict light_cdf, __global const uint* restrict light_tri,
+                    __global const float* restrict tri_light_pdf, uint light_count,
+                    SamplerParams sampler, WaveParams wave, uint max_depth, float4 background) {
+  uint i = get_global_id(0);
+  bool active = i < counters[XI_COUNTER_RAYS(bounce)];  // launched over an upper bound
+  uint slot = active ? queue_in[i] : 0u;
+  ShadeResult r = xi_shade_path(XI_PATH_ARGS slot, active, materials, tri_verts, tri_material, tri_normals,
+                                light_cdf, light_tri, tri_light_pdf, light_count, sampler,
+                                wave.first_pixel + slot % wave.pixels, wave.first_sample + slot / wave.pixels,
+                                max_depth, background);
+  // Append to the ray and shadow queues: entries are counted in local memory and reserved with one
+  // global atomic per work group, since a global atomic per item serialises the cores on one line.
+  volatile __local uint group_count[2], group_base[2];
+  if (get_local_id(0) == 0u) group_count[0] = group_count[1] = 0u;
+  barrier(CLK_LOCAL_MEM_FENCE);
+  uint ray_index = r.next_ray ? atomic_inc(&group_count[0]) : 0u;
+  uint shadow_index = r.shadow ? atomic_inc(&group_count[1]) : 0u;
+  barrier(CLK_LOCAL_MEM_FENCE);
+  if (get_local_id(0) == 0u) {
+    group_base[0] = atomic_add(&counters[XI_COUNTER_RAYS(bounce + 1u)], group_count[0]);
+    group_base[1] = atomic_add(&counters[XI_COUNTER_SHADOW(bounce)], group_count[1]);
+  }
+  barrier(CLK_LOCAL_MEM_FENCE);
+  ray_index += group_base[0];
+  shadow_index += group_base[1];
+  if (r.next_ray) queue_out[ray_index] = slot;
+  if (r.shadow) {
+    shadow_org[shadow_index] = r.shadow_org;
+    shadow_dir[shadow_index] = r.shadow_dir;
+    shadow_contrib[shadow_index] = r.shadow_contrib;
+  }
 }

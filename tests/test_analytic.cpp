@@ -49,7 +49,7 @@ Render render(const xi::Scene& scene, int spp, uint32_t seed, int sampler, xi::S
   o.strategy = strategy;
   o.max_depth = max_depth;
   xi::Renderer r(device(), scene, o);
-  for (int i = 0; i < spp; ++i) r.run_pass();
+  r.render();
   xi::Renderer::Film f = r.film();
   return {std::move(f.mean), std::move(f.variance), r.nonfinite_samples()};
 }

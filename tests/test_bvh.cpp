@@ -4,6 +4,7 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <functional>
 #include <cmath>
 #include <cstring>
 #include <random>
@@ -70,7 +71,15 @@ struct Bounds {
   void grow(vec3 p) { lo = glm::min(lo, p), hi = glm::max(hi, p); }
   bool operator==(const Bounds&) const = default;
 };
-Bounds node_bounds(const BvhNode& n) { return {vec3(n.bmin), vec3(n.bmax)}; }
+Bounds lane_bounds(const BvhNode& n, int k) {
+  return {vec3(n.lo_x[k], n.lo_y[k], n.lo_z[k]), vec3(n.hi_x[k], n.hi_y[k], n.hi_z[k])};
+}
+Bounds root_bounds(const xi::Bvh& bvh) {
+  Bounds b;
+  for (int k = 0; k < XI_BVH_WIDTH; ++k)
+    if (bvh.nodes[0].child[k] != XI_BVH_EMPTY) b.grow(lane_bounds(bvh.nodes[0], k).lo), b.grow(lane_bounds(bvh.nodes[0], k).hi);
+  return b;
+}
 Bounds scene_bounds(const xi::Scene& s) {
   Bounds b;
   for (auto& t : s.triangles)
@@ -79,13 +88,14 @@ Bounds scene_bounds(const xi::Scene& s) {
 }
 
 struct Walk {
-  size_t nodes = 0, leaves = 0, max_leaf = 0;
+  size_t nodes = 0, leaves = 0, max_leaf = 0, stack = 0;
   int depth = 0;
 };
 
-// Walks the flattened tree from the root, checking the layout (left child at node + 1, right child
-// at `index`, leaves own disjoint ranges of `order` covering it once) and that every box is exactly
-// the bounds of what it holds (so it contains it), and returns what the walk counted.
+// Walks the 4-wide tree from the root, checking the layout (children after their parent, empty
+// lanes with empty boxes and only after used ones, leaves own disjoint ranges of `order` covering it
+// once, every node reached once) and that every lane's box is exactly the bounds of what it holds
+// (so it contains it), and returns what the walk counted, including the traversal stack bound.
 Walk check_tree(const xi::Bvh& bvh, const std::vector<xi::Triangle>& tris) {
   const size_t n = tris.size();
   EXPECT_EQ(bvh.order.size(), n);
@@ -95,46 +105,56 @@ Walk check_tree(const xi::Bvh& bvh, const std::vector<xi::Triangle>& tris) {
   EXPECT_EQ((size_t)std::count(seen_tri.begin(), seen_tri.end(), 1), n) << "order is not a permutation";
 
   Walk w;
-  size_t loose_boxes = 0;
-  struct Item { uint32_t node; int depth; };
-  std::vector<Item> stack{{0u, 0}};
-  while (!stack.empty()) {
-    auto [i, depth] = stack.back();
-    stack.pop_back();
+  size_t loose_boxes = 0, bad = 0;
+  // Returns the bounds of the node's content and the stack entries its traversal may need.
+  std::function<std::pair<Bounds, size_t>(uint32_t, int)> walk = [&](uint32_t i, int depth) -> std::pair<Bounds, size_t> {
+    Bounds all;
     if (i >= bvh.nodes.size() || seen_node[i]++) {
       ADD_FAILURE() << "node " << i << " is out of range or reached twice";
-      return w;
+      bad++;
+      return {all, 0};
     }
     const BvhNode& node = bvh.nodes[i];
-    const uint32_t index = as_uint(node.bmin.w), count = as_uint(node.bmax.w);
     w.nodes++;
-    w.depth = std::max(w.depth, depth);
-    Bounds content;
-    if (count > 0) {
-      w.leaves++;
-      w.max_leaf = std::max<size_t>(w.max_leaf, count);
-      if (index >= n || count > n - index) {
-        ADD_FAILURE() << "leaf " << i << " holds [" << index << ", +" << count << ") beyond " << n;
-        return w;
+    size_t lanes = 0, below = 0;
+    for (int k = 0; k < XI_BVH_WIDTH; ++k) {
+      uint32_t c = node.child[k];
+      Bounds box = lane_bounds(node, k), content;
+      if (c == XI_BVH_EMPTY) {
+        EXPECT_TRUE(box.lo == vec3(INFINITY) && box.hi == vec3(INFINITY)) << "empty lane " << k << " of node " << i;
+        continue;
       }
-      for (uint32_t p = index; p < index + count; ++p) {
-        seen_pos[p]++;
-        for (auto& v : tris[bvh.order[p]].v) content.grow(v);
+      EXPECT_EQ(lanes, (size_t)k) << "used lane after an empty one in node " << i;
+      lanes++;
+      if (c & XI_BVH_LEAF) {
+        uint32_t first = c & XI_BVH_FIRST_MASK, count = 1 + ((c >> 27) & 15u);
+        w.leaves++;
+        w.max_leaf = std::max<size_t>(w.max_leaf, count);
+        w.depth = std::max(w.depth, depth + 1);
+        if (first >= n || count > n - first) {
+          ADD_FAILURE() << "leaf in node " << i << " holds [" << first << ", +" << count << ") beyond " << n;
+          bad++;
+          continue;
+        }
+        for (uint32_t p = first; p < first + count; ++p) {
+          seen_pos[p]++;
+          for (auto& v : tris[bvh.order[p]].v) content.grow(v);
+        }
+      } else {
+        EXPECT_GT(c, i) << "child before its parent";
+        auto [b, need] = walk(c, depth + 1);
+        content = b;
+        below = std::max(below, need);
       }
-    } else {
-      if (index <= i + 1 || index >= bvh.nodes.size()) {
-        ADD_FAILURE() << "interior node " << i << " has right child " << index;
-        return w;
-      }
-      for (uint32_t c : {i + 1, index}) {
-        Bounds b = node_bounds(bvh.nodes[c]);
-        content.grow(b.lo), content.grow(b.hi);
-        stack.push_back({c, depth + 1});
-      }
+      // Box = exact min/max of its triangles' vertices or its children's boxes (min/max do not round).
+      if (!(box == content)) loose_boxes++;
+      all.grow(content.lo), all.grow(content.hi);
     }
-    // Box = exact min/max of its triangles' vertices or its children's boxes (min/max do not round).
-    if (!(node_bounds(node) == content)) loose_boxes++;
-  }
+    EXPECT_GT(lanes, 0u) << "node " << i << " has no children";
+    return {all, std::max(lanes, lanes - 1 + below)};
+  };
+  w.stack = walk(0, 0).second;
+  EXPECT_EQ(bad, 0u);
   EXPECT_EQ(loose_boxes, 0u) << "boxes that are not exactly the bounds of their content";
   EXPECT_EQ((size_t)std::count(seen_pos.begin(), seen_pos.end(), 1), n) << "positions not in exactly one leaf";
   EXPECT_EQ((size_t)std::count(seen_node.begin(), seen_node.end(), 1), bvh.nodes.size()) << "unreachable nodes";
@@ -147,8 +167,11 @@ void check_stats(const xi::Bvh& bvh, const Walk& w, bool degenerate) {
   EXPECT_EQ(bvh.stats.leaves, w.leaves);
   EXPECT_EQ(bvh.stats.depth, w.depth);
   EXPECT_EQ(bvh.stats.max_leaf, w.max_leaf);
-  EXPECT_EQ(w.nodes, 2 * w.leaves - 1);  // a binary tree
-  EXPECT_LE(w.depth, 56);                // the builder's cap, below the traversal stack (XI_BVH_STACK)
+  EXPECT_EQ(bvh.stats.stack, w.stack);
+  EXPECT_LE(w.stack, (size_t)XI_BVH_STACK);  // what the kernels' traversal stack holds
+  // Every node has at least two lanes (but a root holding one leaf), so a 4-wide tree has fewer
+  // nodes than leaves.
+  EXPECT_LT(w.nodes, std::max<size_t>(w.leaves, 2));
   if (!degenerate) EXPECT_LE(w.max_leaf, 8u);
 }
 
@@ -241,7 +264,7 @@ void check_scene(const xi::Scene& scene, uint32_t seed) {
       ASSERT_EQ(vec3(cs.tri_verts[3 * i + k]), scene.triangles[cs.bvh.order[i]].v[k]) << "position " << i;
   Walk w = check_tree(cs.bvh, scene.triangles);
   check_stats(cs.bvh, w, false);
-  EXPECT_TRUE(node_bounds(cs.bvh.nodes[0]) == scene_bounds(scene));  // the root box is the scene's bounds
+  EXPECT_TRUE(root_bounds(cs.bvh) == scene_bounds(scene));  // the root box is the scene's bounds
   check_queries(scene, cs, seed);
 }
 
@@ -260,7 +283,7 @@ TEST(BvhBuild, Icosphere) {
 TEST(BvhBuild, RandomSoup) {
   xi::Scene s = soup(20000, 3);
   check_scene(s, 4);
-  EXPECT_GT(xi::build_bvh(s.triangles).stats.depth, 10);  // a real hierarchy, not one flat leaf list
+  EXPECT_GT(xi::build_bvh(s.triangles).stats.depth, 5);  // a real hierarchy (log4 of 20000 / 8 ≈ 5.6), not one flat leaf list
 }
 
 TEST(BvhBuild, IsDeterministic) {
@@ -307,7 +330,7 @@ TEST(BvhBuild, ExponentialSpacing) {
   xi::CompiledScene cs = xi::compile_scene(scene);
   Walk w = check_tree(cs.bvh, tris);
   check_stats(cs.bvh, w, false);
-  EXPECT_GT(w.depth, 10);  // lopsided: a balanced tree over 100 triangles would be ~5 deep
+  EXPECT_GT(w.depth, 10);  // lopsided: a balanced 4-wide tree over 100 triangles would be ~3 deep
   // Every triangle is still found, by a ray straight at it through the plane z = 0.
   for (uint32_t i = 0; i < tris.size(); ++i) {
     float x = tris[i].v[0].x, s = 0.1f * x, t, u, v;

@@ -212,7 +212,7 @@ TEST_F(CliRender, MatchesTheLibrary) {
   opt.sampler = xi::parse_sampler(scene.render.sampler);
   xi::Device device = xi::Device::open("");
   xi::Renderer renderer(device, scene, opt);
-  for (int i = 0; i < opt.spp; ++i) renderer.run_pass();
+  renderer.render();
   const xi::Image lib = renderer.mean();
 
   ASSERT_EQ(cli.width, 24);
@@ -468,13 +468,17 @@ TEST_F(CliTest, ConvergenceLogTraceAndLayers) {
   EXPECT_NEAR(std::get<double>(attrs.at("error.rmse")), last_rmse, 1e-6 * last_rmse);
   for (const char* layer : {"variance", "albedo", "normal"})
     EXPECT_EQ(xi::read_exr(work_ / "img.exr", layer).width, 32) << layer;
-  // The trace is JSON with one complete event per launch: 4 passes of generate and accumulate.
+  // The trace is JSON with one complete event per launch: 4 passes (one spp each, as --convergence
+  // asks) of generate and accumulate. A bounce is launched over an upper bound of its queue.
   json trace = json::parse(read_text(work_ / "t.json"));
   int generate = 0, accumulate = 0, extend = 0;
+  size_t extend_items = 0;
   for (auto& e : trace["traceEvents"]) {
     EXPECT_EQ(e["ph"], "X");
     EXPECT_GE(e["dur"].get<double>(), 0.0);
-    EXPECT_GT(e["args"]["items"].get<int>(), 0);
+    EXPECT_LE(e["args"]["items"].get<size_t>(), e["args"]["launched"].get<size_t>());
+    if (e["name"] == "extend") extend_items += e["args"]["items"].get<size_t>();
+    if (e["name"] == "generate") EXPECT_EQ(e["args"]["items"].get<int>(), 32 * 32);
     generate += e["name"] == "generate";
     accumulate += e["name"] == "accumulate";
     extend += e["name"] == "extend";
@@ -482,6 +486,7 @@ TEST_F(CliTest, ConvergenceLogTraceAndLayers) {
   EXPECT_EQ(generate, 4);
   EXPECT_EQ(accumulate, 4);
   EXPECT_GE(extend, 4);
+  EXPECT_GE(extend_items, 4u * 32 * 32);  // every camera ray, then the bounces
 }
 
 TEST_F(CliTest, ConvergenceNeedsAMatchingReference) {

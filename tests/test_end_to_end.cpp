@@ -89,14 +89,14 @@ bool bitwise_equal(const xi::Image& a, const xi::Image& b) {
          std::memcmp(a.pixels.data(), b.pixels.data(), a.pixels.size() * sizeof(glm::vec3)) == 0;
 }
 
-// Renders the Cornell box at w × h with `opt.spp` passes.
+// Renders the Cornell box at w × h with `opt.spp` samples per pixel.
 Result render(int w, int h, xi::RenderOptions opt) {
   xi::Scene scene = xi::load_scene(kCornell);
   scene.width = w;
   scene.height = h;
   xi::Renderer r(device(), scene, opt);
-  for (int i = 0; i < opt.spp; ++i) r.run_pass();
-  EXPECT_EQ(r.passes_done(), opt.spp);
+  r.render();
+  EXPECT_EQ(r.spp_done(), opt.spp);
   xi::Renderer::Film film = r.film();
   EXPECT_TRUE(bitwise_equal(film.mean, r.mean()));  // mean() is the cheap path to the same numbers
   return {std::move(film.mean), std::move(film.variance), r.nonfinite_samples(), device().info().name};
@@ -427,17 +427,54 @@ TEST(EndToEndDeterminism, LocalSizeDoesNotChangePixels) {
   }
 }
 
-TEST(EndToEndDeterminism, WaveSizeDoesNotChangePixels) {
+// Paths in flight (how a pass is cut into waves of (pixel, sample) items) and samples per pass do
+// not change a bit of the image: every pixel's samples are summed in sample order.
+TEST(EndToEndDeterminism, PathsInFlightDoNotChangePixels) {
   xi::RenderOptions o = options(4, 42);
-  const Result whole = render(kDetW, kDetH, o);  // one wave: 2640 pixels < the default 2^20
-  for (size_t wave : {1000u, 777u}) {            // 3 waves (1000, 1000, 640); 4 waves (..., 309)
-    o.wave_pixels = wave;
+  o.samples_per_pass = 1;
+  const Result whole = render(kDetW, kDetH, o);  // one wave per pass: 2640 pixels < the default budget
+  struct Case { size_t paths; int per_pass; };
+  // 3 waves (1000, 1000, 640); 4 waves (..., 309); 2 spp per pass; 3 then 1; all 4 in one wave.
+  for (Case c : {Case{1000, 0}, Case{777, 0}, Case{2 * 2640 + 100, 0}, Case{3 * 2640, 0}, Case{0, 0}}) {
+    o.paths_in_flight = c.paths;
+    o.samples_per_pass = c.per_pass;
+    xi::Scene scene = xi::load_scene(kCornell);
+    scene.width = kDetW;
+    scene.height = kDetH;
+    xi::Renderer probe(device(), scene, o);
     const Result r = render(kDetW, kDetH, o);
-    EXPECT_TRUE(bitwise_equal(whole.mean, r.mean)) << "wave " << wave << ": " << differing_pixels(whole.mean, r.mean)
-                                                   << " pixels differ";
-    EXPECT_TRUE(bitwise_equal(whole.variance, r.variance)) << "wave " << wave;
+    SCOPED_TRACE(testing::Message() << "paths " << c.paths << ": " << probe.paths_in_flight() << " in flight, "
+                                    << probe.samples_per_pass() << " spp per pass");
+    EXPECT_TRUE(bitwise_equal(whole.mean, r.mean)) << differing_pixels(whole.mean, r.mean) << " pixels differ";
+    EXPECT_TRUE(bitwise_equal(whole.variance, r.variance));
     EXPECT_EQ(r.nonfinite, 0u);
   }
+}
+
+// The budget is what decides: a small frame gets several samples of each pixel per wave.
+TEST(EndToEndDeterminism, SmallFramesPutSeveralSamplesInFlight) {
+  xi::Scene scene = xi::load_scene(kCornell);
+  scene.width = 16;
+  scene.height = 16;
+  xi::RenderOptions o = options(64, 1);
+  o.paths_in_flight = 16 * 16 * 10;
+  xi::Renderer r(device(), scene, o);
+  EXPECT_EQ(r.samples_per_pass(), 10);
+  EXPECT_EQ(r.paths_in_flight(), 16u * 16u * 10u);
+  int passes = 0;
+  while (!r.done()) {
+    r.run_pass();
+    passes++;
+    EXPECT_EQ(r.spp_done(), std::min(64, 10 * passes));
+  }
+  EXPECT_EQ(passes, 7);  // 6 × 10 + 4
+  o.samples_per_pass = 3;
+  EXPECT_EQ(xi::Renderer(device(), scene, o).samples_per_pass(), 3);
+  o.samples_per_pass = 0;
+  o.paths_in_flight = 100;  // fewer than the pixels: one sample, waves of 100 pixels
+  xi::Renderer small(device(), scene, o);
+  EXPECT_EQ(small.samples_per_pass(), 1);
+  EXPECT_EQ(small.paths_in_flight(), 100u);
 }
 
 // ---------------------------------------------------------------------------------------------

@@ -181,15 +181,21 @@ TEST_F(Kernel, ExtendMatchesBruteForce) {
   std::iota(q.begin(), q.end(), 0u);
   std::shuffle(q.begin(), q.begin() + n, rng);
 
+  // The queue length comes from the counters of bounce 3; the launch covers every slot, as the
+  // renderer launches over an upper bound.
+  const uint32_t bounce = 3;
+  std::vector<uint32_t> counters(XI_COUNTER_COUNT(8), 7u);
+  counters[XI_COUNTER_RAYS(bounce)] = n;
   PathBuffers b = upload(state);
-  cl::Buffer qb = buffer(q), nodes = buffer(cs.bvh.nodes), verts = buffer(cs.tri_verts);
+  cl::Buffer qb = buffer(q), cb = buffer(counters), nodes = buffer(cs.bvh.nodes), verts = buffer(cs.tri_verts);
   cl::Kernel k = kernel("extend");
   int arg = bind(k, b);
   k.setArg(arg++, qb);
-  k.setArg(arg++, n);
+  k.setArg(arg++, cb);
+  k.setArg(arg++, bounce);
   k.setArg(arg++, nodes);
   k.setArg(arg++, verts);
-  launch(k, n);
+  launch(k, slots);
   std::vector<vec4> hit = read<vec4>(b.hit, slots);
 
   BruteForce brute(scene.triangles);
@@ -260,31 +266,39 @@ TEST_F(Kernel, GenerateCameraRays) {
   ASSERT_FALSE(cs.features.lens);
   const CameraData cam = cs.camera;
   const SamplerParams sp = xi_make_sampler_params(7, 16);
-  const uint32_t sample = 5, pixels = W * H, slots = 1024;
+  const uint32_t sample = 5, pixels = W * H, slots = 2048;
 
   std::vector<vec3> org(pixels), dir(pixels);
-  // Two waves, the second starting mid-row, as the renderer splits large films.
-  for (auto [first, count] : {std::pair<uint32_t, uint32_t>{0, 500}, {500, pixels - 500}}) {
+  // Two waves of one sample, the second starting mid-row, as the renderer splits large films; then
+  // one wave of two samples of every pixel, as it fills a device with a small film.
+  for (WaveParams wave : {WaveParams{0, 500, sample, 1}, WaveParams{500, pixels - 500, sample, 1},
+                          WaveParams{0, pixels, sample, 2}}) {
+    const uint32_t count = wave.pixels * wave.samples;
     PathState state(slots);
     PathBuffers b = upload(state);
     cl::Buffer qb = buffer(garbage<uint32_t>(slots));
+    cl::Buffer cb = buffer(std::vector<uint32_t>(XI_COUNTER_COUNT(8), 7u));
     cl::Kernel k = kernel("generate");
     int arg = bind(k, b);
     k.setArg(arg++, qb);
+    k.setArg(arg++, cb);
     k.setArg(arg++, cam);
     k.setArg(arg++, sp);
-    k.setArg(arg++, first);
-    k.setArg(arg++, count);
-    k.setArg(arg++, sample);
+    k.setArg(arg++, wave);
     launch(k, count);
     PathState out = download(b, slots);
     std::vector<uint32_t> q = read<uint32_t>(qb, slots);
+    EXPECT_EQ(read<uint32_t>(cb, XI_COUNTER_COUNT(8))[XI_COUNTER_RAYS(0)], count);  // the first queue's length
 
     for (uint32_t slot = 0; slot < count; ++slot) {
-      SCOPED_TRACE(testing::Message() << "slot " << slot << " of the wave at " << first);
-      const uint32_t pixel = first + slot;
+      SCOPED_TRACE(testing::Message() << "slot " << slot << " of the wave at " << wave.first_pixel);
+      const uint32_t pixel = wave.first_pixel + slot % wave.pixels, s = wave.first_sample + slot / wave.pixels;
+      if (s != sample) {  // the second sample: a different jitter of the same pixel
+        EXPECT_GT(glm::length(vec3(out.ray_dir[slot]) - vec3(out.ray_dir[slot % wave.pixels])), 0.0f);
+        continue;
+      }
       // generate.cl's formula, evaluated on the host with the same sampler call.
-      float2 u = xi_sample_2d(XI_SAMPLER_RANDOM, sp, pixel, sample, XI_PAIR_PIXEL);
+      float2 u = xi_sample_2d(XI_SAMPLER_RANDOM, sp, pixel, s, XI_PAIR_PIXEL);
       float sx = 2.0f * ((float)(pixel % W) + u.x) / (float)W - 1.0f;
       float sy = 1.0f - 2.0f * ((float)(pixel / W) + u.y) / (float)H;
       vec3 want = glm::normalize(vec3(cam.forward) + sx * vec3(cam.right) + sy * vec3(cam.up));
@@ -336,8 +350,9 @@ TEST_F(Kernel, GenerateCameraRays) {
 
 // --- accumulate ----------------------------------------------------------------------------------
 
-// Two passes over overlapping pixel ranges of a film with random starting sums. Every film sum is
-// one float add per pass, so the host's sums in the same order must be bitwise equal.
+// Three waves over overlapping pixel ranges of a film with random starting sums, the last with two
+// samples per pixel. Every film sum is one float add per sample in sample order, so the host's sums
+// in the same order must be bitwise equal.
 TEST_F(Kernel, AccumulateSumsAndDropsNonFinite) {
   const uint32_t film = 1000, slots = 1024;
   std::mt19937 rng(21);
@@ -349,8 +364,9 @@ TEST_F(Kernel, AccumulateSumsAndDropsNonFinite) {
   };
   const std::vector<vec4> sum = random_film(), sum_sq = random_film(), albedo = random_film(), normal = random_film();
   cl::Buffer sum_b = buffer(sum), sum_sq_b = buffer(sum_sq), albedo_b = buffer(albedo), normal_b = buffer(normal);
-  std::vector<uint32_t> counters_before(XI_COUNTER_COUNT);
-  for (int c = 0; c < XI_COUNTER_COUNT; ++c) counters_before[c] = 11u * (c + 1);
+  const int counter_count = XI_COUNTER_COUNT(8);
+  std::vector<uint32_t> counters_before(counter_count);
+  for (int c = 0; c < counter_count; ++c) counters_before[c] = 11u * (c + 1);
   cl::Buffer counters_b = buffer(counters_before);
 
   // The host reference. sum_sq has two, as the device may fuse `sum_sq += l * l` into an fma (OpenCL
@@ -359,7 +375,8 @@ TEST_F(Kernel, AccumulateSumsAndDropsNonFinite) {
                     want_normal = normal;
   uint32_t nonfinite = 0;
   const float kNonFinite[] = {NAN, INFINITY, -INFINITY};
-  for (auto [first, count] : {std::pair<uint32_t, uint32_t>{100, 700}, {450, 550}}) {
+  for (WaveParams wave : {WaveParams{100, 700, 0, 1}, WaveParams{450, 550, 1, 1}, WaveParams{300, 400, 2, 2}}) {
+    const uint32_t count = wave.pixels * wave.samples;
     PathState state(slots);  // garbage in the fields accumulate does not read
     for (uint32_t i = 0; i < count; ++i) {
       vec4& r = state.radiance[i];
@@ -374,17 +391,16 @@ TEST_F(Kernel, AccumulateSumsAndDropsNonFinite) {
     int arg = bind(k, b);
     for (cl::Buffer* f : {&sum_b, &sum_sq_b, &albedo_b, &normal_b}) k.setArg(arg++, *f);
     k.setArg(arg++, counters_b);
-    k.setArg(arg++, first);
-    k.setArg(arg++, count);
-    launch(k, count);
+    k.setArg(arg++, wave);
+    launch(k, wave.pixels);
 
-    for (uint32_t i = 0; i < count; ++i) {
+    for (uint32_t i = 0; i < count; ++i) {  // slot i: sample i / pixels of pixel i % pixels
       const vec4 l(vec3(state.radiance[i]), 1.0f);
       if (!std::isfinite(l.x) || !std::isfinite(l.y) || !std::isfinite(l.z)) {
         nonfinite++;  // dropped whole: its AOVs too, so they stay averages over sum.w samples
         continue;
       }
-      const uint32_t p = first + i;
+      const uint32_t p = wave.first_pixel + i % wave.pixels;
       want_sum[p] += l;
       want_sq[p] += l * l;
       for (int c = 0; c < 4; ++c) want_sq_fma[p][c] = std::fma(l[c], l[c], want_sq_fma[p][c]);
@@ -393,8 +409,8 @@ TEST_F(Kernel, AccumulateSumsAndDropsNonFinite) {
     }
   }
   ASSERT_GT(nonfinite, 10u);
-  const auto counters = read<uint32_t>(counters_b, XI_COUNTER_COUNT);
-  for (int c = 0; c < XI_COUNTER_COUNT; ++c)  // one count per dropped sample; the other counters left alone
+  const auto counters = read<uint32_t>(counters_b, counter_count);
+  for (int c = 0; c < counter_count; ++c)  // one count per dropped sample; the other counters left alone
     EXPECT_EQ(counters[c], counters_before[c] + (c == XI_COUNTER_NONFINITE ? nonfinite : 0u)) << "counter " << c;
   auto mismatches = [&](const cl::Buffer& b, const std::vector<vec4>& want) {
     auto got = read<vec4>(b, film);
@@ -456,15 +472,20 @@ TEST_F(Kernel, ShadowAddsOnlyUnoccluded) {
   PathBuffers b = upload(state);
   cl::Buffer org_b = buffer(org), dir_b = buffer(dir), contrib_b = buffer(contrib);
   cl::Buffer nodes = buffer(cs.bvh.nodes), verts = buffer(cs.tri_verts);
+  const uint32_t bounce = 2;
+  std::vector<uint32_t> counters(XI_COUNTER_COUNT(8), 3u);
+  counters[XI_COUNTER_SHADOW(bounce)] = n;  // the entries past n must be ignored
+  cl::Buffer cb = buffer(counters);
   cl::Kernel k = kernel("shadow");
   int arg = bind(k, b);
   k.setArg(arg++, org_b);
   k.setArg(arg++, dir_b);
   k.setArg(arg++, contrib_b);
-  k.setArg(arg++, n);  // the entries past n must be ignored
+  k.setArg(arg++, cb);
+  k.setArg(arg++, bounce);
   k.setArg(arg++, nodes);
   k.setArg(arg++, verts);
-  launch(k, n);
+  launch(k, n + extra);  // over an upper bound, as the renderer launches
   std::vector<vec4> got = read<vec4>(b.radiance, slots);
 
   std::vector<vec4> want = state.radiance;

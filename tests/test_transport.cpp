@@ -413,7 +413,7 @@ Render render(xi::Scene scene, int w, int h, const xi::RenderOptions& o) {
   scene.width = w;
   scene.height = h;
   xi::Renderer r(device(), scene, o);
-  for (int i = 0; i < o.spp; ++i) r.run_pass();
+  r.render();
   xi::Renderer::Film f = r.film();
   return {std::move(f.mean), std::move(f.variance), std::move(f.albedo), r.nonfinite_samples()};
 }

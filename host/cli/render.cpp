@@ -65,7 +65,7 @@ void draw_progress(int done, int total, double msps, double elapsed) {
 int render(const std::vector<std::string>& argv) {
   Args args(argv,
             {"-o", "--spp", "--seed", "--device", "--max-depth", "--resolution", "--sampler", "--strategy",
-             "--local-size", "--reference", "--convergence", "--trace"},
+             "--local-size", "--reference", "--convergence", "--trace", "--paths-in-flight", "--samples-per-pass"},
             {"--profile", "--quiet", "--all-features"});
   if (args.positional().size() > 1) throw Error("expected at most one scene file", args.positional()[1]);
   std::filesystem::path scene_path = args.positional().empty() ? default_scene() : std::filesystem::path(args.positional()[0]);
@@ -81,6 +81,10 @@ int render(const std::vector<std::string>& argv) {
   opt.strategy = parse_strategy(args.get("--strategy", "mis"));
   opt.local_size = (size_t)args.get_int("--local-size", (int)opt.local_size, 0, 1024);
   opt.all_features = args.has("--all-features");
+  opt.paths_in_flight = (size_t)args.get_int("--paths-in-flight", 0, 0, 1 << 30);
+  // A convergence log has one row per pass: one spp per pass unless asked otherwise.
+  opt.samples_per_pass = args.get_int("--samples-per-pass", args.has("--convergence") ? 1 : 0, 0, 1 << 20);
+  opt.profile = args.has("--profile") || args.has("--trace");
   std::filesystem::path out = args.get("-o", scene_path.stem().string() + ".exr");
   if (out.extension() != ".exr") throw Error("the output must be an .exr file", "-o " + out.string());
   auto out_dir = out.has_parent_path() ? out.parent_path() : std::filesystem::path(".");
@@ -107,10 +111,11 @@ int render(const std::vector<std::string>& argv) {
     std::printf("scene: %s, %zu triangles, %zu lights, features: %s\n", scene_path.string().c_str(),
                 scene.triangles.size(), cs.features.emitters ? cs.light_tri.size() : 0,
                 (opt.all_features ? Features::everything() : cs.features).describe().c_str());
-    std::printf("bvh: %zu nodes, %zu leaves, depth %d, built in %.2f ms\n", cs.bvh.stats.nodes, cs.bvh.stats.leaves,
-                cs.bvh.stats.depth, cs.bvh.stats.build_seconds * 1e3);
+    std::printf("bvh: %zu 4-wide nodes, %zu leaves, depth %d, stack %zu, built in %.2f ms\n", cs.bvh.stats.nodes,
+                cs.bvh.stats.leaves, cs.bvh.stats.depth, cs.bvh.stats.stack, cs.bvh.stats.build_seconds * 1e3);
     std::printf("kernels: %s in %.3f s\n", renderer.program().from_cache ? "loaded from cache" : "compiled",
                 renderer.program().build_seconds);
+    std::printf("paths in flight: %zu, %d spp per pass\n", renderer.paths_in_flight(), renderer.samples_per_pass());
     std::fflush(stdout);
   }
 
@@ -123,16 +128,16 @@ int render(const std::vector<std::string>& argv) {
   }
   std::map<std::string, double> last_error;
 
-  const double samples_per_pass = (double)scene.width * scene.height;
+  const double pixels = (double)scene.width * scene.height;
   double seconds = 0.0;
-  for (int pass = 0; pass < opt.spp; ++pass) {
+  while (!renderer.done()) {
     auto t0 = std::chrono::steady_clock::now();
     renderer.run_pass();
     seconds += std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-    if (reference && (args.has("--convergence") || pass + 1 == opt.spp)) {
+    if (reference && (args.has("--convergence") || renderer.done())) {
       Image now = renderer.mean();
       char row[64];
-      std::snprintf(row, sizeof row, "%d,%d,%.6f", pass, pass + 1, seconds);
+      std::snprintf(row, sizeof row, "%d,%d,%.6f", renderer.passes_done() - 1, renderer.spp_done(), seconds);
       csv += row;
       for (Metric m : all_metrics()) {
         double e = image_metric(now, *reference, m);
@@ -142,7 +147,8 @@ int render(const std::vector<std::string>& argv) {
       }
       csv += "\n";
     }
-    if (progress) draw_progress(pass + 1, opt.spp, samples_per_pass * (pass + 1) / seconds * 1e-6, seconds);
+    if (progress)
+      draw_progress(renderer.spp_done(), opt.spp, pixels * renderer.spp_done() / seconds * 1e-6, seconds);
   }
   if (progress) std::fputs("\n", stderr);
 
@@ -174,7 +180,7 @@ int render(const std::vector<std::string>& argv) {
   if (!quiet) {
     const double rays = (double)(renderer.extend_rays() + renderer.shadow_rays());
     std::printf("%dx%d, %d spp, %.2f s, %.2f Msamples/s, %.2f Mrays/s\n", scene.width, scene.height, opt.spp, seconds,
-                samples_per_pass * opt.spp / seconds * 1e-6, rays / seconds * 1e-6);
+                pixels * opt.spp / seconds * 1e-6, rays / seconds * 1e-6);
     std::printf("wrote %s and %s\n", out.string().c_str(), png.string().c_str());
     if (reference) std::printf("error vs reference: rmse %.6g, relmse %.6g\n", last_error["rmse"], last_error["relmse"]);
     if (args.has("--profile")) print_profile(stdout, renderer.launches(), seconds);

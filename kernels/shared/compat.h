@@ -20,6 +20,8 @@
 #include <cstring>
 #include <glm/glm.hpp>
 
+#define XI_PI_DOUBLE 3.14159265358979323846
+
 #define __global
 #define __local
 #define __constant
@@ -54,7 +56,11 @@ static inline float4 make_float4(float x, float y, float z, float w) { return fl
 static inline float3 xyz(const float4& v) { return float3(v.x, v.y, v.z); }
 static inline float3 fmin(const float3& a, const float3& b) { return glm::min(a, b); }
 static inline float3 fmax(const float3& a, const float3& b) { return glm::max(a, b); }
+static inline float4 fmin(const float4& a, const float4& b) { return glm::min(a, b); }
+static inline float4 fmax(const float4& a, const float4& b) { return glm::max(a, b); }
 static inline float3 fabs(const float3& a) { return glm::abs(a); }
+static inline float cospi(float x) { return std::cos(XI_PI_DOUBLE * x); }
+static inline float sinpi(float x) { return std::sin(XI_PI_DOUBLE * x); }
 static inline float clamp(float x, float lo, float hi) { return std::fmin(std::fmax(x, lo), hi); }
 static inline uint as_uint(float f) { uint u; std::memcpy(&u, &f, 4); return u; }
 static inline float as_float(uint u) { float f; std::memcpy(&f, &u, 4); return f; }

@@ -5,7 +5,7 @@
 #include "compat.h"
 #include "layout.h"
 
-#define XI_BVH_STACK 64
+#define XI_BVH_STACK 128  // entries; the BVH builder checks that its tree never needs more
 #define XI_NO_HIT 0xffffffffu
 
 // Per-ray constants of the watertight test: the axis of largest |d| becomes z, then a shear
@@ -57,17 +57,6 @@ static inline bool xi_intersect_triangle(float3 o, RayShear s, float3 p0, float3
   return true;
 }
 
-// Slab test against a node box with precomputed 1/d; returns the entry distance or +inf.
-static inline float xi_intersect_box(float3 o, float3 inv_d, float4 bmin, float4 bmax, float tmax) {
-  float3 t0 = (xyz(bmin) - o) * inv_d;
-  float3 t1 = (xyz(bmax) - o) * inv_d;
-  float3 lo = fmin(t0, t1), hi = fmax(t0, t1);
-  float tn = fmax(fmax(lo.x, lo.y), fmax(lo.z, 0.0f));
-  float tf = fmin(fmin(hi.x, hi.y), fmin(hi.z, tmax));
-  // A little slack so rounding never rejects a box a triangle in it would hit.
-  return tn <= tf * 1.00000024f ? tn : INFINITY;
-}
-
 static inline float3 xi_safe_inverse(float3 d) {
   const float big = 1e30f;
   return make_float3(d.x != 0.0f ? 1.0f / d.x : big, d.y != 0.0f ? 1.0f / d.y : big,
@@ -78,24 +67,41 @@ static inline float3 xi_tri_vertex(__global const float4* verts, uint tri, uint 
   return xyz(verts[3u * tri + k]);
 }
 
+// A little slack on box tests so rounding never rejects a box that a triangle in it would hit.
+#define XI_BOX_SLACK 1.00000024f
+
+// Pushes child lane `k` of node `n` if the ray enters its box (entry distance tn_k, exit tf_k),
+// keeping the entries pushed for this node sorted so the nearest is on top. (An empty lane's box
+// passes the test when both distances are +inf: a ray with no tmax, every direction positive.)
+#define XI_PUSH_CHILD(n, k, tn_k, tf_k)                                  \
+  if ((tn_k) <= (tf_k) * XI_BOX_SLACK && (n)->child[k] != XI_BVH_EMPTY) { \
+    uint j = sp++;                                                       \
+    for (; j > base && stack_tn[j - 1u] < (tn_k); --j) {                  \
+      stack[j] = stack[j - 1u];                                          \
+      stack_tn[j] = stack_tn[j - 1u];                                      \
+    }                                                                    \
+    stack[j] = (n)->child[k];                                            \
+    stack_tn[j] = (tn_k);                                                 \
+  }
+
 // Closest hit (any_hit == false) or any hit before tmax (any_hit == true). Returns the triangle
-// index or XI_NO_HIT; *t, *u, *v describe the hit.
+// index or XI_NO_HIT; *t, *u, *v describe the hit. The stack holds node or leaf entries with the
+// distance at which the ray enters them, so entries behind the best hit are skipped when popped;
+// the host checks that no tree needs more than XI_BVH_STACK entries (xi::Bvh::stats.stack).
 static inline uint xi_trace(__global const BvhNode* nodes, __global const float4* verts, float3 o,
                             float3 d, float tmax, bool any_hit, float* t, float* u, float* v) {
   RayShear s = xi_ray_shear(d);
   float3 inv_d = xi_safe_inverse(d);
   uint stack[XI_BVH_STACK];
+  float stack_tn[XI_BVH_STACK];
   uint sp = 0u;
-  uint node = 0u;
+  uint entry = 0u;  // the root, always an interior node
   uint found = XI_NO_HIT;
   float best = tmax;
-  if (xi_intersect_box(o, inv_d, nodes[0].bmin, nodes[0].bmax, best) == INFINITY) return XI_NO_HIT;
   for (;;) {
-    BvhNode n = nodes[node];
-    uint count = as_uint(n.bmax.w);
-    uint index = as_uint(n.bmin.w);
-    if (count > 0u) {
-      for (uint i = index; i < index + count; ++i) {
+    if (entry & XI_BVH_LEAF) {
+      uint first = entry & XI_BVH_FIRST_MASK, end = first + 1u + ((entry >> 27) & 15u);
+      for (uint i = first; i < end; ++i) {
         float tt, uu, vv;
         if (xi_intersect_triangle(o, s, xi_tri_vertex(verts, i, 0u), xi_tri_vertex(verts, i, 1u),
                                   xi_tri_vertex(verts, i, 2u), best, &tt, &uu, &vv)) {
@@ -108,28 +114,26 @@ static inline uint xi_trace(__global const BvhNode* nodes, __global const float4
         }
       }
     } else {
-      uint left = node + 1u, right = index;
-      float tl = xi_intersect_box(o, inv_d, nodes[left].bmin, nodes[left].bmax, best);
-      float tr = xi_intersect_box(o, inv_d, nodes[right].bmin, nodes[right].bmax, best);
-      if (tl != INFINITY && tr != INFINITY) {
-        uint near_child = tl <= tr ? left : right;
-        stack[sp++] = tl <= tr ? right : left;  // visit the nearer child first
-        node = near_child;
-        continue;
-      }
-      if (tl != INFINITY) { node = left; continue; }
-      if (tr != INFINITY) { node = right; continue; }
+      // Slab test of all four child boxes at once.
+      __global const BvhNode* n = nodes + entry;
+      float4 x0 = (n->lo_x - o.x) * inv_d.x, x1 = (n->hi_x - o.x) * inv_d.x;
+      float4 y0 = (n->lo_y - o.y) * inv_d.y, y1 = (n->hi_y - o.y) * inv_d.y;
+      float4 z0 = (n->lo_z - o.z) * inv_d.z, z1 = (n->hi_z - o.z) * inv_d.z;
+      float4 tn = fmax(fmax(fmin(x0, x1), fmin(y0, y1)), fmax(fmin(z0, z1), make_float4(0.0f, 0.0f, 0.0f, 0.0f)));
+      float4 tf = fmin(fmin(fmax(x0, x1), fmax(y0, y1)), fmin(fmax(z0, z1), make_float4(best, best, best, best)));
+      uint base = sp;
+      XI_PUSH_CHILD(n, 0, tn.x, tf.x)
+      XI_PUSH_CHILD(n, 1, tn.y, tf.y)
+      XI_PUSH_CHILD(n, 2, tn.z, tf.z)
+      XI_PUSH_CHILD(n, 3, tn.w, tf.w)
     }
-    // Pop until a node that may still hold something closer than the best hit.
-    bool next = false;
-    while (sp > 0u) {
-      node = stack[--sp];
-      if (xi_intersect_box(o, inv_d, nodes[node].bmin, nodes[node].bmax, best) != INFINITY) {
-        next = true;
-        break;
-      }
+    // Pop the nearest entry the ray enters before its best hit so far.
+    for (;;) {
+      if (sp == 0u) return found;
+      --sp;
+      if (stack_tn[sp] <= best * XI_BOX_SLACK) break;
     }
-    if (!next) return found;
+    entry = stack[sp];
   }
 }
 

@@ -16,11 +16,17 @@ typedef struct {
   uint pad0, pad1, pad2;
 } MaterialData;
 
-// A flattened BVH node. Interior: count == 0, left child at index + 1, right child at `index`.
-// Leaf: `count` triangles starting at `index`.
+// A 4-wide BVH node: the boxes of its (up to) four children side by side, one lane each, so one
+// float4 operation tests a ray against all four. An unused lane has an empty box (lo = hi = +inf,
+// which no ray enters) and child XI_BVH_EMPTY.
+#define XI_BVH_WIDTH 4
+#define XI_BVH_LEAF 0x80000000u   // child: leaf flag | (triangle count - 1) << 27 | first triangle
+#define XI_BVH_LEAF_MAX 16u       // triangles in one leaf, at most
+#define XI_BVH_FIRST_MASK 0x07ffffffu
+#define XI_BVH_EMPTY 0xffffffffu
 typedef struct {
-  float4 bmin;  // w: as_float(index)
-  float4 bmax;  // w: as_float(count)
+  float4 lo_x, hi_x, lo_y, hi_y, lo_z, hi_z;  // child boxes, lane k = child k
+  uint child[XI_BVH_WIDTH];                   // interior child: its node index; leaf: see above
 } BvhNode;
 
 typedef struct {
@@ -53,12 +59,26 @@ typedef struct {
 
 #define XI_PARAM(type, name) __global type* restrict name,
 #define XI_PATH_PARAMS XI_PATH_STATE(XI_PARAM)
+#define XI_ARG(type, name) name,
+#define XI_PATH_ARGS XI_PATH_STATE(XI_ARG)
 #define XI_SHADOW_PARAMS XI_SHADOW_STATE(XI_PARAM)
 
-// Counters in one small device buffer; queues ping-pong between two index buffers.
-#define XI_COUNTER_RAYS_OUT 0
-#define XI_COUNTER_SHADOW 1  // must follow RAYS_OUT: the host reads the two together
-#define XI_COUNTER_NONFINITE 2
-#define XI_COUNTER_COUNT 3
+// Which (pixel, sample) items a wave holds: `pixels` consecutive pixels from first_pixel, each with
+// `samples` consecutive sample indices from first_sample. Item (path slot) k is pixel
+// first_pixel + k % pixels, sample first_sample + k / pixels, so neighbouring slots are
+// neighbouring pixels. A small frame puts several samples of each pixel in one wave.
+typedef struct {
+  uint first_pixel;
+  uint pixels;
+  uint first_sample;
+  uint samples;
+} WaveParams;
+
+// Counters in one small device buffer, zeroed per wave but for the non-finite count. Kernels read
+// their queue length from it, so the host launches over an upper bound without waiting for it.
+#define XI_COUNTER_NONFINITE 0
+#define XI_COUNTER_RAYS(bounce) (1 + 2 * (bounce))    // rays entering extend at this bounce
+#define XI_COUNTER_SHADOW(bounce) (2 + 2 * (bounce))  // shadow rays shade queued at this bounce
+#define XI_COUNTER_COUNT(max_depth) (XI_COUNTER_RAYS((max_depth) + 1) + 1)
 
 #endif

@@ -58,15 +58,16 @@ static inline float2 xi_square_to_disc_naive(float2 u) {
 static inline float2 xi_square_to_concentric_disc(float2 u) {
   float a = 2.0f * u.x - 1.0f, b = 2.0f * u.y - 1.0f;
   if (a == 0.0f && b == 0.0f) return make_float2(0.0f, 0.0f);
-  float r, theta;
+  // The angle in half-turns (θ/π), so cospi/sinpi need no costly range reduction.
+  float r, theta_pi;
   if (fabs(a) > fabs(b)) {
     r = a;
-    theta = 0.25f * XI_PI * (b / a);
+    theta_pi = 0.25f * (b / a);
   } else {
     r = b;
-    theta = 0.5f * XI_PI - 0.25f * XI_PI * (a / b);
+    theta_pi = 0.5f - 0.25f * (a / b);
   }
-  return make_float2(r * cos(theta), r * sin(theta));
+  return make_float2(r * cospi(theta_pi), r * sinpi(theta_pi));
 }
 static inline float2 xi_concentric_disc_to_square(float2 p) {
   float r = sqrt(p.x * p.x + p.y * p.y);

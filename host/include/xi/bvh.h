@@ -1,5 +1,5 @@
-// Bounding volume hierarchy over triangles: binned SAH build on the host, flattened depth-first
-// into the node array the kernels traverse (kernels/shared/intersect.h).
+// Bounding volume hierarchy over triangles: a binary binned-SAH build on the host, collapsed into
+// 4-wide nodes laid out depth first, the array the kernels traverse (kernels/shared/intersect.h).
 #pragma once
 #include <cstdint>
 #include <vector>
@@ -11,10 +11,11 @@ namespace xi {
 
 struct BvhStats {
   double build_seconds = 0.0;
-  size_t nodes = 0;
+  size_t nodes = 0;       // 4-wide nodes
   size_t leaves = 0;
-  int depth = 0;          // longest root-to-leaf path, in edges
+  int depth = 0;          // longest root-to-leaf path, in edges of the 4-wide tree
   size_t max_leaf = 0;    // most triangles in one leaf
+  size_t stack = 0;       // most traversal stack entries any ray can need (≤ XI_BVH_STACK)
 };
 
 struct Bvh {

@@ -21,9 +21,19 @@ struct RenderOptions {
   // distinct local size, and queue lengths change every bounce.
   size_t local_size = 64;
   bool all_features = false;    // compile every feature in, whatever the scene uses
-  size_t wave_pixels = 1 << 20; // most paths in flight at once (memory bound)
+  // Most paths in flight at once, (pixel, sample) items of one wave; 0 sizes it for the device
+  // (default_paths_in_flight). The image does not depend on it.
+  size_t paths_in_flight = 0;
+  // Samples per pixel one pass adds, at most; 0: as many as the paths in flight hold (a small frame
+  // on a GPU needs several to fill it). 1 gives one pass per spp (a convergence log per spp).
+  int samples_per_pass = 0;
+  bool profile = false;         // time every launch with OpenCL events (launches())
   int record_bounce = -1;       // if >= 0, keep the rays entering extend at this bounce (bench/)
 };
+
+// The paths-in-flight budget for a device when RenderOptions::paths_in_flight is 0: enough to
+// fill it, and within a quarter of its memory.
+size_t default_paths_in_flight(Device& device);
 
 struct RayBatch {
   std::vector<glm::vec4> org, dir;  // xyz used
@@ -37,15 +47,22 @@ struct Launch {
   size_t items;  // work items that did work (the queue length)
   uint64_t start_ns;
   uint64_t end_ns;
+  size_t global = 0;  // work items launched (an upper bound on the queue length)
 };
 
 class Renderer {
  public:
   Renderer(Device& device, const Scene& scene, const RenderOptions& options);
 
-  // Renders one more sample per pixel (sample index = passes_done()).
+  // Renders samples_per_pass() more samples of every pixel (fewer in the last pass).
   void run_pass();
+  // Runs passes until the film holds options().spp samples per pixel.
+  void render();
+  bool done() const { return spp_done_ >= options_.spp; }
   int passes_done() const { return passes_; }
+  int spp_done() const { return spp_done_; }
+  int samples_per_pass() const { return samples_per_pass_; }
+  size_t paths_in_flight() const { return paths_; }
 
   // The film resolved to images: per pixel, the mean radiance, the variance of that mean (sample
   // variance / sample count), and the mean first-hit albedo and normal.
@@ -68,15 +85,19 @@ class Renderer {
   uint64_t shadow_rays() const { return shadow_rays_; }
 
  private:
-  // The stages: each binds its kernel's arguments and launches it (through launch(), which times it).
-  void generate(uint32_t first, uint32_t count);
-  void extend(const cl::Buffer& queue, uint32_t count, int bounce);
-  void shade(const cl::Buffer& queue_in, uint32_t count, const cl::Buffer& queue_out, uint32_t first, int bounce);
-  void shadow(uint32_t count, int bounce);
-  void accumulate(uint32_t first, uint32_t count);
+  // The stages: each binds its kernel's arguments and launches it over `global` work items (an
+  // upper bound on its queue: the kernel reads the length from counters_).
+  void generate(const WaveParams& wave);
+  void extend(const cl::Buffer& queue, int bounce, size_t global);
+  void shade(const cl::Buffer& queue_in, const cl::Buffer& queue_out, const WaveParams& wave, int bounce,
+             size_t global);
+  void shadow(int bounce, size_t global);
+  void accumulate(const WaveParams& wave);
+  void run_wave(const WaveParams& wave);
   void warm_up();
-  void record(const cl::Buffer& queue, uint32_t count);
-  void launch(cl::Kernel& kernel, const char* stage, int bounce, size_t items);
+  void record(const cl::Buffer& queue, int bounce);
+  void launch(cl::Kernel& kernel, const char* stage, int bounce, size_t global);
+  void finish_pass();
   SamplerParams sampler_params() const;
   int bind_path_state(cl::Kernel& kernel);               // returns the next argument index
   int bind_shadow_state(cl::Kernel& kernel, int arg);
@@ -87,10 +108,18 @@ class Renderer {
   CompiledScene scene_;
   Program program_;
   size_t pixels_ = 0;
-  size_t wave_ = 0;
-  int passes_ = 0;
+  size_t paths_ = 0;           // path state slots: the most (pixel, sample) items of one wave
+  int samples_per_pass_ = 1;
+  int passes_ = 0, spp_done_ = 0;
   uint64_t extend_rays_ = 0, shadow_rays_ = 0;
   std::vector<Launch> launches_;
+  std::vector<cl::Event> launch_events_;  // with profiling: the events of launches_ not yet read
+  size_t counter_count_ = 0;
+  std::vector<uint32_t> ray_counts_;  // [b]: rays entering bounce b of the wave in flight, read back
+  // Per wave of the pass in flight: the device counters copied back when the wave is done (queue
+  // lengths for statistics and the profile), read when the pass finishes.
+  std::vector<std::vector<uint32_t>> wave_counters_;
+  std::vector<size_t> wave_first_launch_;
   RayBatch recorded_;
 
   cl::Kernel generate_, extend_, shade_, shadow_, accumulate_;

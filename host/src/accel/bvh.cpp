@@ -3,15 +3,18 @@
 #include <algorithm>
 #include <chrono>
 #include <cstring>
+#include <glm/gtc/type_ptr.hpp>
+#include <string>
 
+#include "intersect.h"
 #include "xi/error.h"
 
 namespace xi {
 namespace {
 
 constexpr int kBins = 16;
-constexpr size_t kMaxLeaf = 8;      // a leaf never holds more, unless the centroids coincide
-constexpr int kMaxDepth = 56;       // below the kernels' traversal stack (XI_BVH_STACK)
+constexpr size_t kMaxLeaf = 8;      // a leaf holds at most this many, and XI_BVH_LEAF_MAX always
+constexpr int kMaxSahDepth = 48;    // below it, ranges are halved by index: no deeper SAH recursion
 constexpr float kTraversalCost = 1.0f;  // relative to one triangle test
 
 struct Box {
@@ -24,40 +27,44 @@ struct Box {
   }
 };
 
+// The binary tree the SAH builds; collapsed into 4-wide nodes afterwards.
+struct BinaryNode {
+  Box box;
+  uint32_t left = 0, right = 0;  // children, when count == 0
+  uint32_t first = 0, count = 0; // a leaf's range of `order`
+};
+
 struct Builder {
   const std::vector<Triangle>& tris;
   std::vector<Box> bounds;
   std::vector<glm::vec3> centroids;
-  Bvh& bvh;
+  std::vector<uint32_t>& order;
+  std::vector<BinaryNode> nodes;
 
   void leaf(size_t node, size_t first, size_t count) {
-    bvh.nodes[node].bmin.w = as_float((uint32_t)first);
-    bvh.nodes[node].bmax.w = as_float((uint32_t)count);
-    bvh.stats.leaves++;
-    bvh.stats.max_leaf = std::max(bvh.stats.max_leaf, count);
+    nodes[node].first = (uint32_t)first;
+    nodes[node].count = (uint32_t)count;
   }
 
   void build(size_t node, size_t first, size_t count, int depth) {
-    bvh.stats.depth = std::max(bvh.stats.depth, depth);
     Box box, cbox;
     for (size_t i = first; i < first + count; ++i) {
-      box.grow(bounds[bvh.order[i]]);
-      cbox.grow(centroids[bvh.order[i]]);
+      box.grow(bounds[order[i]]);
+      cbox.grow(centroids[order[i]]);
     }
-    bvh.nodes[node].bmin = glm::vec4(box.lo, 0.0f);
-    bvh.nodes[node].bmax = glm::vec4(box.hi, 0.0f);
-    if (count == 1 || depth >= kMaxDepth) return leaf(node, first, count);
+    nodes[node].box = box;
+    if (count == 1) return leaf(node, first, count);
 
     // Binned SAH over all three axes of the centroid bounds.
     float best_cost = INFINITY;
     int best_axis = -1, best_split = 0;
-    for (int axis = 0; axis < 3; ++axis) {
+    for (int axis = 0; axis < 3 && depth < kMaxSahDepth; ++axis) {
       float lo = cbox.lo[axis], extent = cbox.hi[axis] - lo;
       if (!(extent > 0.0f)) continue;
       Box bin_box[kBins];
       size_t bin_count[kBins] = {};
       for (size_t i = first; i < first + count; ++i) {
-        uint32_t t = bvh.order[i];
+        uint32_t t = order[i];
         int b = std::min(kBins - 1, (int)(kBins * (centroids[t][axis] - lo) / extent));
         bin_box[b].grow(bounds[t]);
         bin_count[b]++;
@@ -86,7 +93,7 @@ struct Builder {
     }
     float leaf_cost = (float)count;
     float split_cost = kTraversalCost + best_cost / std::max(box.area(), 1e-30f);
-    if (best_axis < 0) {  // every centroid in one point: no split separates them
+    if (best_axis < 0) {  // every centroid in one point (or too deep): no split separates them
       if (count <= kMaxLeaf) return leaf(node, first, count);
     } else if (count <= kMaxLeaf && leaf_cost <= split_cost) {
       return leaf(node, first, count);
@@ -95,23 +102,72 @@ struct Builder {
     size_t mid;
     if (best_axis >= 0) {
       float lo = cbox.lo[best_axis], extent = cbox.hi[best_axis] - lo;
-      auto* begin = bvh.order.data() + first;
+      auto* begin = order.data() + first;
       auto* m = std::partition(begin, begin + count, [&](uint32_t t) {
         int b = std::min(kBins - 1, (int)(kBins * (centroids[t][best_axis] - lo) / extent));
         return b < best_split;
       });
-      mid = (size_t)(m - bvh.order.data());
+      mid = (size_t)(m - order.data());
     } else {
       mid = first + count / 2;  // coincident centroids: halve by index
     }
-    size_t left = bvh.nodes.size();
-    bvh.nodes.push_back(BvhNode{});
+    uint32_t left = (uint32_t)nodes.size(), right = left + 1;
+    nodes.resize(nodes.size() + 2);
+    nodes[node].left = left;
+    nodes[node].right = right;
     build(left, first, mid - first, depth + 1);
-    size_t right = bvh.nodes.size();
-    bvh.nodes.push_back(BvhNode{});
     build(right, mid, first + count - mid, depth + 1);
-    bvh.nodes[node].bmin.w = as_float((uint32_t)right);
-    bvh.nodes[node].bmax.w = as_float(0u);
+  }
+};
+
+// Collapses the binary tree into 4-wide nodes: each wide node starts from a binary node's two
+// children and repeatedly opens the interior child of largest surface area (the one a ray is most
+// likely to enter, by the SAH's own measure) until it has four. Nodes are laid out depth first.
+struct Collapser {
+  const std::vector<BinaryNode>& bin;
+  Bvh& bvh;
+
+  // Returns the stack entries a traversal of this subtree may hold beyond those below it.
+  size_t collapse(uint32_t b, size_t wide, int depth) {
+    std::vector<uint32_t> kids{bin[b].left, bin[b].right};
+    if (bin[b].count > 0) kids = {b};  // a root that is a leaf: one leaf lane
+    while (kids.size() < XI_BVH_WIDTH) {
+      int open = -1;
+      for (int k = 0; k < (int)kids.size(); ++k)
+        if (bin[kids[k]].count == 0 && (open < 0 || bin[kids[k]].box.area() > bin[kids[open]].box.area())) open = k;
+      if (open < 0) break;
+      uint32_t c = kids[open];
+      kids[open] = bin[c].left;
+      kids.insert(kids.begin() + open + 1, bin[c].right);
+    }
+    bvh.stats.depth = std::max(bvh.stats.depth, depth + 1);
+    const float inf = INFINITY;
+    float lo[3][XI_BVH_WIDTH], hi[3][XI_BVH_WIDTH];
+    uint32_t child[XI_BVH_WIDTH];
+    size_t below = 0;
+    for (size_t k = 0; k < XI_BVH_WIDTH; ++k) {
+      for (int a = 0; a < 3; ++a) lo[a][k] = hi[a][k] = inf;
+      child[k] = XI_BVH_EMPTY;
+      if (k >= kids.size()) continue;
+      const BinaryNode& c = bin[kids[k]];
+      for (int a = 0; a < 3; ++a) lo[a][k] = c.box.lo[a], hi[a][k] = c.box.hi[a];
+      if (c.count > 0) {
+        child[k] = XI_BVH_LEAF | (c.count - 1) << 27 | c.first;
+        bvh.stats.leaves++;
+        bvh.stats.max_leaf = std::max<size_t>(bvh.stats.max_leaf, c.count);
+      } else {
+        child[k] = (uint32_t)bvh.nodes.size();
+        bvh.nodes.push_back(BvhNode{});
+        below = std::max(below, collapse(kids[k], child[k], depth + 1));
+      }
+    }
+    BvhNode& n = bvh.nodes[wide];
+    n.lo_x = glm::make_vec4(lo[0]), n.hi_x = glm::make_vec4(hi[0]);
+    n.lo_y = glm::make_vec4(lo[1]), n.hi_y = glm::make_vec4(hi[1]);
+    n.lo_z = glm::make_vec4(lo[2]), n.hi_z = glm::make_vec4(hi[2]);
+    std::copy(child, child + XI_BVH_WIDTH, n.child);
+    // Traversal pushes up to one entry per lane and pops one to descend into an interior child.
+    return std::max(kids.size(), kids.size() - 1 + below);
   }
 };
 
@@ -121,8 +177,10 @@ Bvh build_bvh(const std::vector<Triangle>& triangles) {
   auto start = std::chrono::steady_clock::now();
   if (triangles.empty()) throw Error("cannot build a BVH over an empty scene");
   if (triangles.size() >= (1ull << 31)) throw Error("too many triangles for 32-bit indices");
+  // Leaf entries address triangles with 27 bits (XI_BVH_FIRST_MASK).
+  if (triangles.size() > XI_BVH_FIRST_MASK) throw Error("too many triangles for the BVH (at most 134217727)");
   Bvh bvh;
-  Builder b{triangles, {}, {}, bvh};
+  Builder b{triangles, {}, {}, bvh.order, {}};
   b.bounds.resize(triangles.size());
   b.centroids.resize(triangles.size());
   for (size_t i = 0; i < triangles.size(); ++i) {
@@ -131,9 +189,14 @@ Bvh build_bvh(const std::vector<Triangle>& triangles) {
   }
   bvh.order.resize(triangles.size());
   for (size_t i = 0; i < triangles.size(); ++i) bvh.order[i] = (uint32_t)i;
-  bvh.nodes.reserve(2 * triangles.size());
-  bvh.nodes.push_back(BvhNode{});
+  b.nodes.reserve(2 * triangles.size());
+  b.nodes.push_back(BinaryNode{});
   b.build(0, 0, triangles.size(), 0);
+  bvh.nodes.push_back(BvhNode{});
+  bvh.stats.stack = Collapser{b.nodes, bvh}.collapse(0, 0, 0);
+  if (bvh.stats.stack > XI_BVH_STACK)
+    throw Error("the scene's BVH is too deep for the kernels' traversal stack",
+                "needs " + std::to_string(bvh.stats.stack) + " entries, XI_BVH_STACK is " + std::to_string(XI_BVH_STACK));
   bvh.stats.nodes = bvh.nodes.size();
   bvh.stats.build_seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   return bvh;

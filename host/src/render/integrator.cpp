@@ -19,10 +19,30 @@ cl::Buffer upload(cl::Context& ctx, const std::vector<T>& data) {
 
 }  // namespace
 
+size_t default_paths_in_flight(Device& device) {
+  // A CPU runs a few work items per core at a time: a wave that fits its caches is the faster one.
+  // A GPU needs hundreds of thousands of paths to hide its memory latency.
+  const bool gpu = device.device().getInfo<CL_DEVICE_TYPE>() & CL_DEVICE_TYPE_GPU;
+  size_t paths = gpu ? (size_t)1 << 21 : (size_t)1 << 18;
+  // Path state, shadow rays and the two queues, per path; at most a quarter of the device memory,
+  // and no buffer over the device's largest allocation.
+  size_t bytes = 0;
+#define XI_ADD_SIZE(type, name) bytes += sizeof(type);
+  XI_PATH_STATE(XI_ADD_SIZE)
+  XI_SHADOW_STATE(XI_ADD_SIZE)
+#undef XI_ADD_SIZE
+  bytes += 2 * sizeof(uint32_t);
+  const size_t mem = device.device().getInfo<CL_DEVICE_GLOBAL_MEM_SIZE>();
+  const size_t max_alloc = device.device().getInfo<CL_DEVICE_MAX_MEM_ALLOC_SIZE>();
+  paths = std::min({paths, mem / 4 / bytes, max_alloc / sizeof(glm::vec4)});
+  return std::max<size_t>(paths, 1024);
+}
+
 Renderer::Renderer(Device& device, const Scene& scene, const RenderOptions& options)
     : device_(device), options_(options), scene_(compile_scene(scene)) {
   if (options.spp < 1) throw Error("spp must be at least 1", "--spp");
   if (options.max_depth < 1 || options.max_depth > 64) throw Error("max depth must be in 1..64", "--max-depth");
+  if (options.samples_per_pass < 0) throw Error("samples per pass must be at least 1 (0: automatic)");
   Features f = options.all_features ? Features::everything() : scene_.features;
   program_ = build_program(device, kStageFiles, kernel_defines(f, options.sampler, options.strategy));
   generate_ = cl::Kernel(program_.program, "generate");
@@ -31,16 +51,24 @@ Renderer::Renderer(Device& device, const Scene& scene, const RenderOptions& opti
   shadow_ = cl::Kernel(program_.program, "shadow");
   accumulate_ = cl::Kernel(program_.program, "accumulate");
 
-  cl::Context& ctx = device.context();
+  // Paths in flight: a wave holds several samples of every pixel when the budget allows it.
   pixels_ = (size_t)scene.width * scene.height;
-  wave_ = std::min(pixels_, std::max<size_t>(options.wave_pixels, 1));
-#define XI_ALLOCATE_BUFFER(type, name) name##_ = cl::Buffer(ctx, CL_MEM_READ_WRITE, sizeof(type) * wave_);
+  const size_t budget = options.paths_in_flight ? options.paths_in_flight : default_paths_in_flight(device);
+  const int fits = (int)std::clamp<size_t>(budget / pixels_, 1, (size_t)options.spp);
+  samples_per_pass_ = options.samples_per_pass > 0 ? std::min(options.samples_per_pass, fits) : fits;
+  paths_ = std::min(budget, pixels_ * samples_per_pass_);
+  if (paths_ > UINT32_MAX / 2) throw Error("too many paths in flight", std::to_string(paths_));
+
+  cl::Context& ctx = device.context();
+#define XI_ALLOCATE_BUFFER(type, name) name##_ = cl::Buffer(ctx, CL_MEM_READ_WRITE, sizeof(type) * paths_);
   XI_PATH_STATE(XI_ALLOCATE_BUFFER)
   XI_SHADOW_STATE(XI_ALLOCATE_BUFFER)
 #undef XI_ALLOCATE_BUFFER
-  queue_a_ = cl::Buffer(ctx, CL_MEM_READ_WRITE, sizeof(uint32_t) * wave_);
-  queue_b_ = cl::Buffer(ctx, CL_MEM_READ_WRITE, sizeof(uint32_t) * wave_);
-  counters_ = cl::Buffer(ctx, CL_MEM_READ_WRITE, sizeof(uint32_t) * XI_COUNTER_COUNT);
+  queue_a_ = cl::Buffer(ctx, CL_MEM_READ_WRITE, sizeof(uint32_t) * paths_);
+  queue_b_ = cl::Buffer(ctx, CL_MEM_READ_WRITE, sizeof(uint32_t) * paths_);
+  counter_count_ = XI_COUNTER_COUNT(options.max_depth);
+  counters_ = cl::Buffer(ctx, CL_MEM_READ_WRITE, sizeof(uint32_t) * counter_count_);
+  ray_counts_.assign(options.max_depth + 2, 0);
   nodes_ = upload(ctx, scene_.bvh.nodes);
   tri_verts_ = upload(ctx, scene_.tri_verts);
   tri_normals_ = upload(ctx, scene_.tri_normals);
@@ -56,7 +84,7 @@ Renderer::Renderer(Device& device, const Scene& scene, const RenderOptions& opti
   cl::CommandQueue& q = device.queue();
   for (cl::Buffer* b : {&film_sum_, &film_sum_sq_, &film_albedo_, &film_normal_})
     q.enqueueFillBuffer(*b, 0.0f, 0, sizeof(glm::vec4) * pixels_);
-  q.enqueueFillBuffer(counters_, 0u, 0, sizeof(uint32_t) * XI_COUNTER_COUNT);
+  q.enqueueFillBuffer(counters_, 0u, 0, sizeof(uint32_t) * counter_count_);
   q.finish();
   auto start = std::chrono::steady_clock::now();
   warm_up();
@@ -76,54 +104,52 @@ int Renderer::bind_shadow_state(cl::Kernel& kernel, int arg) {
 }
 #undef XI_BIND_BUFFER
 
-void Renderer::launch(cl::Kernel& kernel, const char* stage, int bounce, size_t items) {
-  size_t local = options_.local_size;
-  // Zero items (the warm-up) launches a full wave whose work items return at once: PoCL specialises
-  // its compiled work-group functions on the launch size, so a small dummy launch would not do.
-  size_t n = items > 0 ? items : wave_;
-  size_t global = local ? (n + local - 1) / local * local : n;
+// Enqueues without waiting: the in-order queue runs the stages one after the other. Only with
+// profiling does a launch carry an event, read when the pass is done.
+void Renderer::launch(cl::Kernel& kernel, const char* stage, int bounce, size_t global_items) {
+  const size_t local = options_.local_size;
+  const size_t n = std::max<size_t>(global_items, 1);
+  const size_t global = local ? (n + local - 1) / local * local : n;
   cl::Event event;
   device_.queue().enqueueNDRangeKernel(kernel, cl::NullRange, cl::NDRange(global),
-                                       local ? cl::NDRange(local) : cl::NullRange, nullptr, &event);
-  event.wait();  // keeps the timings per stage honest; the in-order queue serialises them anyway
-  if (items > 0)
-    launches_.push_back(Launch{stage, passes_, bounce, items, event.getProfilingInfo<CL_PROFILING_COMMAND_START>(),
-                               event.getProfilingInfo<CL_PROFILING_COMMAND_END>()});
+                                       local ? cl::NDRange(local) : cl::NullRange, nullptr,
+                                       options_.profile ? &event : nullptr);
+  if (options_.profile) {
+    launches_.push_back(Launch{stage, passes_, bounce, global_items, 0, 0, global_items});
+    launch_events_.push_back(event);
+  }
 }
 
 // Each stage's arguments in the order its kernel declares them.
 
-void Renderer::generate(uint32_t first, uint32_t count) {
+void Renderer::generate(const WaveParams& wave) {
   int arg = bind_path_state(generate_);
   generate_.setArg(arg++, queue_a_);
+  generate_.setArg(arg++, counters_);
   generate_.setArg(arg++, scene_.camera);
   generate_.setArg(arg++, sampler_params());
-  generate_.setArg(arg++, first);
-  generate_.setArg(arg++, count);
-  generate_.setArg(arg++, (uint32_t)passes_);
-  launch(generate_, "generate", -1, count);
+  generate_.setArg(arg++, wave);
+  launch(generate_, "generate", -1, (size_t)wave.pixels * wave.samples);
 }
 
-void Renderer::extend(const cl::Buffer& queue, uint32_t count, int bounce) {
+void Renderer::extend(const cl::Buffer& queue, int bounce, size_t global) {
   int arg = bind_path_state(extend_);
   extend_.setArg(arg++, queue);
-  extend_.setArg(arg++, count);
+  extend_.setArg(arg++, counters_);
+  extend_.setArg(arg++, (uint32_t)bounce);
   extend_.setArg(arg++, nodes_);
   extend_.setArg(arg++, tri_verts_);
-  launch(extend_, "extend", bounce, count);
-  extend_rays_ += count;
+  launch(extend_, "extend", bounce, global);
 }
 
-void Renderer::shade(const cl::Buffer& queue_in, uint32_t count, const cl::Buffer& queue_out, uint32_t first,
-                     int bounce) {
-  static const uint32_t zeros[2] = {0, 0};  // the output queue and the shadow queue start empty
-  device_.queue().enqueueWriteBuffer(counters_, CL_TRUE, sizeof(uint32_t) * XI_COUNTER_RAYS_OUT, sizeof zeros, zeros);
+void Renderer::shade(const cl::Buffer& queue_in, const cl::Buffer& queue_out, const WaveParams& wave, int bounce,
+                     size_t global) {
   int arg = bind_path_state(shade_);
   shade_.setArg(arg++, queue_in);
-  shade_.setArg(arg++, count);
   shade_.setArg(arg++, queue_out);
   arg = bind_shadow_state(shade_, arg);
   shade_.setArg(arg++, counters_);
+  shade_.setArg(arg++, (uint32_t)bounce);
   shade_.setArg(arg++, materials_);
   shade_.setArg(arg++, tri_verts_);
   shade_.setArg(arg++, tri_material_);
@@ -133,69 +159,120 @@ void Renderer::shade(const cl::Buffer& queue_in, uint32_t count, const cl::Buffe
   shade_.setArg(arg++, tri_light_pdf_);
   shade_.setArg(arg++, scene_.features.emitters ? (uint32_t)scene_.light_tri.size() : 0u);
   shade_.setArg(arg++, sampler_params());
-  shade_.setArg(arg++, first);
-  shade_.setArg(arg++, (uint32_t)passes_);
+  shade_.setArg(arg++, wave);
   shade_.setArg(arg++, (uint32_t)options_.max_depth);
   shade_.setArg(arg++, scene_.background);
-  launch(shade_, "shade", bounce, count);
+  launch(shade_, "shade", bounce, global);
 }
 
-void Renderer::shadow(uint32_t count, int bounce) {
+void Renderer::shadow(int bounce, size_t global) {
   int arg = bind_shadow_state(shadow_, bind_path_state(shadow_));
-  shadow_.setArg(arg++, count);
+  shadow_.setArg(arg++, counters_);
+  shadow_.setArg(arg++, (uint32_t)bounce);
   shadow_.setArg(arg++, nodes_);
   shadow_.setArg(arg++, tri_verts_);
-  launch(shadow_, "shadow", bounce, count);
-  shadow_rays_ += count;
+  launch(shadow_, "shadow", bounce, global);
 }
 
-void Renderer::accumulate(uint32_t first, uint32_t count) {
+void Renderer::accumulate(const WaveParams& wave) {
   int arg = bind_path_state(accumulate_);
   accumulate_.setArg(arg++, film_sum_);
   accumulate_.setArg(arg++, film_sum_sq_);
   accumulate_.setArg(arg++, film_albedo_);
   accumulate_.setArg(arg++, film_normal_);
   accumulate_.setArg(arg++, counters_);
-  accumulate_.setArg(arg++, first);
-  accumulate_.setArg(arg++, count);
-  launch(accumulate_, "accumulate", -1, count);
+  accumulate_.setArg(arg++, wave);
+  launch(accumulate_, "accumulate", -1, wave.pixels);
 }
 
 SamplerParams Renderer::sampler_params() const {
   return xi_make_sampler_params(options_.seed, (uint32_t)options_.spp);
 }
 
-// The wavefront: generate; extend, shade and shadow until no path is left; accumulate.
-void Renderer::run_pass() {
-  for (size_t first = 0; first < pixels_; first += wave_) {
-    const uint32_t count = (uint32_t)std::min(wave_, pixels_ - first);
-    generate((uint32_t)first, count);
-    const cl::Buffer* in = &queue_a_;
-    const cl::Buffer* out = &queue_b_;
-    uint32_t rays = count;
-    for (int bounce = 0; rays > 0; ++bounce) {
-      if (bounce == options_.record_bounce) record(*in, rays);
-      extend(*in, rays, bounce);
-      shade(*in, rays, *out, (uint32_t)first, bounce);
-      uint32_t counts[2];  // rays out, shadow rays
-      device_.queue().enqueueReadBuffer(counters_, CL_TRUE, sizeof(uint32_t) * XI_COUNTER_RAYS_OUT, sizeof counts,
-                                        counts);
-      if (counts[1] > 0) shadow(counts[1], bounce);
-      rays = counts[0];
-      std::swap(in, out);
+// One wave: generate; extend, shade and shadow until no path is left; accumulate. The kernels read
+// their queue lengths on the device, so the host never waits for a bounce to finish: it launches
+// bounce b + 1 over the length of bounce b's queue (a bound, since paths only end), which it reads
+// back without stalling, the copy being queued right after the shade that counted it.
+void Renderer::run_wave(const WaveParams& wave) {
+  cl::CommandQueue& q = device_.queue();
+  q.enqueueFillBuffer(counters_, 0u, sizeof(uint32_t), sizeof(uint32_t) * (counter_count_ - 1));  // keeps NONFINITE
+  wave_first_launch_.push_back(launches_.size());
+  generate(wave);
+  std::vector<cl::Event> counted(options_.max_depth + 2);  // counted[b]: ray_counts_[b] arrived
+  const cl::Buffer* in = &queue_a_;
+  const cl::Buffer* out = &queue_b_;
+  size_t bound = (size_t)wave.pixels * wave.samples;
+  for (int bounce = 0; bounce <= options_.max_depth && bound > 0; ++bounce) {
+    if (bounce == options_.record_bounce) record(*in, bounce);
+    extend(*in, bounce, bound);
+    shade(*in, *out, wave, bounce, bound);
+    shadow(bounce, bound);  // at most one shadow ray per path
+    q.enqueueReadBuffer(counters_, CL_FALSE, sizeof(uint32_t) * XI_COUNTER_RAYS(bounce + 1), sizeof(uint32_t),
+                        &ray_counts_[bounce + 1], nullptr, &counted[bounce + 1]);
+    if (bounce > 0) {  // this bounce's queue length, known once the previous shade is done
+      counted[bounce].wait();
+      bound = ray_counts_[bounce];
     }
-    accumulate((uint32_t)first, count);
+    std::swap(in, out);
   }
+  accumulate(wave);
+  wave_counters_.emplace_back(counter_count_);
+  q.enqueueReadBuffer(counters_, CL_FALSE, 0, sizeof(uint32_t) * counter_count_, wave_counters_.back().data());
+}
+
+void Renderer::run_pass() {
+  if (done()) return;
+  const uint32_t samples = (uint32_t)std::min(samples_per_pass_, options_.spp - spp_done_);
+  const size_t pixels_per_wave = paths_ / samples;  // all pixels when samples > 1
+  for (size_t first = 0; first < pixels_; first += pixels_per_wave)
+    run_wave(WaveParams{(uint32_t)first, (uint32_t)std::min(pixels_per_wave, pixels_ - first), (uint32_t)spp_done_,
+                        samples});
+  finish_pass();
+  spp_done_ += (int)samples;
   passes_++;
 }
 
-void Renderer::record(const cl::Buffer& queue, uint32_t count) {
-  std::vector<uint32_t> slots(count);
-  std::vector<glm::vec4> org(wave_), dir(wave_);
+void Renderer::render() {
+  while (!done()) run_pass();
+}
+
+// Waits for the pass, then takes the queue lengths of its waves (ray counts; with profiling, the
+// items of each launch and its times).
+void Renderer::finish_pass() {
+  device_.queue().finish();
+  for (size_t w = 0; w < wave_counters_.size(); ++w) {
+    const std::vector<uint32_t>& c = wave_counters_[w];
+    for (int b = 0; b <= options_.max_depth; ++b) {
+      extend_rays_ += c[XI_COUNTER_RAYS(b)];
+      shadow_rays_ += c[XI_COUNTER_SHADOW(b)];
+    }
+    if (!options_.profile) continue;
+    const size_t end = w + 1 < wave_first_launch_.size() ? wave_first_launch_[w + 1] : launches_.size();
+    for (size_t i = wave_first_launch_[w]; i < end; ++i) {
+      Launch& l = launches_[i];
+      if (l.bounce >= 0)
+        l.items = c[std::string(l.stage) == "shadow" ? XI_COUNTER_SHADOW(l.bounce) : XI_COUNTER_RAYS(l.bounce)];
+    }
+  }
+  for (size_t i = launches_.size() - launch_events_.size(), k = 0; k < launch_events_.size(); ++i, ++k) {
+    launches_[i].start_ns = launch_events_[k].getProfilingInfo<CL_PROFILING_COMMAND_START>();
+    launches_[i].end_ns = launch_events_[k].getProfilingInfo<CL_PROFILING_COMMAND_END>();
+  }
+  launch_events_.clear();
+  wave_counters_.clear();
+  wave_first_launch_.clear();
+}
+
+// Bench only: waits for the queue of this bounce and keeps its rays.
+void Renderer::record(const cl::Buffer& queue, int bounce) {
   cl::CommandQueue& q = device_.queue();
-  q.enqueueReadBuffer(queue, CL_TRUE, 0, sizeof(uint32_t) * count, slots.data());
-  q.enqueueReadBuffer(ray_org_, CL_TRUE, 0, sizeof(glm::vec4) * wave_, org.data());
-  q.enqueueReadBuffer(ray_dir_, CL_TRUE, 0, sizeof(glm::vec4) * wave_, dir.data());
+  uint32_t count = 0;
+  q.enqueueReadBuffer(counters_, CL_TRUE, sizeof(uint32_t) * XI_COUNTER_RAYS(bounce), sizeof count, &count);
+  std::vector<uint32_t> slots(count);
+  std::vector<glm::vec4> org(paths_), dir(paths_);
+  if (count > 0) q.enqueueReadBuffer(queue, CL_TRUE, 0, sizeof(uint32_t) * count, slots.data());
+  q.enqueueReadBuffer(ray_org_, CL_TRUE, 0, sizeof(glm::vec4) * paths_, org.data());
+  q.enqueueReadBuffer(ray_dir_, CL_TRUE, 0, sizeof(glm::vec4) * paths_, dir.data());
   for (uint32_t s : slots) {
     recorded_.org.push_back(org[s]);
     recorded_.dir.push_back(dir[s]);
@@ -204,28 +281,38 @@ void Renderer::record(const cl::Buffer& queue, uint32_t count) {
 
 double Renderer::trace_closest(const RayBatch& rays, std::vector<glm::vec4>* hits) {
   const size_t n = rays.org.size();
-  if (n > wave_ || rays.dir.size() != n) throw Error("ray batch larger than the wave or malformed");
+  if (n > paths_ || rays.dir.size() != n) throw Error("ray batch larger than the paths in flight or malformed");
   cl::CommandQueue& q = device_.queue();
   std::vector<uint32_t> identity(n);
   for (size_t i = 0; i < n; ++i) identity[i] = (uint32_t)i;
+  const uint32_t count = (uint32_t)n;
   q.enqueueWriteBuffer(ray_org_, CL_TRUE, 0, sizeof(glm::vec4) * n, rays.org.data());
   q.enqueueWriteBuffer(ray_dir_, CL_TRUE, 0, sizeof(glm::vec4) * n, rays.dir.data());
   q.enqueueWriteBuffer(queue_a_, CL_TRUE, 0, sizeof(uint32_t) * n, identity.data());
-  extend(queue_a_, (uint32_t)n, 0);
-  const Launch& l = launches_.back();
+  q.enqueueWriteBuffer(counters_, CL_TRUE, sizeof(uint32_t) * XI_COUNTER_RAYS(0), sizeof count, &count);
+  auto start = std::chrono::steady_clock::now();
+  extend(queue_a_, 0, n);
+  q.finish();
+  double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   hits->resize(n);
   q.enqueueReadBuffer(hit_, CL_TRUE, 0, sizeof(glm::vec4) * n, hits->data());
-  return (l.end_ns - l.start_ns) * 1e-9;
+  launches_.clear();
+  launch_events_.clear();
+  return seconds;
 }
 
-// Launches every stage once with no work, so a driver that compiles per launch configuration
-// (PoCL) does it now, counted in the kernel build, not in the first pass.
+// Launches every stage once with no work, over the whole path state, so a driver that compiles per
+// launch configuration (PoCL) does it now, counted in the kernel build, not in the first pass.
 void Renderer::warm_up() {
-  generate(0, 0);
-  extend(queue_a_, 0, 0);
-  shade(queue_a_, 0, queue_b_, 0, 0);
-  shadow(0, 0);
-  accumulate(0, 0);
+  const WaveParams empty{0, 0, 0, 1};
+  generate(empty);
+  extend(queue_a_, 0, paths_);
+  shade(queue_a_, queue_b_, empty, 0, paths_);
+  shadow(0, paths_);
+  accumulate(WaveParams{0, 0, 0, 1});
+  device_.queue().finish();
+  launches_.clear();
+  launch_events_.clear();
 }
 
 std::vector<glm::vec4> Renderer::read(const cl::Buffer& film) const {
@@ -260,9 +347,9 @@ Renderer::Film Renderer::film() const {
 }
 
 uint32_t Renderer::nonfinite_samples() const {
-  uint32_t c[XI_COUNTER_COUNT];
-  device_.queue().enqueueReadBuffer(counters_, CL_TRUE, 0, sizeof c, c);
-  return c[XI_COUNTER_NONFINITE];
+  uint32_t c = 0;
+  device_.queue().enqueueReadBuffer(counters_, CL_TRUE, sizeof(uint32_t) * XI_COUNTER_NONFINITE, sizeof c, &c);
+  return c;
 }
 
 }  // namespace xi

@@ -68,8 +68,8 @@ void write_chrome_trace(const std::filesystem::path& path, const std::vector<Lau
       // Complete events ("ph":"X"), microseconds from the first launch.
       std::fprintf(f,
                    "{\"name\":\"%s\",\"cat\":\"kernel\",\"ph\":\"X\",\"pid\":1,\"tid\":1,\"ts\":%.3f,\"dur\":%.3f,"
-                   "\"args\":{\"items\":%zu,\"pass\":%d,\"bounce\":%d}}%s\n",
-                   l.stage, (l.start_ns - t0) * 1e-3, (l.end_ns - l.start_ns) * 1e-3, l.items, l.pass, l.bounce,
+                   "\"args\":{\"items\":%zu,\"launched\":%zu,\"pass\":%d,\"bounce\":%d}}%s\n",
+                   l.stage, (l.start_ns - t0) * 1e-3, (l.end_ns - l.start_ns) * 1e-3, l.items, l.global, l.pass, l.bounce,
                    i + 1 < launches.size() ? "," : "");
     }
     std::fprintf(f, "]}\n");
