@@ -40,11 +40,11 @@ struct BruteForce {
       float qx = py * d.z - pz * d.y, qy = pz * d.x - px * d.z, qz = px * d.y - py * d.x;
       near[i] = !cull || qx * qx + qy * qy + qz * qz <= r2[i] + 1e-5f * (px * px + py * py + pz * pz);
     }
-    RayShear s = xi_ray_shear(d);
+    RayShear s = xi_ray_shear(o, d);
     std::vector<HostHit> out;
     for (uint32_t i = 0; i < n; ++i) {
       HostHit h{i};
-      if (near[i] && xi_intersect_triangle(o, s, tris[i].v[0], tris[i].v[1], tris[i].v[2], tmax, &h.t, &h.u, &h.v))
+      if (near[i] && xi_intersect_triangle(s, tris[i].v[0], tris[i].v[1], tris[i].v[2], tmax, &h.t, &h.u, &h.v))
         out.push_back(h);
     }
     std::sort(out.begin(), out.end(), [](const HostHit& a, const HostHit& b) { return a.t < b.t; });

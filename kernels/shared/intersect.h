@@ -8,48 +8,48 @@
 #define XI_BVH_STACK 128  // entries; the BVH builder checks that its tree never needs more
 #define XI_NO_HIT 0xffffffffu
 
-// Per-ray constants of the watertight test: the axis of largest |d| becomes z, then a shear
-// makes the ray the +z axis so the edge functions are evaluated exactly as 2D cross products.
+// Per-ray constants of the watertight test: the axis of largest |d| becomes z (a cyclic
+// permutation of the axes, the same for every triangle the ray meets), then a shear makes the ray
+// the +z axis so the edge functions are evaluated exactly as 2D cross products. (Woop et al. also
+// swap x and y when d.z < 0 to keep the winding; that negates all three edge functions and their
+// sum alike, which changes neither the hit test nor t, u, v.)
 typedef struct {
-  int kx, ky, kz;
+  float3 o;  // the origin, permuted
+  int kz;    // 0: (x, y, z) → (y, z, x); 1: → (z, x, y); 2: unchanged
   float sx, sy, sz;
 } RayShear;
 
-static inline float xi_axis(float3 v, int k) { return k == 0 ? v.x : (k == 1 ? v.y : v.z); }
+static inline float3 xi_permute_axes(float3 v, int kz) {
+  return kz == 0 ? make_float3(v.y, v.z, v.x) : (kz == 1 ? make_float3(v.z, v.x, v.y) : v);
+}
 
-static inline RayShear xi_ray_shear(float3 d) {
+static inline RayShear xi_ray_shear(float3 o, float3 d) {
   RayShear s;
   float ax = fabs(d.x), ay = fabs(d.y), az = fabs(d.z);
   s.kz = (ax > ay) ? (ax > az ? 0 : 2) : (ay > az ? 1 : 2);
-  s.kx = s.kz == 2 ? 0 : s.kz + 1;
-  s.ky = s.kx == 2 ? 0 : s.kx + 1;
-  if (xi_axis(d, s.kz) < 0.0f) {  // keep the winding
-    int t = s.kx;
-    s.kx = s.ky;
-    s.ky = t;
-  }
-  float dz = xi_axis(d, s.kz);
-  s.sx = xi_axis(d, s.kx) / dz;
-  s.sy = xi_axis(d, s.ky) / dz;
-  s.sz = 1.0f / dz;
+  s.o = xi_permute_axes(o, s.kz);
+  float3 dp = xi_permute_axes(d, s.kz);
+  s.sx = dp.x / dp.z;
+  s.sy = dp.y / dp.z;
+  s.sz = 1.0f / dp.z;
   return s;
 }
 
 // Returns true and sets *t, *u, *v (barycentrics of v1 and v2) for a hit in (0, tmax).
-static inline bool xi_intersect_triangle(float3 o, RayShear s, float3 p0, float3 p1, float3 p2,
-                                         float tmax, float* t, float* u, float* v) {
-  float3 a = p0 - o, b = p1 - o, c = p2 - o;
-  float az = xi_axis(a, s.kz), bz = xi_axis(b, s.kz), cz = xi_axis(c, s.kz);
-  float ax = xi_axis(a, s.kx) - s.sx * az, ay = xi_axis(a, s.ky) - s.sy * az;
-  float bx = xi_axis(b, s.kx) - s.sx * bz, by = xi_axis(b, s.ky) - s.sy * bz;
-  float cx = xi_axis(c, s.kx) - s.sx * cz, cy = xi_axis(c, s.ky) - s.sy * cz;
+static inline bool xi_intersect_triangle(RayShear s, float3 p0, float3 p1, float3 p2, float tmax, float* t,
+                                         float* u, float* v) {
+  float3 a = xi_permute_axes(p0, s.kz) - s.o, b = xi_permute_axes(p1, s.kz) - s.o,
+         c = xi_permute_axes(p2, s.kz) - s.o;
+  float ax = a.x - s.sx * a.z, ay = a.y - s.sy * a.z;
+  float bx = b.x - s.sx * b.z, by = b.y - s.sy * b.z;
+  float cx = c.x - s.sx * c.z, cy = c.y - s.sy * c.z;
   float e0 = bx * cy - by * cx;
   float e1 = cx * ay - cy * ax;
   float e2 = ax * by - ay * bx;
   if ((e0 < 0.0f || e1 < 0.0f || e2 < 0.0f) && (e0 > 0.0f || e1 > 0.0f || e2 > 0.0f)) return false;
   float det = e0 + e1 + e2;
   if (det == 0.0f) return false;
-  float tt = (e0 * s.sz * az + e1 * s.sz * bz + e2 * s.sz * cz) / det;
+  float tt = (e0 * s.sz * a.z + e1 * s.sz * b.z + e2 * s.sz * c.z) / det;
   if (!(tt > 0.0f && tt < tmax)) return false;
   *t = tt;
   *u = e1 / det;
@@ -90,7 +90,7 @@ static inline float3 xi_tri_vertex(__global const float4* verts, uint tri, uint 
 // the host checks that no tree needs more than XI_BVH_STACK entries (xi::Bvh::stats.stack).
 static inline uint xi_trace(__global const BvhNode* nodes, __global const float4* verts, float3 o,
                             float3 d, float tmax, bool any_hit, float* t, float* u, float* v) {
-  RayShear s = xi_ray_shear(d);
+  RayShear s = xi_ray_shear(o, d);
   float3 inv_d = xi_safe_inverse(d);
   uint stack[XI_BVH_STACK];
   float stack_tn[XI_BVH_STACK];
@@ -103,7 +103,7 @@ static inline uint xi_trace(__global const BvhNode* nodes, __global const float4
       uint first = entry & XI_BVH_FIRST_MASK, end = first + 1u + ((entry >> 27) & 15u);
       for (uint i = first; i < end; ++i) {
         float tt, uu, vv;
-        if (xi_intersect_triangle(o, s, xi_tri_vertex(verts, i, 0u), xi_tri_vertex(verts, i, 1u),
+        if (xi_intersect_triangle(s, xi_tri_vertex(verts, i, 0u), xi_tri_vertex(verts, i, 1u),
                                   xi_tri_vertex(verts, i, 2u), best, &tt, &uu, &vv)) {
           best = tt;
           *t = tt;

@@ -304,12 +304,12 @@ double Renderer::trace_closest(const RayBatch& rays, std::vector<glm::vec4>* hit
 // Launches every stage once with no work, over the whole path state, so a driver that compiles per
 // launch configuration (PoCL) does it now, counted in the kernel build, not in the first pass.
 void Renderer::warm_up() {
-  const WaveParams empty{0, 0, 0, 1};
+  const WaveParams empty{0, 1, 0, 0};  // no items; one pixel so that nothing divides by zero
   generate(empty);
   extend(queue_a_, 0, paths_);
   shade(queue_a_, queue_b_, empty, 0, paths_);
   shadow(0, paths_);
-  accumulate(WaveParams{0, 0, 0, 1});
+  accumulate(WaveParams{0, 0, 0, 0});
   device_.queue().finish();
   launches_.clear();
   launch_events_.clear();
