@@ -100,6 +100,7 @@ int main(int argc, char** argv) {
       xi::RenderOptions opt;
       opt.spp = 1;
       opt.record_bounce = bounce;
+      opt.paths_in_flight = (size_t)scene.width * scene.height;  // one wave: trace_closest takes them all
       xi::Renderer recorder(device, scene, opt);
       recorder.run_pass();
       const xi::RayBatch& rays = recorder.recorded_rays();

@@ -4,12 +4,12 @@
 #include "layout.h"
 
 __kernel void shadow(XI_PATH_PARAMS XI_SHADOW_PARAMS __global const uint* restrict counters, uint bounce,
-                     __global const BvhNode* restrict nodes, __global const float4* restrict tri_verts) {
+                     __global const BvhNode* restrict nodes, __global const TriBlock* restrict tri_blocks) {
   uint i = get_global_id(0);
   if (i >= counters[XI_COUNTER_SHADOW(bounce)]) return;  // launched over an upper bound
   float4 o = shadow_org[i];
   float t, u, v;
-  if (xi_trace(nodes, tri_verts, o.xyz, shadow_dir[i].xyz, o.w, true, &t, &u, &v) != XI_NO_HIT) return;
+  if (xi_trace(nodes, tri_blocks, o.xyz, shadow_dir[i].xyz, o.w, true, &t, &u, &v) != XI_NO_HIT) return;
   float4 c = shadow_contrib[i];
   uint slot = as_uint(c.w);
   radiance[slot] += (float4)(c.xyz, 0.0f);

@@ -93,13 +93,13 @@ struct Walk {
 };
 
 // Walks the 4-wide tree from the root, checking the layout (children after their parent, empty
-// lanes with empty boxes and only after used ones, leaves own disjoint ranges of `order` covering it
-// once, every node reached once) and that every lane's box is exactly the bounds of what it holds
+// lanes with empty boxes and only after used ones, leaves own disjoint ranges of triangle blocks
+// whose lanes cover every position of `order` once, every node reached once) and that every lane's box is exactly the bounds of what it holds
 // (so it contains it), and returns what the walk counted, including the traversal stack bound.
 Walk check_tree(const xi::Bvh& bvh, const std::vector<xi::Triangle>& tris) {
   const size_t n = tris.size();
   EXPECT_EQ(bvh.order.size(), n);
-  std::vector<int> seen_tri(n), seen_pos(n), seen_node(bvh.nodes.size());
+  std::vector<int> seen_tri(n), seen_pos(n), seen_node(bvh.nodes.size()), seen_block(bvh.blocks.size());
   for (uint32_t t : bvh.order)
     if (t < n) seen_tri[t]++;
   EXPECT_EQ((size_t)std::count(seen_tri.begin(), seen_tri.end(), 1), n) << "order is not a permutation";
@@ -121,7 +121,7 @@ Walk check_tree(const xi::Bvh& bvh, const std::vector<xi::Triangle>& tris) {
       uint32_t c = node.child[k];
       Bounds box = lane_bounds(node, k), content;
       if (c == XI_BVH_EMPTY) {
-        EXPECT_TRUE(box.lo == vec3(INFINITY) && box.hi == vec3(INFINITY)) << "empty lane " << k << " of node " << i;
+        EXPECT_TRUE(box.lo == vec3(INFINITY) && box.hi == vec3(-INFINITY)) << "empty lane " << k << " of node " << i;
         continue;
       }
       EXPECT_EQ(lanes, (size_t)k) << "used lane after an empty one in node " << i;
@@ -129,17 +129,41 @@ Walk check_tree(const xi::Bvh& bvh, const std::vector<xi::Triangle>& tris) {
       if (c & XI_BVH_LEAF) {
         uint32_t first = c & XI_BVH_FIRST_MASK, count = 1 + ((c >> 27) & 15u);
         w.leaves++;
-        w.max_leaf = std::max<size_t>(w.max_leaf, count);
         w.depth = std::max(w.depth, depth + 1);
-        if (first >= n || count > n - first) {
-          ADD_FAILURE() << "leaf in node " << i << " holds [" << first << ", +" << count << ") beyond " << n;
+        if (first >= bvh.blocks.size() || count > bvh.blocks.size() - first) {
+          ADD_FAILURE() << "leaf in node " << i << " holds blocks [" << first << ", +" << count << ") beyond "
+                        << bvh.blocks.size();
           bad++;
           continue;
         }
-        for (uint32_t p = first; p < first + count; ++p) {
-          seen_pos[p]++;
-          for (auto& v : tris[bvh.order[p]].v) content.grow(v);
+        // Blocks: used lanes first, each holding its triangle's vertices exactly; unused lanes NaN.
+        size_t in_leaf = 0;
+        for (uint32_t b = first; b < first + count; ++b) {
+          const TriBlock& blk = bvh.blocks[b];
+          seen_block[b]++;
+          for (int l = 0; l < 4; ++l) {
+            const uint32_t p = blk.tri[l];
+            if (p == XI_BVH_EMPTY) {
+              EXPECT_TRUE(std::isnan(blk.x[0][l]) && std::isnan(blk.y[1][l]) && std::isnan(blk.z[2][l]));
+              EXPECT_EQ(b + 1, first + count) << "a block with an unused lane before the leaf's last";
+              continue;
+            }
+            if (p >= n) {
+              ADD_FAILURE() << "block " << b << " holds triangle " << p << " of " << n;
+              bad++;
+              continue;
+            }
+            in_leaf++;
+            seen_pos[p]++;
+            for (int j = 0; j < 3; ++j) {
+              const vec3 v = tris[bvh.order[p]].v[j];
+              content.grow(v);
+              EXPECT_TRUE(vec3(blk.x[j][l], blk.y[j][l], blk.z[j][l]) == v) << "block " << b << " lane " << l;
+            }
+          }
         }
+        EXPECT_EQ((in_leaf + 3) / 4, count) << "a leaf with a block it does not need";
+        w.max_leaf = std::max(w.max_leaf, in_leaf);
       } else {
         EXPECT_GT(c, i) << "child before its parent";
         auto [b, need] = walk(c, depth + 1);
@@ -158,6 +182,8 @@ Walk check_tree(const xi::Bvh& bvh, const std::vector<xi::Triangle>& tris) {
   EXPECT_EQ(loose_boxes, 0u) << "boxes that are not exactly the bounds of their content";
   EXPECT_EQ((size_t)std::count(seen_pos.begin(), seen_pos.end(), 1), n) << "positions not in exactly one leaf";
   EXPECT_EQ((size_t)std::count(seen_node.begin(), seen_node.end(), 1), bvh.nodes.size()) << "unreachable nodes";
+  EXPECT_EQ((size_t)std::count(seen_block.begin(), seen_block.end(), 1), bvh.blocks.size())
+      << "blocks not in exactly one leaf";
   return w;
 }
 
@@ -212,7 +238,7 @@ void check_queries(const xi::Scene& scene, const xi::CompiledScene& cs, uint32_t
     }
 
     float t = -1, u = 0, v = 0;
-    uint32_t pos = xi_trace(cs.bvh.nodes.data(), cs.tri_verts.data(), o, d, INFINITY, false, &t, &u, &v);
+    uint32_t pos = xi_trace(cs.bvh.nodes.data(), cs.bvh.blocks.data(), o, d, INFINITY, false, &t, &u, &v);
     if (ref.empty()) {
       EXPECT_EQ(pos, XI_NO_HIT);  // misses agree exactly
     } else if (pos == XI_NO_HIT || pos >= tris.size()) {
@@ -238,7 +264,7 @@ void check_queries(const xi::Scene& scene, const xi::CompiledScene& cs, uint32_t
     // Any hit before a random tmax: hit/no-hit agrees with brute force, and the hit is genuine.
     float tmax = unit(rng) * diag;
     float ta = -1;
-    uint32_t apos = xi_trace(cs.bvh.nodes.data(), cs.tri_verts.data(), o, d, tmax, true, &ta, &u, &v);
+    uint32_t apos = xi_trace(cs.bvh.nodes.data(), cs.bvh.blocks.data(), o, d, tmax, true, &ta, &u, &v);
     bool occluded = !ref.empty() && ref[0].t < tmax;
     EXPECT_EQ(apos != XI_NO_HIT, occluded) << "tmax = " << tmax;  // same triangle test, same tmax: exact
     if (apos != XI_NO_HIT && apos < tris.size()) {
@@ -292,6 +318,8 @@ TEST(BvhBuild, IsDeterministic) {
   EXPECT_EQ(a.order, b.order);
   ASSERT_EQ(a.nodes.size(), b.nodes.size());
   EXPECT_EQ(std::memcmp(a.nodes.data(), b.nodes.data(), sizeof(BvhNode) * a.nodes.size()), 0);
+  ASSERT_EQ(a.blocks.size(), b.blocks.size());
+  EXPECT_EQ(std::memcmp(a.blocks.data(), b.blocks.data(), sizeof(TriBlock) * a.blocks.size()), 0);
 }
 
 // 100 copies of one triangle: every centroid coincides, so no SAH split separates them.
@@ -304,17 +332,20 @@ TEST(BvhBuild, CoincidentCopies) {
 
   const vec3 o(0.25f, 0.25f, -1.0f), d(0, 0, 1);
   float tt, u, v;
-  uint32_t pos = xi_trace(cs.bvh.nodes.data(), cs.tri_verts.data(), o, d, INFINITY, false, &tt, &u, &v);
+  uint32_t pos = xi_trace(cs.bvh.nodes.data(), cs.bvh.blocks.data(), o, d, INFINITY, false, &tt, &u, &v);
   ASSERT_LT(pos, 100u);
   EXPECT_FLOAT_EQ(tt, 1.0f);  // the plane z = 0 is one unit along the ray
 
   // Each copy is reachable by traversal: with every other copy collapsed to a point (which no ray
   // hits) but the same tree, the ray must still find it, in whichever leaf it was put.
   for (uint32_t keep = 0; keep < 100; ++keep) {
-    std::vector<glm::vec4> verts(cs.tri_verts.size(), glm::vec4(0.1f, 0.1f, 0.0f, 0.0f));
-    for (int k = 0; k < 3; ++k) verts[3 * keep + k] = cs.tri_verts[3 * keep + k];
-    EXPECT_EQ(xi_trace(cs.bvh.nodes.data(), verts.data(), o, d, INFINITY, false, &tt, &u, &v), keep);
-    EXPECT_EQ(xi_trace(cs.bvh.nodes.data(), verts.data(), o, d, 2.0f, true, &tt, &u, &v), keep);
+    std::vector<TriBlock> blocks = cs.bvh.blocks;
+    for (TriBlock& b : blocks)
+      for (int l = 0; l < 4; ++l)
+        if (b.tri[l] != keep && b.tri[l] != XI_NO_HIT)
+          for (int j = 0; j < 3; ++j) b.x[j][l] = 0.1f, b.y[j][l] = 0.1f, b.z[j][l] = 0.0f;
+    EXPECT_EQ(xi_trace(cs.bvh.nodes.data(), blocks.data(), o, d, INFINITY, false, &tt, &u, &v), keep);
+    EXPECT_EQ(xi_trace(cs.bvh.nodes.data(), blocks.data(), o, d, 2.0f, true, &tt, &u, &v), keep);
   }
 }
 
@@ -330,12 +361,12 @@ TEST(BvhBuild, ExponentialSpacing) {
   xi::CompiledScene cs = xi::compile_scene(scene);
   Walk w = check_tree(cs.bvh, tris);
   check_stats(cs.bvh, w, false);
-  EXPECT_GT(w.depth, 10);  // lopsided: a balanced 4-wide tree over 100 triangles would be ~3 deep
+  EXPECT_GT(w.depth, 6);  // lopsided: a balanced 4-wide tree over 100 triangles would be ~3 deep
   // Every triangle is still found, by a ray straight at it through the plane z = 0.
   for (uint32_t i = 0; i < tris.size(); ++i) {
     float x = tris[i].v[0].x, s = 0.1f * x, t, u, v;
     vec3 o(x + 0.25f * s, 0.25f * s, -1.0f);
-    uint32_t pos = xi_trace(cs.bvh.nodes.data(), cs.tri_verts.data(), o, vec3(0, 0, 1), INFINITY, false, &t, &u, &v);
+    uint32_t pos = xi_trace(cs.bvh.nodes.data(), cs.bvh.blocks.data(), o, vec3(0, 0, 1), INFINITY, false, &t, &u, &v);
     ASSERT_LT(pos, tris.size()) << "triangle " << i;
     EXPECT_EQ(cs.bvh.order[pos], i);
   }

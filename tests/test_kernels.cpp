@@ -187,14 +187,14 @@ TEST_F(Kernel, ExtendMatchesBruteForce) {
   std::vector<uint32_t> counters(XI_COUNTER_COUNT(8), 7u);
   counters[XI_COUNTER_RAYS(bounce)] = n;
   PathBuffers b = upload(state);
-  cl::Buffer qb = buffer(q), cb = buffer(counters), nodes = buffer(cs.bvh.nodes), verts = buffer(cs.tri_verts);
+  cl::Buffer qb = buffer(q), cb = buffer(counters), nodes = buffer(cs.bvh.nodes), blocks = buffer(cs.bvh.blocks);
   cl::Kernel k = kernel("extend");
   int arg = bind(k, b);
   k.setArg(arg++, qb);
   k.setArg(arg++, cb);
   k.setArg(arg++, bounce);
   k.setArg(arg++, nodes);
-  k.setArg(arg++, verts);
+  k.setArg(arg++, blocks);
   launch(k, slots);
   std::vector<vec4> hit = read<vec4>(b.hit, slots);
 
@@ -471,7 +471,7 @@ TEST_F(Kernel, ShadowAddsOnlyUnoccluded) {
 
   PathBuffers b = upload(state);
   cl::Buffer org_b = buffer(org), dir_b = buffer(dir), contrib_b = buffer(contrib);
-  cl::Buffer nodes = buffer(cs.bvh.nodes), verts = buffer(cs.tri_verts);
+  cl::Buffer nodes = buffer(cs.bvh.nodes), blocks = buffer(cs.bvh.blocks);
   const uint32_t bounce = 2;
   std::vector<uint32_t> counters(XI_COUNTER_COUNT(8), 3u);
   counters[XI_COUNTER_SHADOW(bounce)] = n;  // the entries past n must be ignored
@@ -484,7 +484,7 @@ TEST_F(Kernel, ShadowAddsOnlyUnoccluded) {
   k.setArg(arg++, cb);
   k.setArg(arg++, bounce);
   k.setArg(arg++, nodes);
-  k.setArg(arg++, verts);
+  k.setArg(arg++, blocks);
   launch(k, n + extra);  // over an upper bound, as the renderer launches
   std::vector<vec4> got = read<vec4>(b.radiance, slots);
 

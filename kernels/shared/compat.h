@@ -59,6 +59,7 @@ static inline float3 fmax(const float3& a, const float3& b) { return glm::max(a,
 static inline float4 fmin(const float4& a, const float4& b) { return glm::min(a, b); }
 static inline float4 fmax(const float4& a, const float4& b) { return glm::max(a, b); }
 static inline float3 fabs(const float3& a) { return glm::abs(a); }
+static inline uint clz(uint x) { return x ? (uint)__builtin_clz(x) : 32u; }
 static inline float cospi(float x) { return std::cos(XI_PI_DOUBLE * x); }
 static inline float sinpi(float x) { return std::sin(XI_PI_DOUBLE * x); }
 static inline float clamp(float x, float lo, float hi) { return std::fmin(std::fmax(x, lo), hi); }

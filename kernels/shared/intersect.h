@@ -6,7 +6,6 @@
 #include "layout.h"
 
 #define XI_BVH_STACK 128  // entries; the BVH builder checks that its tree never needs more
-#define XI_NO_HIT 0xffffffffu
 
 // Per-ray constants of the watertight test: the axis of largest |d| becomes z (a cyclic
 // permutation of the axes, the same for every triangle the ray meets), then a shear makes the ray
@@ -35,6 +34,21 @@ static inline RayShear xi_ray_shear(float3 o, float3 d) {
   return s;
 }
 
+// The end of the test, on the edge functions e0, e1, e2 and t·det: a hit in (0, tmax) when the
+// edge functions do not differ in sign and do not all vanish.
+static inline bool xi_edge_hit(float e0, float e1, float e2, float t_det, float tmax, float* t, float* u,
+                               float* v) {
+  if ((e0 < 0.0f || e1 < 0.0f || e2 < 0.0f) && (e0 > 0.0f || e1 > 0.0f || e2 > 0.0f)) return false;
+  float det = e0 + e1 + e2;
+  if (det == 0.0f) return false;
+  float tt = t_det / det;
+  if (!(tt > 0.0f && tt < tmax)) return false;  // also rejects NaN (an unused block lane)
+  *t = tt;
+  *u = e1 / det;
+  *v = e2 / det;
+  return true;
+}
+
 // Returns true and sets *t, *u, *v (barycentrics of v1 and v2) for a hit in (0, tmax).
 static inline bool xi_intersect_triangle(RayShear s, float3 p0, float3 p1, float3 p2, float tmax, float* t,
                                          float* u, float* v) {
@@ -46,15 +60,40 @@ static inline bool xi_intersect_triangle(RayShear s, float3 p0, float3 p1, float
   float e0 = bx * cy - by * cx;
   float e1 = cx * ay - cy * ax;
   float e2 = ax * by - ay * bx;
-  if ((e0 < 0.0f || e1 < 0.0f || e2 < 0.0f) && (e0 > 0.0f || e1 > 0.0f || e2 > 0.0f)) return false;
-  float det = e0 + e1 + e2;
-  if (det == 0.0f) return false;
-  float tt = (e0 * s.sz * a.z + e1 * s.sz * b.z + e2 * s.sz * c.z) / det;
-  if (!(tt > 0.0f && tt < tmax)) return false;
-  *t = tt;
-  *u = e1 / det;
-  *v = e2 / det;
-  return true;
+  return xi_edge_hit(e0, e1, e2, e0 * s.sz * a.z + e1 * s.sz * b.z + e2 * s.sz * c.z, tmax, t, u, v);
+}
+
+// The same test on the four triangles of a block at once, up to the edge functions and t·det,
+// with the same operations in the same order as xi_intersect_triangle.
+typedef struct {
+  float4 e0, e1, e2, t_det;
+} BlockEdges;
+
+// Vertex j of the block's triangles, axes permuted as the ray's and relative to its origin.
+static inline void xi_block_vertex(__global const TriBlock* b, int j, RayShear s, float4* x, float4* y, float4* z) {
+  float4 vx = b->x[j], vy = b->y[j], vz = b->z[j];
+  float4 px = s.kz == 0 ? vy : (s.kz == 1 ? vz : vx);
+  float4 py = s.kz == 0 ? vz : (s.kz == 1 ? vx : vy);
+  float4 pz = s.kz == 0 ? vx : (s.kz == 1 ? vy : vz);
+  *x = px - s.o.x;
+  *y = py - s.o.y;
+  *z = pz - s.o.z;
+}
+
+static inline BlockEdges xi_intersect_block(RayShear s, __global const TriBlock* b) {
+  float4 ax, ay, az, bx, by, bz, cx, cy, cz;
+  xi_block_vertex(b, 0, s, &ax, &ay, &az);
+  xi_block_vertex(b, 1, s, &bx, &by, &bz);
+  xi_block_vertex(b, 2, s, &cx, &cy, &cz);
+  ax = ax - s.sx * az, ay = ay - s.sy * az;
+  bx = bx - s.sx * bz, by = by - s.sy * bz;
+  cx = cx - s.sx * cz, cy = cy - s.sy * cz;
+  BlockEdges e;
+  e.e0 = bx * cy - by * cx;
+  e.e1 = cx * ay - cy * ax;
+  e.e2 = ax * by - ay * bx;
+  e.t_det = e.e0 * s.sz * az + e.e1 * s.sz * bz + e.e2 * s.sz * cz;
+  return e;
 }
 
 static inline float3 xi_safe_inverse(float3 d) {
@@ -63,35 +102,43 @@ static inline float3 xi_safe_inverse(float3 d) {
                      d.z != 0.0f ? 1.0f / d.z : big);
 }
 
-static inline float3 xi_tri_vertex(__global const float4* verts, uint tri, uint k) {
-  return xyz(verts[3u * tri + k]);
-}
-
 // A little slack on box tests so rounding never rejects a box that a triangle in it would hit.
 #define XI_BOX_SLACK 1.00000024f
 
-// Pushes child lane `k` of node `n` if the ray enters its box (entry distance tn_k, exit tf_k),
-// keeping the entries pushed for this node sorted so the nearest is on top. (An empty lane's box
-// passes the test when both distances are +inf: a ray with no tmax, every direction positive.)
-#define XI_PUSH_CHILD(n, k, tn_k, tf_k)                                  \
-  if ((tn_k) <= (tf_k) * XI_BOX_SLACK && (n)->child[k] != XI_BVH_EMPTY) { \
+// Pushes child lane `k` of node `n` if bit k of `hits` says the ray enters its box (at tn_k),
+// keeping the entries pushed for this node sorted so the nearest is on top.
+#define XI_PUSH_CHILD(n, k, tn_k)                                        \
+  if (hits & (1u << (k))) {                                              \
     uint j = sp++;                                                       \
-    for (; j > base && stack_tn[j - 1u] < (tn_k); --j) {                  \
+    for (; j > base && stack_tn[j - 1u] < (tn_k); --j) {                 \
       stack[j] = stack[j - 1u];                                          \
-      stack_tn[j] = stack_tn[j - 1u];                                      \
+      stack_tn[j] = stack_tn[j - 1u];                                    \
     }                                                                    \
     stack[j] = (n)->child[k];                                            \
-    stack_tn[j] = (tn_k);                                                 \
+    stack_tn[j] = (tn_k);                                                \
+  }
+
+// Takes lane `c` (x, y, z or w; index l) of a block's test: a closer hit becomes the best.
+#define XI_BLOCK_LANE(c, l)                                                                  \
+  if (xi_edge_hit(e.e0.c, e.e1.c, e.e2.c, e.t_det.c, best, &tt, &uu, &vv)) {                \
+    best = tt;                                                                               \
+    *t = tt;                                                                                 \
+    *u = uu;                                                                                 \
+    *v = vv;                                                                                 \
+    found = blk->tri[l];                                                                     \
+    if (any_hit) return found;                                                               \
   }
 
 // Closest hit (any_hit == false) or any hit before tmax (any_hit == true). Returns the triangle
-// index or XI_NO_HIT; *t, *u, *v describe the hit. The stack holds node or leaf entries with the
-// distance at which the ray enters them, so entries behind the best hit are skipped when popped;
-// the host checks that no tree needs more than XI_BVH_STACK entries (xi::Bvh::stats.stack).
-static inline uint xi_trace(__global const BvhNode* nodes, __global const float4* verts, float3 o,
+// index (its position in BVH order) or XI_NO_HIT; *t, *u, *v describe the hit. The stack holds
+// node or leaf entries with the distance at which the ray enters them, so entries behind the best
+// hit are skipped when popped; the host checks that no tree needs more than XI_BVH_STACK entries
+// (xi::Bvh::stats.stack).
+static inline uint xi_trace(__global const BvhNode* nodes, __global const TriBlock* blocks, float3 o,
                             float3 d, float tmax, bool any_hit, float* t, float* u, float* v) {
   RayShear s = xi_ray_shear(o, d);
   float3 inv_d = xi_safe_inverse(d);
+  bool neg_x = inv_d.x < 0.0f, neg_y = inv_d.y < 0.0f, neg_z = inv_d.z < 0.0f;
   uint stack[XI_BVH_STACK];
   float stack_tn[XI_BVH_STACK];
   uint sp = 0u;
@@ -101,31 +148,38 @@ static inline uint xi_trace(__global const BvhNode* nodes, __global const float4
   for (;;) {
     if (entry & XI_BVH_LEAF) {
       uint first = entry & XI_BVH_FIRST_MASK, end = first + 1u + ((entry >> 27) & 15u);
-      for (uint i = first; i < end; ++i) {
+      for (uint k = first; k < end; ++k) {
+        __global const TriBlock* blk = blocks + k;
+        BlockEdges e = xi_intersect_block(s, blk);
         float tt, uu, vv;
-        if (xi_intersect_triangle(s, xi_tri_vertex(verts, i, 0u), xi_tri_vertex(verts, i, 1u),
-                                  xi_tri_vertex(verts, i, 2u), best, &tt, &uu, &vv)) {
-          best = tt;
-          *t = tt;
-          *u = uu;
-          *v = vv;
-          found = i;
-          if (any_hit) return found;
-        }
+        XI_BLOCK_LANE(x, 0)
+        XI_BLOCK_LANE(y, 1)
+        XI_BLOCK_LANE(z, 2)
+        XI_BLOCK_LANE(w, 3)
       }
     } else {
-      // Slab test of all four child boxes at once.
+      // Slab test of all four child boxes at once, each axis's near plane chosen by the sign of
+      // the direction (an unused lane's inverted box is then always missed).
       __global const BvhNode* n = nodes + entry;
-      float4 x0 = (n->lo_x - o.x) * inv_d.x, x1 = (n->hi_x - o.x) * inv_d.x;
-      float4 y0 = (n->lo_y - o.y) * inv_d.y, y1 = (n->hi_y - o.y) * inv_d.y;
-      float4 z0 = (n->lo_z - o.z) * inv_d.z, z1 = (n->hi_z - o.z) * inv_d.z;
-      float4 tn = fmax(fmax(fmin(x0, x1), fmin(y0, y1)), fmax(fmin(z0, z1), make_float4(0.0f, 0.0f, 0.0f, 0.0f)));
-      float4 tf = fmin(fmin(fmax(x0, x1), fmax(y0, y1)), fmin(fmax(z0, z1), make_float4(best, best, best, best)));
+      float4 nx = neg_x ? n->hi_x : n->lo_x, fx = neg_x ? n->lo_x : n->hi_x;
+      float4 ny = neg_y ? n->hi_y : n->lo_y, fy = neg_y ? n->lo_y : n->hi_y;
+      float4 nz = neg_z ? n->hi_z : n->lo_z, fz = neg_z ? n->lo_z : n->hi_z;
+      float4 tn = fmax(fmax((nx - o.x) * inv_d.x, (ny - o.y) * inv_d.y),
+                       fmax((nz - o.z) * inv_d.z, make_float4(0.0f, 0.0f, 0.0f, 0.0f)));
+      float4 tf = fmin(fmin((fx - o.x) * inv_d.x, (fy - o.y) * inv_d.y),
+                       fmin((fz - o.z) * inv_d.z, make_float4(best, best, best, best)));
+      tf = tf * XI_BOX_SLACK;
+      uint hits = (tn.x <= tf.x ? 1u : 0u) | (tn.y <= tf.y ? 2u : 0u) | (tn.z <= tf.z ? 4u : 0u) |
+                  (tn.w <= tf.w ? 8u : 0u);
+      if (hits != 0u && (hits & (hits - 1u)) == 0u) {  // one child: go there, the stack untouched
+        entry = n->child[31 - clz(hits)];
+        continue;
+      }
       uint base = sp;
-      XI_PUSH_CHILD(n, 0, tn.x, tf.x)
-      XI_PUSH_CHILD(n, 1, tn.y, tf.y)
-      XI_PUSH_CHILD(n, 2, tn.z, tf.z)
-      XI_PUSH_CHILD(n, 3, tn.w, tf.w)
+      XI_PUSH_CHILD(n, 0, tn.x)
+      XI_PUSH_CHILD(n, 1, tn.y)
+      XI_PUSH_CHILD(n, 2, tn.z)
+      XI_PUSH_CHILD(n, 3, tn.w)
     }
     // Pop the nearest entry the ray enters before its best hit so far.
     for (;;) {

@@ -17,17 +17,28 @@ typedef struct {
 } MaterialData;
 
 // A 4-wide BVH node: the boxes of its (up to) four children side by side, one lane each, so one
-// float4 operation tests a ray against all four. An unused lane has an empty box (lo = hi = +inf,
-// which no ray enters) and child XI_BVH_EMPTY.
+// float4 operation tests a ray against all four. An unused lane has an inverted box (lo = +inf,
+// hi = −inf, which no ray enters) and child XI_BVH_EMPTY.
 #define XI_BVH_WIDTH 4
-#define XI_BVH_LEAF 0x80000000u   // child: leaf flag | (triangle count - 1) << 27 | first triangle
-#define XI_BVH_LEAF_MAX 16u       // triangles in one leaf, at most
+#define XI_BVH_LEAF 0x80000000u   // child: leaf flag | (block count - 1) << 27 | first block
+#define XI_BVH_LEAF_MAX 16u       // triangle blocks in one leaf, at most
 #define XI_BVH_FIRST_MASK 0x07ffffffu
 #define XI_BVH_EMPTY 0xffffffffu
 typedef struct {
   float4 lo_x, hi_x, lo_y, hi_y, lo_z, hi_z;  // child boxes, lane k = child k
   uint child[XI_BVH_WIDTH];                   // interior child: its node index; leaf: see above
+  uint pad[4];                                // 128 bytes: two whole cache lines
 } BvhNode;
+
+#define XI_NO_HIT 0xffffffffu
+
+// The triangles of a leaf in blocks of four, coordinates side by side, so one float4 operation
+// works on four triangles (lane k = triangle tri[k]). An unused lane has NaN vertices, which no
+// ray hits, and tri XI_NO_HIT.
+typedef struct {
+  float4 x[3], y[3], z[3];  // vertex j's coordinates
+  uint tri[4];              // the triangles' positions in BVH order (index of tri_verts / 3)
+} TriBlock;
 
 typedef struct {
   float4 position;

@@ -1,5 +1,5 @@
 // Bounding volume hierarchy over triangles: a binary binned-SAH build on the host, collapsed into
-// 4-wide nodes laid out depth first, the array the kernels traverse (kernels/shared/intersect.h).
+// 4-wide nodes, siblings side by side, the array the kernels traverse (kernels/shared/intersect.h).
 #pragma once
 #include <cstdint>
 #include <vector>
@@ -20,6 +20,7 @@ struct BvhStats {
 
 struct Bvh {
   std::vector<BvhNode> nodes;
+  std::vector<TriBlock> blocks; // the leaves' triangles, in blocks of four
   std::vector<uint32_t> order;  // order[i]: the scene triangle stored at position i
   BvhStats stats;
 };

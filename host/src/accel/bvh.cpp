@@ -13,9 +13,12 @@ namespace xi {
 namespace {
 
 constexpr int kBins = 16;
-constexpr size_t kMaxLeaf = 8;      // a leaf holds at most this many, and XI_BVH_LEAF_MAX always
+constexpr size_t kMaxLeaf = 8;      // triangles in a leaf, at most: two blocks of four
 constexpr int kMaxSahDepth = 48;    // below it, ranges are halved by index: no deeper SAH recursion
-constexpr float kTraversalCost = 1.0f;  // relative to one triangle test
+// SAH costs, relative to testing one block of four triangles (a 4-wide node test costs about
+// the same): triangles are tested four at a time, so a leaf costs its number of blocks.
+constexpr float kTraversalCost = 1.0f;
+float blocks_cost(size_t triangles) { return (float)((triangles + 3) / 4); }
 
 struct Box {
   glm::vec3 lo{INFINITY}, hi{-INFINITY};
@@ -76,14 +79,14 @@ struct Builder {
       for (int b = kBins - 1; b > 0; --b) {
         acc.grow(bin_box[b]);
         n += bin_count[b];
-        right_cost[b] = acc.area() * (float)n;
+        right_cost[b] = acc.area() * blocks_cost(n);
       }
       acc = Box();
       n = 0;
       for (int b = 0; b < kBins - 1; ++b) {
         acc.grow(bin_box[b]);
         n += bin_count[b];
-        float cost = acc.area() * (float)n + right_cost[b + 1];
+        float cost = acc.area() * blocks_cost(n) + right_cost[b + 1];
         if (n > 0 && n < count && cost < best_cost) {
           best_cost = cost;
           best_axis = axis;
@@ -91,7 +94,7 @@ struct Builder {
         }
       }
     }
-    float leaf_cost = (float)count;
+    float leaf_cost = blocks_cost(count);
     float split_cost = kTraversalCost + best_cost / std::max(box.area(), 1e-30f);
     if (best_axis < 0) {  // every centroid in one point (or too deep): no split separates them
       if (count <= kMaxLeaf) return leaf(node, first, count);
@@ -122,10 +125,34 @@ struct Builder {
 
 // Collapses the binary tree into 4-wide nodes: each wide node starts from a binary node's two
 // children and repeatedly opens the interior child of largest surface area (the one a ray is most
-// likely to enter, by the SAH's own measure) until it has four. Nodes are laid out depth first.
+// likely to enter, by the SAH's own measure) until it has four.
 struct Collapser {
   const std::vector<BinaryNode>& bin;
+  const std::vector<Triangle>& tris;
   Bvh& bvh;
+
+  // Appends the blocks of the leaf's triangles (positions first..first+count of bvh.order) and
+  // returns its child entry.
+  uint32_t leaf(uint32_t first, uint32_t count) {
+    const uint32_t first_block = (uint32_t)bvh.blocks.size(), blocks = (count + 3) / 4;
+    for (uint32_t b = 0; b < blocks; ++b) {
+      TriBlock blk;
+      for (int j = 0; j < 3; ++j) blk.x[j] = blk.y[j] = blk.z[j] = glm::vec4(NAN);
+      for (uint32_t k = 0; k < 4; ++k) {
+        const uint32_t p = first + 4 * b + k;
+        blk.tri[k] = 4 * b + k < count ? p : XI_NO_HIT;
+        if (blk.tri[k] == XI_NO_HIT) continue;
+        for (int j = 0; j < 3; ++j) {
+          const glm::vec3& v = tris[bvh.order[p]].v[j];
+          blk.x[j][k] = v.x, blk.y[j][k] = v.y, blk.z[j][k] = v.z;
+        }
+      }
+      bvh.blocks.push_back(blk);
+    }
+    bvh.stats.leaves++;
+    bvh.stats.max_leaf = std::max<size_t>(bvh.stats.max_leaf, count);
+    return XI_BVH_LEAF | (blocks - 1) << 27 | first_block;
+  }
 
   // Returns the stack entries a traversal of this subtree may hold beyond those below it.
   size_t collapse(uint32_t b, size_t wide, int depth) {
@@ -144,23 +171,24 @@ struct Collapser {
     const float inf = INFINITY;
     float lo[3][XI_BVH_WIDTH], hi[3][XI_BVH_WIDTH];
     uint32_t child[XI_BVH_WIDTH];
-    size_t below = 0;
+    // A node's interior children are laid out side by side and its leaves' blocks likewise,
+    // before any grandchild: a ray that enters one child is likely to enter its siblings.
     for (size_t k = 0; k < XI_BVH_WIDTH; ++k) {
-      for (int a = 0; a < 3; ++a) lo[a][k] = hi[a][k] = inf;
+      for (int a = 0; a < 3; ++a) lo[a][k] = inf, hi[a][k] = -inf;
       child[k] = XI_BVH_EMPTY;
       if (k >= kids.size()) continue;
       const BinaryNode& c = bin[kids[k]];
       for (int a = 0; a < 3; ++a) lo[a][k] = c.box.lo[a], hi[a][k] = c.box.hi[a];
       if (c.count > 0) {
-        child[k] = XI_BVH_LEAF | (c.count - 1) << 27 | c.first;
-        bvh.stats.leaves++;
-        bvh.stats.max_leaf = std::max<size_t>(bvh.stats.max_leaf, c.count);
+        child[k] = leaf(c.first, c.count);
       } else {
         child[k] = (uint32_t)bvh.nodes.size();
         bvh.nodes.push_back(BvhNode{});
-        below = std::max(below, collapse(kids[k], child[k], depth + 1));
       }
     }
+    size_t below = 0;
+    for (size_t k = 0; k < kids.size(); ++k)
+      if (!(child[k] & XI_BVH_LEAF)) below = std::max(below, collapse(kids[k], child[k], depth + 1));
     BvhNode& n = bvh.nodes[wide];
     n.lo_x = glm::make_vec4(lo[0]), n.hi_x = glm::make_vec4(hi[0]);
     n.lo_y = glm::make_vec4(lo[1]), n.hi_y = glm::make_vec4(hi[1]);
@@ -193,7 +221,7 @@ Bvh build_bvh(const std::vector<Triangle>& triangles) {
   b.nodes.push_back(BinaryNode{});
   b.build(0, 0, triangles.size(), 0);
   bvh.nodes.push_back(BvhNode{});
-  bvh.stats.stack = Collapser{b.nodes, bvh}.collapse(0, 0, 0);
+  bvh.stats.stack = Collapser{b.nodes, triangles, bvh}.collapse(0, 0, 0);
   if (bvh.stats.stack > XI_BVH_STACK)
     throw Error("the scene's BVH is too deep for the kernels' traversal stack",
                 "needs " + std::to_string(bvh.stats.stack) + " entries, XI_BVH_STACK is " + std::to_string(XI_BVH_STACK));

@@ -70,6 +70,7 @@ Renderer::Renderer(Device& device, const Scene& scene, const RenderOptions& opti
   counters_ = cl::Buffer(ctx, CL_MEM_READ_WRITE, sizeof(uint32_t) * counter_count_);
   ray_counts_.assign(options.max_depth + 2, 0);
   nodes_ = upload(ctx, scene_.bvh.nodes);
+  tri_blocks_ = upload(ctx, scene_.bvh.blocks);
   tri_verts_ = upload(ctx, scene_.tri_verts);
   tri_normals_ = upload(ctx, scene_.tri_normals);
   tri_material_ = upload(ctx, scene_.tri_material);
@@ -138,7 +139,7 @@ void Renderer::extend(const cl::Buffer& queue, int bounce, size_t global) {
   extend_.setArg(arg++, counters_);
   extend_.setArg(arg++, (uint32_t)bounce);
   extend_.setArg(arg++, nodes_);
-  extend_.setArg(arg++, tri_verts_);
+  extend_.setArg(arg++, tri_blocks_);
   launch(extend_, "extend", bounce, global);
 }
 
@@ -170,7 +171,7 @@ void Renderer::shadow(int bounce, size_t global) {
   shadow_.setArg(arg++, counters_);
   shadow_.setArg(arg++, (uint32_t)bounce);
   shadow_.setArg(arg++, nodes_);
-  shadow_.setArg(arg++, tri_verts_);
+  shadow_.setArg(arg++, tri_blocks_);
   launch(shadow_, "shadow", bounce, global);
 }
 
