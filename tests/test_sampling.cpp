@@ -7,6 +7,7 @@
 #include <cmath>
 #include <cstdio>
 #include <map>
+#include <random>
 #include <string>
 #include <vector>
 
@@ -454,6 +455,41 @@ TEST(SamplingSobol, OnePointPerElementaryInterval) {
     for (size_t i = 0; i < first.size(); ++i)
       for (size_t j = 0; j < i; ++j) EXPECT_NE(first[i], first[j]) << "m " << m;
   }
+}
+
+// The butterfly form of dimension 1 equals its definition by direction numbers (v₀ = 1/2,
+// v_{k+1} = v_k ⊕ v_k/2, x = ⊕ of v_k over the set bits k of the index), and dimension 0 is the
+// radical inverse, for every index up to 2^16 and 10^5 random 32-bit ones.
+TEST(SamplingSobol, MatchesDirectionNumbers) {
+  auto by_definition = [](uint32_t index) {
+    uint32_t x = 0;
+    for (uint32_t v = 0x80000000u; index != 0u; index >>= 1, v ^= v >> 1)
+      if (index & 1u) x ^= v;
+    return x;
+  };
+  auto radical_inverse = [](uint32_t index) {
+    uint32_t x = 0;
+    for (int b = 0; b < 32; ++b) x |= ((index >> b) & 1u) << (31 - b);
+    return x;
+  };
+  std::mt19937 rng(kSeed);
+  for (uint32_t k = 0; k < (1u << 16) + 100000u; ++k) {
+    const uint32_t index = k < (1u << 16) ? k : (uint32_t)rng();
+    ASSERT_EQ(xi_sobol_bits(index, 1), by_definition(index)) << "index " << index;
+    ASSERT_EQ(xi_sobol_bits(index, 0), radical_inverse(index)) << "index " << index;
+  }
+}
+
+// Progressive: sample i of a pixel is the same point whatever the render's spp, and the first
+// 2^m samples of every pair are a (0,m,2)-net for each m (checked above for a 2^m-spp render).
+TEST(SamplingSobol, DoesNotDependOnSpp) {
+  const SamplerParams small = xi_make_sampler_params(kSeed, 16), large = xi_make_sampler_params(kSeed, 1000);
+  for (uint32_t pair : {0u, 1u, 7u})
+    for (uint32_t i = 0; i < 16; ++i) {
+      glm::vec2 a = xi_sample_2d(XI_SAMPLER_SOBOL, small, 99, i, pair), b = xi_sample_2d(XI_SAMPLER_SOBOL, large, 99, i, pair);
+      EXPECT_EQ(as_uint(a.x), as_uint(b.x)) << "pair " << pair << ", sample " << i;
+      EXPECT_EQ(as_uint(a.y), as_uint(b.y)) << "pair " << pair << ", sample " << i;
+    }
 }
 
 TEST(SamplingPermute, IsABijection) {

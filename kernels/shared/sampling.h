@@ -80,34 +80,64 @@ static inline uint xi_reverse_bits(uint v) {
   return (v >> 16) | (v << 16);
 }
 
-// The first two dimensions of the Sobol sequence, a (0,2)-sequence in base 2, as 32-bit fractions:
-// dimension 0 is the van der Corput radical inverse, dimension 1 uses the Pascal generator matrix.
-static inline uint xi_sobol_bits(uint index, uint dim) {
-  if (dim == 0u) return xi_reverse_bits(index);
-  uint x = 0u;
-  for (uint v = 0x80000000u; index != 0u; index >>= 1, v ^= v >> 1)
-    if (index & 1u) x ^= v;
-  return x;
+// The bits of index multiplied by the Pascal matrix mod 2 (entry (i, j) = C(j, i) mod 2), in five
+// butterfly steps: the matrix of size 2^n is [[P, P], [0, P]] with P of size 2^(n−1).
+static inline uint xi_pascal_bits(uint index) {
+  index ^= (index >> 1) & 0x55555555u;
+  index ^= (index >> 2) & 0x33333333u;
+  index ^= (index >> 4) & 0x0f0f0f0fu;
+  index ^= (index >> 8) & 0x00ff00ffu;
+  index ^= (index >> 16) & 0x0000ffffu;
+  return index;
 }
 
-// A nested uniform (Owen) scramble in the Laine–Karras form: on bit-reversed input, each bit is
-// changed only as a function of the bits below it, i.e. of the more significant bits of the
-// fraction, so every elementary interval keeps exactly its share of points.
-static inline uint xi_owen_scramble(uint v, uint seed) {
-  v = xi_reverse_bits(v);
+// The first two dimensions of the Sobol sequence, a (0,2)-sequence in base 2, as 32-bit fractions:
+// dimension 0 is the van der Corput radical inverse, dimension 1 uses the Pascal generator matrix
+// (direction numbers v₀ = 1/2, v_{k+1} = v_k ⊕ v_k/2), both read with bit 0 as the half.
+static inline uint xi_sobol_bits(uint index, uint dim) {
+  return xi_reverse_bits(dim == 0u ? index : xi_pascal_bits(index));
+}
+
+// The Laine–Karras permutation: each bit of v is changed only as a function of the bits below it.
+// On a bit-reversed fraction that is a nested uniform (Owen) scramble: each bit changes as a
+// function of the more significant bits, so every elementary interval keeps its share of points.
+static inline uint xi_laine_karras(uint v, uint seed) {
   v ^= v * 0x3d20adeau;
   v += seed;
   v *= (seed >> 16) | 1u;
   v ^= v * 0x05526c56u;
   v ^= v * 0x53a22864u;
-  return xi_reverse_bits(v);
+  return v;
 }
 
-// Which sample of the set a pair of dimensions uses. Pair 0 uses the sample index itself; every
-// other pair shuffles the set by its own permutation so dimensions do not correlate.
+static inline uint xi_owen_scramble(uint v, uint seed) {
+  return xi_reverse_bits(xi_laine_karras(xi_reverse_bits(v), seed));
+}
+
+// Which sample of the set a pair of dimensions uses, for grid and stratified. Pair 0 uses the
+// sample index itself; every other pair shuffles the set by its own permutation so dimensions do
+// not correlate.
 static inline uint xi_padded_index(SamplerParams p, uint pixel, uint index, uint pair) {
   if (pair == 0u) return index;
   return xi_permute(index, p.spp, xi_hash4(p.seed, pixel, pair, 0x5eed5u));
+}
+
+// Sobol indices are taken modulo 2^20, the most samples per pixel a render has.
+#define XI_SOBOL_INDEX_MASK 0xfffffu
+
+// Sample `index` of a pixel's Owen-scrambled Sobol points for one pair of dimensions, progressive
+// (Burley 2020, "Practical Hash-based Owen Scrambling"): pair 0 takes the points in order; every
+// other pair shuffles the order by a nested uniform scramble of the index's bits. That maps each
+// aligned block of 2^m indices onto another such block, so every 2^m-sample prefix is still a
+// (0,m,2)-net in every pair, while the pairs decorrelate. Nothing depends on the final spp: a
+// render's first N samples are what a render of N samples draws.
+static inline float2 xi_sobol_2d(uint seed, uint pixel, uint index, uint pair) {
+  uint h = xi_hash4(seed, pixel, pair, 0x50b01u);
+  uint i = index & XI_SOBOL_INDEX_MASK;
+  if (pair != 0u) i = xi_owen_scramble(i, xi_mix32(h ^ 0x2f6b7a1du)) & XI_SOBOL_INDEX_MASK;
+  // xi_owen_scramble(xi_sobol_bits(i, dim)), with the two bit reversals in between cancelled.
+  return make_float2(xi_unit_float(xi_reverse_bits(xi_laine_karras(i, xi_mix32(h)))),
+                     xi_unit_float(xi_reverse_bits(xi_laine_karras(xi_pascal_bits(i), xi_mix32(h ^ 0xa511e9b3u)))));
 }
 
 // (cell + j) / n for j in [0, 1), kept strictly inside the cell: rounding may carry a j close to 1
@@ -123,12 +153,8 @@ static inline float2 xi_sample_2d(int sampler, SamplerParams p, uint pixel, uint
     return make_float2(xi_unit_float(xi_hash4(p.seed, pixel, index, 2u * pair)),
                        xi_unit_float(xi_hash4(p.seed, pixel, index, 2u * pair + 1u)));
   }
+  if (sampler == XI_SAMPLER_SOBOL) return xi_sobol_2d(p.seed, pixel, index, pair);
   uint s = xi_padded_index(p, pixel, index % p.spp, pair);
-  if (sampler == XI_SAMPLER_SOBOL) {
-    uint h = xi_hash4(p.seed, pixel, pair, 0x50b01u);
-    return make_float2(xi_unit_float(xi_owen_scramble(xi_sobol_bits(s, 0u), xi_mix32(h))),
-                       xi_unit_float(xi_owen_scramble(xi_sobol_bits(s, 1u), xi_mix32(h ^ 0xa511e9b3u))));
-  }
   // Grid: the centre of cell s; stratified: a uniform point inside it.
   float jx = 0.5f, jy = 0.5f;
   if (sampler == XI_SAMPLER_STRATIFIED) {
