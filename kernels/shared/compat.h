@@ -12,6 +12,9 @@
 #define make_float3(x, y, z) ((float3)((x), (y), (z)))
 #define make_float4(x, y, z, w) ((float4)((x), (y), (z), (w)))
 #define xyz(v) ((v).xyz)
+// Lane-wise comparisons: −1 where true, 0 where false.
+#define xi_less4(a, b) ((a) < (b))
+#define xi_greater4(a, b) ((a) > (b))
 
 #else  // host C++
 
@@ -32,6 +35,7 @@ typedef glm::vec2 float2;
 typedef glm::vec3 float3;
 typedef glm::vec4 float4;
 typedef glm::ivec3 int3;
+typedef glm::ivec4 int4;
 
 using glm::cross;
 using glm::dot;
@@ -56,6 +60,8 @@ static inline float4 make_float4(float x, float y, float z, float w) { return fl
 static inline float3 xyz(const float4& v) { return float3(v.x, v.y, v.z); }
 static inline float3 fmin(const float3& a, const float3& b) { return glm::min(a, b); }
 static inline float3 fmax(const float3& a, const float3& b) { return glm::max(a, b); }
+static inline int4 xi_less4(const float4& a, const float4& b) { return -int4(glm::lessThan(a, b)); }
+static inline int4 xi_greater4(const float4& a, const float4& b) { return -int4(glm::greaterThan(a, b)); }
 static inline float4 fmin(const float4& a, const float4& b) { return glm::min(a, b); }
 static inline float4 fmax(const float4& a, const float4& b) { return glm::max(a, b); }
 static inline float3 fabs(const float3& a) { return glm::abs(a); }
@@ -77,6 +83,9 @@ static inline float as_float_i(int i) { float f; std::memcpy(&f, &i, 4); return 
 #define XI_PI 3.14159265358979323846f
 #define XI_INV_PI 0.31830988618379067154f
 #define XI_ONE_MINUS_EPSILON 0x1.fffffep-1f  // the largest float below 1
+
+// Bit k set where lane k of a comparison is true.
+static inline uint xi_lane_bits(int4 m) { return (uint)((m.x & 1) | (m.y & 2) | (m.z & 4) | (m.w & 8)); }
 
 static inline float xi_max3(float3 v) { return fmax(v.x, fmax(v.y, v.z)); }
 // sqrt of a value that rounding may have pushed slightly below zero.

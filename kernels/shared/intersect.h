@@ -118,15 +118,27 @@ static inline float3 xi_safe_inverse(float3 d) {
     stack_tn[j] = (tn_k);                                                \
   }
 
-// Takes lane `c` (x, y, z or w; index l) of a block's test: a closer hit becomes the best.
-#define XI_BLOCK_LANE(c, l)                                                                  \
-  if (xi_edge_hit(e.e0.c, e.e1.c, e.e2.c, e.t_det.c, best, &tt, &uu, &vv)) {                \
-    best = tt;                                                                               \
-    *t = tt;                                                                                 \
-    *u = uu;                                                                                 \
-    *v = vv;                                                                                 \
-    found = blk->tri[l];                                                                     \
-    if (any_hit) return found;                                                               \
+// The lanes of a block's test that hit in (0, tmax), as bits: xi_edge_hit on four lanes at once.
+// (det = 0 gives t = ±inf or NaN, which fails the range test.)
+static inline uint xi_block_hits(BlockEdges e, float tmax) {
+  const float4 zero = make_float4(0.0f, 0.0f, 0.0f, 0.0f);
+  int4 mixed = (xi_less4(e.e0, zero) | xi_less4(e.e1, zero) | xi_less4(e.e2, zero)) &
+               (xi_greater4(e.e0, zero) | xi_greater4(e.e1, zero) | xi_greater4(e.e2, zero));
+  float4 t = e.t_det / (e.e0 + e.e1 + e.e2);
+  int4 in_range = xi_greater4(t, zero) & xi_less4(t, make_float4(tmax, tmax, tmax, tmax));
+  return xi_lane_bits(in_range & ~mixed);
+}
+
+// Takes lane `c` (x, y, z or w; index l) of a block's test, in lane order, as xi_intersect_triangle
+// would one triangle after the other: a closer hit becomes the best.
+#define XI_BLOCK_LANE(c, l)                                                                          \
+  if ((hits & (1u << (l))) && xi_edge_hit(e.e0.c, e.e1.c, e.e2.c, e.t_det.c, best, &tt, &uu, &vv)) { \
+    best = tt;                                                                                       \
+    *t = tt;                                                                                         \
+    *u = uu;                                                                                         \
+    *v = vv;                                                                                         \
+    found = blk->tri[l];                                                                             \
+    if (any_hit) return found;                                                                       \
   }
 
 // Closest hit (any_hit == false) or any hit before tmax (any_hit == true). Returns the triangle
@@ -151,6 +163,8 @@ static inline uint xi_trace(__global const BvhNode* nodes, __global const TriBlo
       for (uint k = first; k < end; ++k) {
         __global const TriBlock* blk = blocks + k;
         BlockEdges e = xi_intersect_block(s, blk);
+        uint hits = xi_block_hits(e, best);
+        if (hits == 0u) continue;
         float tt, uu, vv;
         XI_BLOCK_LANE(x, 0)
         XI_BLOCK_LANE(y, 1)
