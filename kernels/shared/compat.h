@@ -80,6 +80,10 @@ static inline float as_float_i(int i) { float f; std::memcpy(&f, &i, 4); return 
 #define as_float_i(i) as_float(i)
 #endif
 
+// Forces inlining where the compiler would not, so calls with common arguments share their work
+// (the hashes of the sampler). Clang (OpenCL) and GCC both take it.
+#define XI_INLINE __attribute__((always_inline))
+
 #define XI_PI 3.14159265358979323846f
 #define XI_INV_PI 0.31830988618379067154f
 #define XI_ONE_MINUS_EPSILON 0x1.fffffep-1f  // the largest float below 1

@@ -28,9 +28,9 @@ static inline RayShear xi_ray_shear(float3 o, float3 d) {
   s.kz = (ax > ay) ? (ax > az ? 0 : 2) : (ay > az ? 1 : 2);
   s.o = xi_permute_axes(o, s.kz);
   float3 dp = xi_permute_axes(d, s.kz);
-  s.sx = dp.x / dp.z;
-  s.sy = dp.y / dp.z;
-  s.sz = 1.0f / dp.z;
+  s.sz = 1.0f / dp.z;  // |dp.z| is the largest component: never 0 for a unit direction
+  s.sx = dp.x * s.sz;
+  s.sy = dp.y * s.sz;
   return s;
 }
 

@@ -131,7 +131,7 @@ static inline uint xi_padded_index(SamplerParams p, uint pixel, uint index, uint
 // aligned block of 2^m indices onto another such block, so every 2^m-sample prefix is still a
 // (0,m,2)-net in every pair, while the pairs decorrelate. Nothing depends on the final spp: a
 // render's first N samples are what a render of N samples draws.
-static inline float2 xi_sobol_2d(uint seed, uint pixel, uint index, uint pair) {
+static inline XI_INLINE float2 xi_sobol_2d(uint seed, uint pixel, uint index, uint pair) {
   uint h = xi_hash4(seed, pixel, pair, 0x50b01u);
   uint i = index & XI_SOBOL_INDEX_MASK;
   if (pair != 0u) i = xi_owen_scramble(i, xi_mix32(h ^ 0x2f6b7a1du)) & XI_SOBOL_INDEX_MASK;
@@ -148,7 +148,7 @@ static inline float xi_in_cell(uint cell, float j, uint n) {
   return x < next ? x : nextafter(next, 0.0f);
 }
 
-static inline float2 xi_sample_2d(int sampler, SamplerParams p, uint pixel, uint index, uint pair) {
+static inline XI_INLINE float2 xi_sample_2d(int sampler, SamplerParams p, uint pixel, uint index, uint pair) {
   if (sampler == XI_SAMPLER_RANDOM) {
     return make_float2(xi_unit_float(xi_hash4(p.seed, pixel, index, 2u * pair)),
                        xi_unit_float(xi_hash4(p.seed, pixel, index, 2u * pair + 1u)));
