@@ -10,6 +10,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdlib>
+#include <cstring>
 #include <filesystem>
 #include <fstream>
 #include <functional>
@@ -346,6 +347,30 @@ TEST_F(CliBadInput, NanLiteral) {
     expect_user_error(run_xi(concat({"render", "bad.json", "-o", "out.exr"}, kFast)),
                       {"bad.json", "invalid JSON", "byte"}, before);
   }
+}
+
+// --paths-in-flight and --samples-per-pass change how the work is cut, never the image: the EXRs
+// of all settings hold the same floats (bitwise), and the summary names what was chosen.
+TEST_F(CliRender, PathsInFlightDoNotChangeTheImage) {
+  const std::vector<std::string> base = {"render", "--spp", "5", "--resolution", "24x16", "--seed", "4"};
+  ASSERT_EQ(run_xi(concat(base, {"-o", "a.exr", "--quiet"})).code, 0);
+  const xi::Image a = xi::read_exr(work_ / "a.exr");
+  struct Case { const char* paths; const char* per_pass; const char* summary; };
+  for (Case c : {Case{"100", "0", "paths in flight: 100, 1 spp per pass"},
+                 Case{"1000", "0", "paths in flight: 768, 2 spp per pass"},
+                 Case{"0", "3", ", 3 spp per pass"}}) {
+    SCOPED_TRACE(std::string(c.paths) + " paths, " + c.per_pass + " per pass");
+    const Outcome r = run_xi(concat(base, {"-o", "b.exr", "--paths-in-flight", c.paths, "--samples-per-pass", c.per_pass}));
+    ASSERT_EQ(r.code, 0) << r.err;
+    EXPECT_NE(r.out.find(c.summary), std::string::npos) << r.out;
+    const xi::Image b = xi::read_exr(work_ / "b.exr");
+    ASSERT_EQ(a.pixels.size(), b.pixels.size());
+    EXPECT_EQ(std::memcmp(a.pixels.data(), b.pixels.data(), a.pixels.size() * sizeof(glm::vec3)), 0);
+    EXPECT_EQ(std::get<int>(xi::read_exr_attributes(work_ / "b.exr").at("spp")), 5);
+  }
+  const auto before = files();
+  expect_user_error(run_xi(concat(base, {"-o", "c.exr", "--paths-in-flight", "-1"})), {"--paths-in-flight"}, before);
+  expect_user_error(run_xi(concat(base, {"-o", "c.exr", "--samples-per-pass", "x"})), {"--samples-per-pass"}, before);
 }
 
 TEST_F(CliBadInput, UnknownOption) {
