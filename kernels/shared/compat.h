@@ -81,8 +81,13 @@ static inline float as_float_i(int i) { float f; std::memcpy(&f, &i, 4); return 
 #endif
 
 // Forces inlining where the compiler would not, so calls with common arguments share their work
-// (the hashes of the sampler). Clang (OpenCL) and GCC both take it.
+// (the hashes of the sampler). Clang (PoCL's OpenCL compiler) and GCC take it; other compilers
+// decide for themselves.
+#if defined(__clang__) || defined(__GNUC__)
 #define XI_INLINE __attribute__((always_inline))
+#else
+#define XI_INLINE
+#endif
 
 #define XI_PI 3.14159265358979323846f
 #define XI_INV_PI 0.31830988618379067154f
