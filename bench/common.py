@@ -80,7 +80,7 @@ _warm = set()
 
 
 def render(xi, scene, out, spp, seed=1, resolution=None, sampler=None, strategy=None, all_features=False,
-           reference=None, convergence=None, warm_up=True):
+           reference=None, convergence=None, warm_up=True, device=None, max_depth=None):
     """Renders SCENE to OUT (an .exr; xi writes a .png beside it). Returns a dict: seconds (render time, from
     the EXR's renderSeconds), msamples and mrays (per second), features, and with a reference rmse and relmse.
 
@@ -88,14 +88,15 @@ def render(xi, scene, out, spp, seed=1, resolution=None, sampler=None, strategy=
     pass (xi's zero-item warm-up launch does not cover it), which adds up to seconds to that render's time
     until PoCL's cache holds it. So each (scene, resolution, sampler, strategy, kernel set) is first rendered
     once at 1 spp, untimed, unless warm_up is False."""
-    key = (str(scene), resolution, sampler, strategy, all_features)
+    key = (str(scene), resolution, sampler, strategy, all_features, device, max_depth)
     if warm_up and key not in _warm:
         _warm.add(key)
         render(xi, scene, Path(out).with_name(Path(out).stem + "-warm-up.exr"), 1, seed, resolution, sampler,
-               strategy, all_features, warm_up=False)
+               strategy, all_features, warm_up=False, device=device, max_depth=max_depth)
     cmd = [xi, "render", scene_path(str(scene)), "-o", out, "--spp", spp, "--seed", seed]
     for flag, value in (("--resolution", resolution), ("--sampler", sampler), ("--strategy", strategy),
-                        ("--reference", reference), ("--convergence", convergence)):
+                        ("--reference", reference), ("--convergence", convergence), ("--device", device),
+                        ("--max-depth", max_depth)):
         if value is not None:
             cmd += [flag, value]
     if all_features:
@@ -133,12 +134,13 @@ def machine(xi):
     return f"{len(os.sched_getaffinity(0))} cores, {names[0] if names else 'no device'}"
 
 
-def reference(xi, scene, resolution, spp, log=print):
+def reference(xi, scene, resolution, spp, log=print, max_depth=None):
     """A high-spp reference of SCENE at RESOLUTION ('WxH'), rendered once with the random sampler, MIS and
-    REF_SEED, and cached as bench/refs/<scene>-<W>x<H>-<spp>spp.exr. Returns its path."""
+    REF_SEED, and cached as bench/refs/<scene>-<W>x<H>-<spp>spp.exr (-d<K> before .exr for a max depth other
+    than the scene's). Returns its path."""
     path = scene_path(str(scene))
     w, h = parse_resolution(resolution)
-    ref = REFS / f"{path.stem}-{w}x{h}-{spp}spp.exr"
+    ref = REFS / f"{path.stem}-{w}x{h}-{spp}spp{'' if max_depth is None else f'-d{max_depth}'}.exr"
     if ref.exists():
         a = exr_attributes(ref)
         x0, y0, x1, y1 = a["dataWindow"]
@@ -152,7 +154,8 @@ def reference(xi, scene, resolution, spp, log=print):
     t0 = time.monotonic()
     with tempfile.TemporaryDirectory(prefix="xi-bench-", dir=REFS) as tmp:  # same file system: rename is atomic
         out = Path(tmp) / ref.name
-        render(xi, path, out, spp, seed=REF_SEED, resolution=resolution, sampler=REF_SAMPLER, strategy=REF_STRATEGY)
+        render(xi, path, out, spp, seed=REF_SEED, resolution=resolution, sampler=REF_SAMPLER, strategy=REF_STRATEGY,
+               max_depth=max_depth)
         os.replace(out.with_suffix(".png"), ref.with_suffix(".png"))
         os.replace(out, ref)
     log(f"reference: done in {time.monotonic() - t0:.0f} s")

@@ -4,10 +4,10 @@ a cached high-spp reference as a function of render time, up to --max-spp. Repor
 spp, seconds, RMSE and relMSE, the efficiency 1 / (relMSE x seconds), the time to reach each target relMSE and
 the slope of log relMSE against log seconds.
 
-Where the curve comes from ('mode'): the random sampler's samples do not depend on the final spp, so one
-render with --convergence gives the error after every pass ('passes'). Grid and stratified lay out one set
-for the final spp and sobol shuffles its padded dimensions over it, so their intermediate passes are not
-what a render of that many spp gives; they get one render per spp of 1, 2, 4, ... up to --max-spp ('ladder').
+Where the curve comes from ('mode'): the random and sobol samplers' samples do not depend on the final spp
+(sobol is progressive), so one render with --convergence gives the error after every pass ('passes'). Grid
+and stratified lay out one set for the final spp, so their intermediate passes are not what a render of that
+many spp gives; they get one render per spp of 1, 2, 4, ... up to --max-spp ('ladder').
 """
 import math
 import sys
@@ -39,7 +39,7 @@ def measure(xi, a, s, ref, tmp):
     """The curve of strategy S: a list of points (spp, seconds, rmse, relmse), and its mode."""
     common = dict(resolution=a.resolution, seed=a.seed, sampler=s["sampler"], strategy=s["strategy"],
                   all_features=s["all_features"], reference=ref)
-    mode = a.mode if a.mode != "auto" else ("passes" if s["sampler"] == "random" else "ladder")
+    mode = a.mode if a.mode != "auto" else ("passes" if s["sampler"] in ("random", "sobol") else "ladder")
     if mode == "passes":
         csv = Path(tmp) / f"{s['name']}.csv"
         c.render(xi, a.scene, Path(tmp) / f"{s['name']}.exr", a.max_spp, convergence=csv, **common)
@@ -100,7 +100,7 @@ def main():
     p.add_argument("--fit-from", type=int, default=8,
                    help="fit the slope over the points at power-of-two spp >= this")
     p.add_argument("--mode", choices=("auto", "passes", "ladder"), default="auto",
-                   help="auto: passes for random, ladder for the others")
+                   help="auto: passes for random and sobol, ladder for the others")
     a = p.parse_args()
     xi, out = c.find_xi(a.xi), Path(a.out)
     out.mkdir(parents=True, exist_ok=True)

@@ -98,11 +98,10 @@ static inline ShadeResult xi_shade_path(XI_PATH_PARAMS uint slot, bool active, _
     if (xi_max3(m.albedo.xyz) <= 0.0f) return r;
 #ifdef XI_NEE
     if (light_count > 0u) {
-      float2 uc = xi_sample_2d(XI_SAMPLER, sampler, pixel, sample_index, XI_PAIR_BOUNCE(d, XI_BOUNCE_CHOICES));
-      float2 ul = xi_sample_2d(XI_SAMPLER, sampler, pixel, sample_index, XI_PAIR_BOUNCE(d, XI_BOUNCE_LIGHT_POINT));
+      float2 ul = xi_sample_2d(XI_SAMPLER, sampler, pixel, sample_index, XI_PAIR_BOUNCE(d, XI_BOUNCE_LIGHT));
       float3 org = xi_offset_ray_origin(p, n_geo);
       LightSample ls = xi_sample_light(light_cdf, light_tri, tri_light_pdf, tri_verts, tri_material, materials,
-                                       light_count, org, uc.x, ul);
+                                       light_count, org, ul);
       float cos_s = dot(n, ls.wi);
       if (ls.pdf > 0.0f && cos_s > 0.0f && dot(n_geo, ls.wi) > 0.0f) {
         float w = 1.0f;
@@ -131,9 +130,9 @@ static inline ShadeResult xi_shade_path(XI_PATH_PARAMS uint slot, bool active, _
 #endif
 #ifdef XI_HAS_DIELECTRIC
   else if (m.type == XI_MATERIAL_DIELECTRIC) {
-    float2 uc = xi_sample_2d(XI_SAMPLER, sampler, pixel, sample_index, XI_PAIR_BOUNCE(d, XI_BOUNCE_CHOICES));
+    float2 uc = xi_sample_2d(XI_SAMPLER, sampler, pixel, sample_index, XI_PAIR_BOUNCE(d, XI_BOUNCE_LOBE));
     bool reflected;
-    wi = xi_dielectric_sample(wo, n, m.albedo.w, front, uc.y, &reflected);
+    wi = xi_dielectric_sample(wo, n, m.albedo.w, front, uc.x, &reflected);
     transmitted = !reflected;
     beta *= m.albedo.xyz;
   }

@@ -17,8 +17,8 @@ __kernel void warp_points(__global float4* restrict points, __global float2* res
   squares[i] = u;
 }
 
-// Light sampling from `org` as shade does it: out[i] = (wi, solid-angle pdf); the random sampler
-// draws the light choice (pair 0, x) and the point (pair 1).
+// Light sampling from `org` as shade does it: out[i] = (wi, solid-angle pdf); one pair of the
+// random sampler picks the light and places the point.
 __kernel void sample_lights(__global float4* restrict out, __global const float* restrict light_cdf,
                             __global const uint* restrict light_tri, __global const float* restrict tri_light_pdf,
                             __global const float4* restrict tri_verts, __global const uint* restrict tri_material,
@@ -26,10 +26,9 @@ __kernel void sample_lights(__global float4* restrict out, __global const float*
                             SamplerParams params, uint count) {
   uint i = get_global_id(0);
   if (i >= count) return;
-  float u_pick = xi_sample_2d(XI_SAMPLER_RANDOM, params, 0u, i, 0u).x;
-  float2 u_point = xi_sample_2d(XI_SAMPLER_RANDOM, params, 0u, i, 1u);
+  float2 u = xi_sample_2d(XI_SAMPLER_RANDOM, params, 0u, i, 0u);
   LightSample ls = xi_sample_light(light_cdf, light_tri, tri_light_pdf, tri_verts, tri_material, materials,
-                                   light_count, org.xyz, u_pick, u_point);
+                                   light_count, org.xyz, u);
   out[i] = (float4)(ls.wi, ls.pdf);
 }
 

@@ -1,5 +1,6 @@
 // Area lights: every emissive triangle, picked in proportion to its power, then a point uniform on
-// its area; the pdf is converted from area to solid angle at the shading point.
+// its area, both from one 2D sample; the pdf is converted from area to solid angle at the shading
+// point.
 #ifndef XI_LIGHTS_H
 #define XI_LIGHTS_H
 #include "compat.h"
@@ -13,13 +14,17 @@ typedef struct {
   float3 radiance;  // emitted toward the origin
 } LightSample;
 
-// Binary search of the normalised CDF over the n emissive triangles.
-static inline uint xi_pick_light(__global const float* cdf, uint n, float u) {
+// Binary search of the normalised CDF over the n emissive triangles with *u, which is then
+// stretched back to [0, 1) within the chosen triangle's interval, so one uniform both picks the
+// light and places the point on it (and keeps its stratification).
+static inline uint xi_pick_light(__global const float* cdf, uint n, float* u) {
   uint lo = 0u, hi = n - 1u;
   while (lo < hi) {
     uint mid = (lo + hi) >> 1;
-    if (u < cdf[mid]) hi = mid; else lo = mid + 1u;
+    if (*u < cdf[mid]) hi = mid; else lo = mid + 1u;
   }
+  float below = lo > 0u ? cdf[lo - 1u] : 0.0f;
+  *u = clamp((*u - below) / (cdf[lo] - below), 0.0f, XI_ONE_MINUS_EPSILON);
   return lo;
 }
 
@@ -32,9 +37,11 @@ static inline float xi_light_pdf(__global const float* tri_light_pdf, uint tri, 
 static inline LightSample xi_sample_light(__global const float* light_cdf, __global const uint* light_tri,
                                           __global const float* tri_light_pdf, __global const float4* tri_verts,
                                           __global const uint* tri_material, __global const MaterialData* materials,
-                                          uint light_count, float3 org, float u_pick, float2 u_point) {
+                                          uint light_count, float3 org, float2 u) {
   LightSample ls;
-  uint lt = light_tri[xi_pick_light(light_cdf, light_count, u_pick)];
+  float u_pick = u.x;
+  uint lt = light_tri[xi_pick_light(light_cdf, light_count, &u_pick)];
+  float2 u_point = make_float2(u_pick, u.y);
   float3 q0 = xyz(tri_verts[3u * lt]), q1 = xyz(tri_verts[3u * lt + 1u]), q2 = xyz(tri_verts[3u * lt + 2u]);
   float2 b = xi_square_to_triangle(u_point);
   float3 q = b.x * q0 + b.y * q1 + (1.0f - b.x - b.y) * q2;

@@ -16,10 +16,10 @@
 #define XI_PAIR_LENS 1u
 #define XI_PAIRS_PER_BOUNCE 4u
 #define XI_PAIR_BOUNCE(depth, k) (2u + (depth) * XI_PAIRS_PER_BOUNCE + (k))
-#define XI_BOUNCE_LIGHT_POINT 0u  // a point on the chosen light
-#define XI_BOUNCE_BSDF_DIR 1u     // the BSDF direction
-#define XI_BOUNCE_CHOICES 2u      // x: which light, y: which lobe (glass)
-#define XI_BOUNCE_ROULETTE 3u     // x: Russian roulette
+#define XI_BOUNCE_LIGHT 0u     // x: which light, then (reused) with y the point on it
+#define XI_BOUNCE_BSDF_DIR 1u  // the BSDF direction
+#define XI_BOUNCE_LOBE 2u      // x: which lobe (glass)
+#define XI_BOUNCE_ROULETTE 3u  // x: Russian roulette (drawn by the random sampler)
 
 typedef struct {
   uint seed;

@@ -1,0 +1,52 @@
+#!/usr/bin/env bash
+# Sets up what bench/peers.py needs to run Mitsuba 3 beside xi. Idempotent: apt-get runs only for
+# missing packages, the venv is created once and pip skips what is already installed.
+#
+#   bash bench/setup-mitsuba.sh
+#
+# - libllvm19: Dr.Jit's LLVM backend (Mitsuba's llvm_* variants) loads libLLVM at run time; Debian 12's
+#   LLVM 19 is new enough for Dr.Jit, PoCL's LLVM 14/15 are not loaded into the same process.
+# - assimp-utils: `assimp export` converts meshes Mitsuba cannot read (glTF/GLB) to PLY.
+# - python3-venv: the venv below (Mitsuba and numpy from PyPI, kept apart from Debian's python3).
+# Prints the DRJIT_LIBLLVM_PATH that peers.py sets for Mitsuba (it finds it the same way).
+set -euo pipefail
+
+here="$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)"
+venv="$here/.venv"
+mitsuba_version=3.9.1
+
+packages=(libllvm19 assimp-utils python3-venv)
+missing=()
+for p in "${packages[@]}"; do
+  if ! dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed"; then
+    missing+=("$p")
+  fi
+done
+if [ ${#missing[@]} -gt 0 ]; then
+  echo "setup-mitsuba: installing ${missing[*]}"
+  SUDO=""
+  if [ "$(id -u)" -ne 0 ]; then SUDO="sudo"; fi
+  export DEBIAN_FRONTEND=noninteractive
+  $SUDO apt-get update -qq
+  $SUDO apt-get install -y -qq --no-install-recommends "${missing[@]}"
+else
+  echo "setup-mitsuba: ${packages[*]} present"
+fi
+
+# Debian's own interpreter, not whatever python3 is first on the PATH (pyenv, another venv).
+if [ ! -x "$venv/bin/python" ]; then
+  echo "setup-mitsuba: creating $venv"
+  /usr/bin/python3 -m venv "$venv"
+fi
+if ! "$venv/bin/python" -c "import mitsuba, numpy, sys; sys.exit(mitsuba.__version__ != '$mitsuba_version')" 2>/dev/null; then
+  echo "setup-mitsuba: pip installing mitsuba==$mitsuba_version numpy"
+  "$venv/bin/python" -m pip install -q "mitsuba==$mitsuba_version" numpy
+fi
+
+llvm="$(dpkg -L libllvm19 | grep -E '/libLLVM(-19)?\.so(\.[0-9.]+)?$' | head -n 1)"
+if [ -z "$llvm" ]; then
+  echo "setup-mitsuba: no libLLVM .so in the libllvm19 package" >&2
+  exit 1
+fi
+echo "setup-mitsuba: mitsuba $("$venv/bin/python" -c 'import mitsuba; print(mitsuba.__version__)') in $venv"
+echo "DRJIT_LIBLLVM_PATH=$llvm"
