@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # Sets up what bench/peers.py needs to run Mitsuba 3 beside xi. Idempotent: apt-get runs only for
-# missing packages, the venv is created once and pip skips what is already installed.
+# missing packages (scripts/install-deps.sh --mitsuba), the venv is created once and pip skips what
+# is already installed.
 #
 #   bash bench/setup-mitsuba.sh
 #
@@ -15,23 +16,7 @@ here="$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)"
 venv="$here/.venv"
 mitsuba_version=3.9.1
 
-packages=(libllvm19 assimp-utils python3-venv)
-missing=()
-for p in "${packages[@]}"; do
-  if ! dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed"; then
-    missing+=("$p")
-  fi
-done
-if [ ${#missing[@]} -gt 0 ]; then
-  echo "setup-mitsuba: installing ${missing[*]}"
-  SUDO=""
-  if [ "$(id -u)" -ne 0 ]; then SUDO="sudo"; fi
-  export DEBIAN_FRONTEND=noninteractive
-  $SUDO apt-get update -qq
-  $SUDO apt-get install -y -qq --no-install-recommends "${missing[@]}"
-else
-  echo "setup-mitsuba: ${packages[*]} present"
-fi
+bash "$here/../scripts/install-deps.sh" --mitsuba
 
 # Debian's own interpreter, not whatever python3 is first on the PATH (pyenv, another venv).
 if [ ! -x "$venv/bin/python" ]; then

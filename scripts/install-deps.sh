@@ -2,7 +2,7 @@
 # Installs xi's build and run-time dependencies from Debian 12 packages.
 # Idempotent: packages already present are skipped, apt-get runs only when something is missing.
 # --bench adds what only bench/ uses: Embree (the ray-tracing ceiling), Assimp's test models (a
-# larger mesh) and matplotlib (plots).
+# larger mesh) and matplotlib (plots); --mitsuba what bench/setup-mitsuba.sh needs beside them.
 set -euo pipefail
 
 packages=(
@@ -13,6 +13,10 @@ packages=(
 )
 if [ "${1:-}" = "--bench" ]; then
   packages+=(libembree-dev assimp-testmodels python3-matplotlib python3-numpy)
+elif [ "${1:-}" = "--mitsuba" ]; then
+  # libllvm19: Dr.Jit's LLVM backend (Mitsuba's llvm_* variants); assimp-utils: `assimp export` turns
+  # mesh files into PLY for Mitsuba; python3-venv: the venv that holds Mitsuba from PyPI.
+  packages=(libllvm19 assimp-utils python3-venv)
 fi
 
 missing=()
