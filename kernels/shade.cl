@@ -166,6 +166,7 @@ __kernel void shade(XI_PATH_PARAMS __global const uint* restrict queue_in, __glo
                     __global const float* restrict light_cdf, __global const uint* restrict light_tri,
                     __global const float* restrict tri_light_pdf, uint light_count,
                     SamplerParams sampler, WaveParams wave, uint max_depth, float4 background) {
+  volatile __local uint group_count[2], group_base[2];  // for the queue appends below
   uint i = get_global_id(0);
   bool active = i < counters[XI_COUNTER_RAYS(bounce)];  // launched over an upper bound
   uint slot = active ? queue_in[i] : 0u;
@@ -175,7 +176,6 @@ __kernel void shade(XI_PATH_PARAMS __global const uint* restrict queue_in, __glo
                                 max_depth, background);
   // Append to the ray and shadow queues: entries are counted in local memory and reserved with one
   // global atomic per work group, since a global atomic per item serialises the cores on one line.
-  volatile __local uint group_count[2], group_base[2];
   if (get_local_id(0) == 0u) group_count[0] = group_count[1] = 0u;
   barrier(CLK_LOCAL_MEM_FENCE);
   uint ray_index = r.next_ray ? atomic_inc(&group_count[0]) : 0u;
