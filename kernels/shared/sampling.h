@@ -135,9 +135,10 @@ static inline XI_INLINE float2 xi_sobol_2d(uint seed, uint pixel, uint index, ui
   uint h = xi_hash4(seed, pixel, pair, 0x50b01u);
   uint i = index & XI_SOBOL_INDEX_MASK;
   if (pair != 0u) i = xi_owen_scramble(i, xi_mix32(h ^ 0x2f6b7a1du)) & XI_SOBOL_INDEX_MASK;
-  // xi_owen_scramble(xi_sobol_bits(i, dim)), with the two bit reversals in between cancelled.
-  return make_float2(xi_unit_float(xi_reverse_bits(xi_laine_karras(i, xi_mix32(h)))),
-                     xi_unit_float(xi_reverse_bits(xi_laine_karras(xi_pascal_bits(i), xi_mix32(h ^ 0xa511e9b3u)))));
+  // (The compiler cancels the bit reversal at the end of xi_sobol_bits against the one at the
+  // start of xi_owen_scramble.)
+  return make_float2(xi_unit_float(xi_owen_scramble(xi_sobol_bits(i, 0u), xi_mix32(h))),
+                     xi_unit_float(xi_owen_scramble(xi_sobol_bits(i, 1u), xi_mix32(h ^ 0xa511e9b3u))));
 }
 
 // (cell + j) / n for j in [0, 1), kept strictly inside the cell: rounding may carry a j close to 1

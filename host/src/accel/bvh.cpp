@@ -14,6 +14,7 @@ namespace {
 
 constexpr int kBins = 16;
 constexpr size_t kMaxLeaf = 8;      // triangles in a leaf, at most: two blocks of four
+static_assert((kMaxLeaf + 3) / 4 <= XI_BVH_LEAF_MAX, "a leaf's block count must fit its child entry");
 constexpr int kMaxSahDepth = 48;    // below it, ranges are halved by index: no deeper SAH recursion
 // SAH costs, relative to testing one block of four triangles (a 4-wide node test costs about
 // the same): triangles are tested four at a time, so a leaf costs its number of blocks.
@@ -38,7 +39,6 @@ struct BinaryNode {
 };
 
 struct Builder {
-  const std::vector<Triangle>& tris;
   std::vector<Box> bounds;
   std::vector<glm::vec3> centroids;
   std::vector<uint32_t>& order;
@@ -208,7 +208,7 @@ Bvh build_bvh(const std::vector<Triangle>& triangles) {
   // Leaf entries address triangles with 27 bits (XI_BVH_FIRST_MASK).
   if (triangles.size() > XI_BVH_FIRST_MASK) throw Error("too many triangles for the BVH (at most 134217727)");
   Bvh bvh;
-  Builder b{triangles, {}, {}, bvh.order, {}};
+  Builder b{{}, {}, bvh.order, {}};
   b.bounds.resize(triangles.size());
   b.centroids.resize(triangles.size());
   for (size_t i = 0; i < triangles.size(); ++i) {
