@@ -14,6 +14,7 @@ import json
 import math
 import os
 import re
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -26,6 +27,7 @@ import common as c  # noqa: E402
 
 DEFAULT_SCENES = ["cornell-box", "bench/scenes/engine.json"]
 VENV = c.ROOT / "bench" / ".venv"
+MESH_CACHE = c.ROOT / "bench" / ".cache" / "meshes"  # Assimp exports of mesh files (ignored by git)
 
 
 # ---------------------------------------------------------------------------------------------------------
@@ -158,15 +160,23 @@ def read_ply(path):
 
 def load_mesh(path, tmp):
     """A mesh file through Assimp, as xi loads it (triangulated, node transforms applied): `assimp export` to
-    a binary PLY, the same importer for every format, so the triangles are xi's."""
-    out = Path(tmp) / f"assimp-{len(list(Path(tmp).glob('assimp-*')))}.ply"
+    a binary PLY, the same importer for every format, so the triangles are xi's. Exports are kept in
+    MESH_CACHE by the file's content hash, so a machine without the tool (a lent GPU) can use exports made
+    here."""
+    import hashlib
+    out = MESH_CACHE / f"{hashlib.sha256(Path(path).read_bytes()).hexdigest()[:20]}.ply"
+    if out.exists():
+        return read_ply(out)
+    part = Path(tmp) / f"assimp-{len(list(Path(tmp).glob('assimp-*')))}.ply"
     try:
-        r = subprocess.run(["assimp", "export", str(path), str(out), "-fplyb", "-ptv", "-tri"],
+        r = subprocess.run(["assimp", "export", str(path), str(part), "-fplyb", "-ptv", "-tri"],
                            capture_output=True, text=True)
     except FileNotFoundError:
         raise Unsupported("mesh files need the `assimp` tool (Debian's assimp-utils; bench/setup-mitsuba.sh)")
-    if r.returncode != 0 or not out.exists():
+    if r.returncode != 0 or not part.exists():
         raise Unsupported(f"assimp export {path} failed:\n{r.stdout}{r.stderr}")
+    MESH_CACHE.mkdir(parents=True, exist_ok=True)
+    shutil.move(part, out)
     return read_ply(out)
 
 

@@ -1,9 +1,11 @@
 // Devices and kernel programs: selection, the on-disk binary cache, and build errors.
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
+#include <optional>
 #include <unistd.h>
 
 #include "xi/compiled_scene.h"
@@ -37,14 +39,46 @@ std::vector<std::string> cornell_defines() {
 
 }  // namespace
 
+// Sets or unsets XI_DEVICE for one scope, restoring what the suite was started with.
+struct DeviceEnv {
+  std::optional<std::string> saved;
+  explicit DeviceEnv(const char* value) {
+    if (const char* env = std::getenv("XI_DEVICE")) saved = env;
+    value ? setenv("XI_DEVICE", value, 1) : unsetenv("XI_DEVICE");
+  }
+  ~DeviceEnv() { saved ? setenv("XI_DEVICE", saved->c_str(), 1) : unsetenv("XI_DEVICE"); }
+};
+
 TEST(Device, ListsAndSelects) {
   auto list = xi::list_devices();
   ASSERT_FALSE(list.empty());  // PoCL is a dependency of the project
-  EXPECT_EQ(xi::Device::open("").info().type, "CPU");  // the default is the first CPU device
+  {
+    DeviceEnv unset(nullptr);  // the default is the first CPU device, else the first device
+    auto cpu = std::find_if(list.begin(), list.end(), [](const xi::DeviceInfo& d) { return d.type == "CPU"; });
+    EXPECT_EQ(xi::Device::open("").info().name, cpu != list.end() ? cpu->name : list[0].name);
+  }
   EXPECT_EQ(xi::Device::open("0").info().name, list[0].name);
   EXPECT_EQ(xi::Device::open(list[0].name.substr(0, 6)).info().name, list[0].name);  // name substring
   EXPECT_THROW(xi::Device::open("no-such-device-anywhere"), xi::Error);
   EXPECT_THROW(xi::Device::open(std::to_string(list.size())), xi::Error);  // one past the last index
+}
+
+TEST(Device, XiDeviceVariablePicksTheDefault) {
+  auto list = xi::list_devices();
+  const std::string last = std::to_string(list.size() - 1);
+  {
+    DeviceEnv env(last.c_str());
+    EXPECT_EQ(xi::Device::open("").info().name, list.back().name);
+    EXPECT_EQ(xi::Device::open("0").info().name, list[0].name);  // an explicit selector wins
+  }
+  DeviceEnv env("no-such-device-anywhere");
+  try {
+    xi::Device::open("");
+    ADD_FAILURE() << "an unknown XI_DEVICE opened a device";
+  } catch (const xi::Error& e) {
+    EXPECT_NE(std::string(e.what()).find("no-such-device-anywhere"), std::string::npos) << e.what();
+    EXPECT_NE(std::string(e.what()).find("XI_DEVICE"), std::string::npos) << e.what();
+  }
 }
 
 TEST(Device, SecondBuildComesFromTheCache) {

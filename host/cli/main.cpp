@@ -81,7 +81,7 @@ static const char* kUsage =
     "      --device D            OpenCL device: index or name substring (see `xi devices`)\n"
     "      --local-size N        work-group size (default 64; 0: the driver chooses)\n"
     "      --paths-in-flight N   most (pixel, sample) paths in one wave (default: sized for the\n"
-    "                            device, 2^18 on a CPU, 2^21 on a GPU, within 1/4 of its memory)\n"
+    "                            device, 2^18 on a CPU, 2^23 on a GPU, within 1/4 of its memory)\n"
     "      --samples-per-pass N  most spp one pass adds (default: what the paths in flight hold;\n"
     "                            1 with --convergence)\n"
     "      --all-features        compile every kernel feature, not just what the scene uses\n"

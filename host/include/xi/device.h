@@ -24,8 +24,9 @@ std::vector<DeviceInfo> list_devices();
 
 class Device {
  public:
-  // selector: "" picks the first CPU device (else the first device); a number picks by index; any
-  // other text picks the first device whose name or platform contains it (case-insensitive).
+  // selector: a number picks by index; other text picks the first device whose name or platform
+  // contains it (case-insensitive); "" takes $XI_DEVICE as the selector if it is set, else the first
+  // CPU device (else the first device).
   static Device open(const std::string& selector = "");
 
   const DeviceInfo& info() const { return info_; }

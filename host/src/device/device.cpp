@@ -159,10 +159,17 @@ std::vector<DeviceInfo> list_devices() {
   return out;
 }
 
-Device Device::open(const std::string& selector) {
+Device Device::open(const std::string& requested) {
   auto all = enumerate();
   if (all.empty())
     throw Error("no OpenCL device found", "is an OpenCL driver installed? PoCL: apt-get install pocl-opencl-icd");
+  // XI_DEVICE picks the default, for the CLI and the test suite alike.
+  std::string selector = requested;
+  std::string where = "--device";
+  if (const char* env = std::getenv("XI_DEVICE"); selector.empty() && env && *env) {
+    selector = env;
+    where = "XI_DEVICE";
+  }
   const Found* pick = nullptr;
   if (selector.empty()) {
     for (auto& f : all)
@@ -181,7 +188,7 @@ Device Device::open(const std::string& selector) {
   }
   if (!pick)
     throw Error("no OpenCL device matches '" + selector + "'",
-                "--device; " + std::to_string(all.size()) + " device(s) found, `xi devices` lists them");
+                where + "; " + std::to_string(all.size()) + " device(s) found, `xi devices` lists them");
   Device d;
   d.info_ = pick->info;
   d.device_ = pick->device;

@@ -21,9 +21,10 @@ cl::Buffer upload(cl::Context& ctx, const std::vector<T>& data) {
 
 size_t default_paths_in_flight(Device& device) {
   // A CPU runs a few work items per core at a time: a wave that fits its caches is the faster one.
-  // A GPU needs hundreds of thousands of paths to hide its memory latency.
+  // A GPU needs hundreds of thousands of paths to hide its memory latency, and millions so that the
+  // gaps between launches (tens of microseconds each on NVIDIA's driver) are a small part of a pass.
   const bool gpu = device.device().getInfo<CL_DEVICE_TYPE>() & CL_DEVICE_TYPE_GPU;
-  size_t paths = gpu ? (size_t)1 << 21 : (size_t)1 << 18;
+  size_t paths = gpu ? (size_t)1 << 23 : (size_t)1 << 18;
   // Path state, shadow rays and the two queues, per path; at most a quarter of the device memory,
   // and no buffer over the device's largest allocation.
   size_t bytes = 0;
