@@ -54,7 +54,8 @@ static inline ShadeResult xi_shade_path(XI_PATH_PARAMS uint slot, bool active, _
   float3 ng = normalize(cross(p1 - p0, p2 - p0));
   bool front = dot(ng, wo) > 0.0f;
   MaterialData m = materials[tri_material[tri]];
-  float3 p = p0 + h.y * (p1 - p0) + h.z * (p2 - p0);
+  float3 p_error;
+  float3 p = xi_interpolate(p0, p1, p2, h.y, h.z, &p_error);
 
 #ifdef XI_HAS_EMITTERS
   if ((front || m.emission.w > 0.0f) && xi_max3(m.emission.xyz) > 0.0f) {
@@ -93,13 +94,12 @@ static inline ShadeResult xi_shade_path(XI_PATH_PARAMS uint slot, bool active, _
 
   float3 wi;
   float pdf = 0.0f;  // stays 0 for specular lobes
-  bool transmitted = false;
   if (m.type == XI_MATERIAL_DIFFUSE) {
     if (xi_max3(m.albedo.xyz) <= 0.0f) return r;
 #ifdef XI_NEE
     if (light_count > 0u) {
       float2 ul = xi_sample_2d(XI_SAMPLER, sampler, pixel, sample_index, XI_PAIR_BOUNCE(d, XI_BOUNCE_LIGHT));
-      float3 org = xi_offset_ray_origin(p, n_geo);
+      float3 org = xi_offset_ray_origin(p, p_error, n_geo, n_geo);  // lights behind n_geo are skipped
       LightSample ls = xi_sample_light(light_cdf, light_tri, tri_light_pdf, tri_verts, tri_material, materials,
                                        light_count, org, ul);
       float cos_s = dot(n, ls.wi);
@@ -110,7 +110,8 @@ static inline ShadeResult xi_shade_path(XI_PATH_PARAMS uint slot, bool active, _
 #endif
         float3 c = beta * m.albedo.xyz * XI_INV_PI * ls.radiance * (cos_s * w / ls.pdf);
         r.shadow = true;
-        r.shadow_org = (float4)(org, ls.dist * 0.9999f);  // stop short of the light itself
+        // Its end is off the light already; the margin covers the rounding of the hit distance.
+        r.shadow_org = (float4)(org, ls.dist * (1.0f - 1e-4f));
         r.shadow_dir = (float4)(ls.wi, 0.0f);
         r.shadow_contrib = (float4)(c, as_float(slot));
       }
@@ -133,7 +134,6 @@ static inline ShadeResult xi_shade_path(XI_PATH_PARAMS uint slot, bool active, _
     float2 uc = xi_sample_2d(XI_SAMPLER, sampler, pixel, sample_index, XI_PAIR_BOUNCE(d, XI_BOUNCE_LOBE));
     bool reflected;
     wi = xi_dielectric_sample(wo, n, m.albedo.w, front, uc.x, &reflected);
-    transmitted = !reflected;
     beta *= m.albedo.xyz;
   }
 #endif
@@ -151,7 +151,7 @@ static inline ShadeResult xi_shade_path(XI_PATH_PARAMS uint slot, bool active, _
   }
   if (xi_max3(beta) <= 0.0f) return r;
 
-  ray_org[slot] = (float4)(xi_offset_ray_origin(p, transmitted ? -n_geo : n_geo), 0.0f);
+  ray_org[slot] = (float4)(xi_offset_ray_origin(p, p_error, n_geo, wi), 0.0f);
   ray_dir[slot] = (float4)(wi, 0.0f);
   throughput[slot] = (float4)(beta, pdf);
   depth[slot] = d + 1u;

@@ -1,8 +1,8 @@
 #!/usr/bin/env bash
 # Installs xi's build and run-time dependencies from Debian 12 packages.
 # Idempotent: packages already present are skipped, apt-get runs only when something is missing.
-# --bench adds what only bench/ uses: Embree (the ray-tracing ceiling), Assimp's test models (a
-# larger mesh) and matplotlib (plots); --mitsuba what bench/setup-mitsuba.sh needs beside them.
+# --bench adds what only bench/ uses: Embree (the ray-tracing ceiling) and matplotlib (plots);
+# --mitsuba what bench/setup-mitsuba.sh needs beside them.
 set -euo pipefail
 
 packages=(
@@ -10,9 +10,10 @@ packages=(
   pocl-opencl-icd ocl-icd-opencl-dev opencl-clhpp-headers opencl-c-headers clinfo
   libglm-dev nlohmann-json3-dev libopenexr-dev libassimp-dev libpng-dev zlib1g-dev
   libgtest-dev googletest
+  assimp-testmodels  # the tests load its corpus of invalid model files
 )
 if [ "${1:-}" = "--bench" ]; then
-  packages+=(libembree-dev assimp-testmodels python3-matplotlib python3-numpy)
+  packages+=(libembree-dev python3-matplotlib python3-numpy)
 elif [ "${1:-}" = "--mitsuba" ]; then
   # libllvm19: Dr.Jit's LLVM backend (Mitsuba's llvm_* variants); assimp-utils: `assimp export` turns
   # mesh files into PLY for Mitsuba; python3-venv: the venv that holds Mitsuba from PyPI.

@@ -22,6 +22,7 @@
 
 #include <nlohmann/json.hpp>
 
+#include "cli_test.h"
 #include "xi/device.h"
 #include "xi/image.h"
 #include "xi/render.h"
@@ -30,103 +31,7 @@
 namespace fs = std::filesystem;
 using json = nlohmann::json;
 
-namespace {
-
-const fs::path kCornell = fs::path(XI_SCENE_DIR) / "cornell-box.json";
-
-std::string read_text(const fs::path& p) {
-  std::ifstream in(p, std::ios::binary);
-  std::stringstream s;
-  s << in.rdbuf();
-  return s.str();
-}
-
-void write_text(const fs::path& p, const std::string& text) {
-  std::ofstream out(p, std::ios::binary);
-  out << text;
-  ASSERT_TRUE(out.good()) << p;
-}
-
-// Single-quotes a word for /bin/sh.
-std::string quote(const std::string& s) {
-  std::string out = "'";
-  for (char c : s) out += c == '\'' ? std::string("'\\''") : std::string(1, c);
-  return out + "'";
-}
-
-struct Outcome {
-  int code = -1;  // exit status; -1 if the program did not exit normally (a crash)
-  std::string out, err;
-};
-
-// Per-test folders: `work` is the program's current folder (only the program and the test write
-// there), `capture` holds its stdout and stderr.
-class CliTest : public ::testing::Test {
- protected:
-  void SetUp() override {
-    const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
-    root_ = fs::temp_directory_path() /
-            (std::string("xi_cli_") + info->test_suite_name() + "_" + info->name() + "_" + std::to_string(::getpid()));
-    fs::remove_all(root_);
-    work_ = root_ / "work";
-    capture_ = root_ / "capture";
-    fs::create_directories(work_);
-    fs::create_directories(capture_);
-  }
-  void TearDown() override {
-    if (!HasFailure()) fs::remove_all(root_);  // kept for inspection when something failed
-  }
-
-  // Runs `xi ARGS...` in work_.
-  Outcome run_xi(const std::vector<std::string>& args) {
-    std::string cmd = "cd " + quote(work_.string()) + " && " + quote(XI_CLI_PATH);
-    for (const auto& a : args) cmd += " " + quote(a);
-    cmd += " >" + quote((capture_ / "stdout").string()) + " 2>" + quote((capture_ / "stderr").string());
-    const int status = std::system(cmd.c_str());
-    Outcome r;
-    r.code = (status != -1 && WIFEXITED(status)) ? WEXITSTATUS(status) : -1;
-    r.out = read_text(capture_ / "stdout");
-    r.err = read_text(capture_ / "stderr");
-    return r;
-  }
-
-  std::set<std::string> files() const {
-    std::set<std::string> names;
-    for (const auto& e : fs::directory_iterator(work_)) names.insert(e.path().filename().string());
-    return names;
-  }
-
-  // A copy of the Cornell box, changed by `edit`, written to work_/name.
-  void write_scene(const std::string& name, const std::function<void(json&)>& edit) {
-    json j = json::parse(read_text(kCornell));
-    edit(j);
-    write_text(work_ / name, j.dump(2));
-  }
-
-  // The program failed as a user error should: exit code 1, exactly one line on stderr of the form
-  // "xi: error: ...", containing every `needle`, nothing on stdout, and no new file in work_.
-  void expect_user_error(const Outcome& r, const std::vector<std::string>& needles, const std::set<std::string>& before) {
-    EXPECT_EQ(r.code, 1) << "stderr: " << r.err;
-    EXPECT_EQ(r.err.rfind("xi: error: ", 0), 0u) << "stderr: " << r.err;
-    EXPECT_EQ(std::count(r.err.begin(), r.err.end(), '\n'), 1) << "stderr: " << r.err;
-    EXPECT_TRUE(!r.err.empty() && r.err.back() == '\n') << "stderr: " << r.err;
-    for (const auto& n : needles) EXPECT_NE(r.err.find(n), std::string::npos) << "'" << n << "' not in: " << r.err;
-    EXPECT_EQ(r.out, "");
-    EXPECT_EQ(files(), before) << "the failed command left files behind";
-  }
-
-  fs::path root_, work_, capture_;
-};
-
-// Small and fast: every render here is 32×32 at 2 spp.
-const std::vector<std::string> kFast = {"--spp", "2", "--resolution", "32x32", "--quiet"};
-
-std::vector<std::string> concat(std::vector<std::string> a, const std::vector<std::string>& b) {
-  a.insert(a.end(), b.begin(), b.end());
-  return a;
-}
-
-}  // namespace
+using namespace xi_test;
 
 // ---------------------------------------------------------------------------------------------
 // A successful render.
@@ -371,6 +276,27 @@ TEST_F(CliRender, PathsInFlightDoNotChangeTheImage) {
   const auto before = files();
   expect_user_error(run_xi(concat(base, {"-o", "c.exr", "--paths-in-flight", "-1"})), {"--paths-in-flight"}, before);
   expect_user_error(run_xi(concat(base, {"-o", "c.exr", "--samples-per-pass", "x"})), {"--samples-per-pass"}, before);
+}
+
+// A frame too large for the memory there is: one error naming what it needs and what there is,
+// before anything is allocated (PoCL used to abort on an assertion), and no file.
+// (Both cases hold on PoCL, the suite's default device; on a device with more memory, or one whose
+// driver cannot start within 3 GB of address space, the line printed says which case did not apply.)
+TEST_F(CliBadInput, FrameTooLargeForMemory) {
+  const auto before = files();
+  xi::Device device = xi::Device::open("");
+  const double device_memory = (double)device.device().getInfo<CL_DEVICE_GLOBAL_MEM_SIZE>();
+  if (device_memory < 17.22e9)
+    expect_user_error(run_xi({"render", "--resolution", "16384x16384", "--spp", "1", "-o", "big.exr"}),
+                      {"the render needs 17.22 GB of device memory", "film 17.18 GB for 268435456 pixels"}, before);
+  else
+    std::printf("[ memory ] %s has %.1f GB: a 16384x16384 film fits\n", device.info().name.c_str(), device_memory * 1e-9);
+  // 8192×8192 fits PoCL's device, but not an address space of 3 GB (ulimit -v, in KiB).
+  if (device.info().type == "CPU")
+    expect_user_error(run_xi({"render", "--resolution", "8192x8192", "--spp", "1", "-o", "big.exr"}, "ulimit -v 3000000"),
+                      {"of host memory", "film 4.29 GB for 67108864 pixels", "is available"}, before);
+  else
+    std::printf("[ memory ] %s is not a CPU device: the address-space case is PoCL's\n", device.info().name.c_str());
 }
 
 TEST_F(CliBadInput, UnknownOption) {

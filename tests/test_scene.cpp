@@ -9,6 +9,7 @@
 #include <glm/glm.hpp>
 #include <nlohmann/json.hpp>
 
+#include "xi/compiled_scene.h"
 #include "xi/error.h"
 #include "xi/scene.h"
 
@@ -392,4 +393,121 @@ TEST(SceneErrors, BadCameraAndTransform) {
                      "/materials/white/ior");
   expect_parse_error(scene_text(kQuad).replace(1, 0, R"("render": {"sampler": "halton"}, )"), "/render/sampler");
   expect_parse_error(scene_text(kQuad).replace(1, 0, R"("render": {"seed": 4294967296}, )"), "/render/seed");
+}
+
+TEST(SceneErrors, CoordinatesBeyondTheLimit) {
+  // Finite floats whose sums, extents or cross products overflow single precision: the BVH builder
+  // indexed a bin by a NaN (coordinates of 3e38), light pdfs came out NaN (edges of 1e11).
+  expect_parse_error(scene_text(R"({"type": "quad", "material": "white",
+      "vertices": [[3e38,3e38,0], [3e38,-3e38,0], [-3e38,-3e38,0], [-3e38,3e38,0]]})"),
+                     "quad has a vertex coordinate beyond +-1e9 (after its transform) (test.json: /shapes/0/vertices)");
+  expect_parse_error(scene_text(R"({"type": "quad", "material": "white", "vertices": [[0,0,0], [1,0,0], [1,1,0], [0,1,0]],
+      "transform": {"scale": 1e30}})"), "beyond +-1e9 (after its transform) (test.json: /shapes/0/vertices)");
+  expect_parse_error(scene_text(kQuad + R"(, {"type": "sphere", "material": "white", "center": [0, 0, 0], "radius": 1e30})"),
+                     "sphere reaches a vertex coordinate beyond +-1e9 (after its transform) (test.json: /shapes/1)");
+  const fs::path dir = temp_dir();
+  std::ofstream(dir / "far.obj") << "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 2e9 0 0\nf 1 2 3\nf 2 4 3\n";
+  expect_error([&] { parse(scene_text(R"({"type": "mesh", "material": "white", "file": "far.obj"})"), dir); },
+               "far.obj: triangle 1 has a non-finite vertex coordinate or one beyond +-1e9");
+  fs::remove_all(dir);
+
+  expect_parse_error(scene_text(kQuad, kMaterials,
+      R"("camera": {"position": [0, 0, -2e9], "look_at": [0, 0, 0], "up": [0, 1, 0], "fov": 40})"),
+                     "coordinate beyond +-1e9 (test.json: /camera/position)");
+
+  // At the limit the scene loads and compiles (BVH, light pdfs), with every value finite.
+  const xi::Scene s = parse(scene_text(R"({"type": "quad", "material": "light",
+      "vertices": [[1e9,1e9,0], [1e9,-1e9,0], [-1e9,-1e9,0], [-1e9,1e9,0]]})",
+      R"("materials": {"light": {"type": "emitter", "radiance": [1, 1, 1]}})"));
+  const xi::CompiledScene cs = xi::compile_scene(s);
+  ASSERT_EQ(cs.tri_verts.size(), 6u);
+  for (const auto& v : cs.tri_verts) EXPECT_TRUE(std::isfinite(v.x) && std::isfinite(v.y) && std::isfinite(v.z));
+  for (float p : cs.light_cdf) EXPECT_TRUE(std::isfinite(p));
+  for (float p : cs.tri_light_pdf) EXPECT_TRUE(std::isfinite(p) && p > 0.0f) << p;
+}
+
+TEST(SceneErrors, ControlCharactersInNamesAreEscaped) {
+  // A key holding a newline (a JSON escape) must not break the error onto two lines.
+  const std::string text = "{\"back\\nground\": [0, 0, 0], " + scene_text(kQuad).substr(1);
+  try {
+    parse(text);
+    ADD_FAILURE() << "no error";
+  } catch (const xi::Error& e) {
+    const std::string what = e.what();
+    EXPECT_EQ(what.find('\n'), std::string::npos) << what;
+    EXPECT_EQ(what, "unknown key 'back\\nground' (test.json: /back\\nground)");
+  }
+}
+
+// ---------------------------------------------------------------------------------------------
+// Mesh headers that declare more elements than the file can hold. Assimp's OFF and PLY loaders
+// allocate (and zero) what the header says before reading, so these are refused before Assimp
+// sees them; every element takes at least one byte of the file (a line in OFF, a value in PLY).
+
+namespace {
+
+std::string mesh_scene(const std::string& file) {
+  return scene_text(R"({"type": "mesh", "material": "white", "file": )" + nlohmann::json(file).dump() + "}");
+}
+
+void write_bytes(const fs::path& p, const std::string& bytes) {
+  std::ofstream out(p, std::ios::binary);
+  out << bytes;
+  ASSERT_TRUE(out.good()) << p;
+}
+
+}  // namespace
+
+// The file of Assimp's invalid corpus that made xi allocate until the kernel killed it: 309 bytes
+// declaring 353535235358 vertices, which Assimp's 32-bit parser wraps to 1347917086 (16 GB zeroed).
+TEST(MeshLimits, AssimpOutOfMemoryOffIsRefused) {
+  const fs::path file = fs::path(XI_ASSIMP_INVALID_DIR) / "OutOfMemory.off";
+  ASSERT_TRUE(fs::is_regular_file(file)) << file << " is missing: scripts/install-deps.sh installs assimp-testmodels";
+  expect_parse_error(mesh_scene(file.string()),
+                     "cannot load mesh " + file.string() + ": its header declares 353535235358 vertices and 6 faces, " +
+                         "but the file has only " + std::to_string(fs::file_size(file)) + " bytes (test.json: /shapes/0/file)");
+}
+
+TEST(MeshLimits, OffCountsAgainstTheFileSize) {
+  const fs::path dir = temp_dir();
+  const std::string body = "0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n";
+  write_bytes(dir / "exact.off", "OFF\n3 1 0\n" + body);
+  EXPECT_EQ(parse(mesh_scene("exact.off"), dir).triangles.size(), 1u);  // honest counts load
+  write_bytes(dir / "faces.off", "OFF\n3 2000000000 0\n" + body);
+  expect_error([&] { parse(mesh_scene("faces.off"), dir); }, "faces.off: its header declares 3 vertices and 2000000000 faces");
+  // Comment lines, a prefixed keyword, and a count that a 32-bit parser would wrap to 3.
+  write_bytes(dir / "wrap.off", "# made by hand\nCOFF\n# counts\n4294967299 1 0\n" + body);
+  expect_error([&] { parse(mesh_scene("wrap.off"), dir); }, "wrap.off: its header declares 4294967299 vertices and 1 faces");
+  // Assimp recognises OFF by its first bytes whatever the extension.
+  write_bytes(dir / "mesh.dat", "OFF\n3 1 0\n" + body);
+  EXPECT_EQ(parse(mesh_scene("mesh.dat"), dir).triangles.size(), 1u);
+  write_bytes(dir / "huge.dat", "OFF\n3000000000 1 0\n" + body);
+  expect_error([&] { parse(mesh_scene("huge.dat"), dir); }, "huge.dat: its header declares 3000000000 vertices");
+  fs::remove_all(dir);
+}
+
+TEST(MeshLimits, PlyCountsAgainstTheFileSize) {
+  const fs::path dir = temp_dir();
+  auto header = [](const std::string& format, const std::string& vertices, const std::string& faces) {
+    return "ply\nformat " + format + " 1.0\nelement vertex " + vertices +
+           "\nproperty float x\nproperty float y\nproperty float z\nelement face " + faces +
+           "\nproperty list uchar int vertex_indices\nend_header\n";
+  };
+  const std::string ascii = "0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n";
+  std::string binary;  // three vertices and a face, little-endian
+  for (float f : {0.f, 0.f, 0.f, 1.f, 0.f, 0.f, 0.f, 1.f, 0.f}) binary.append(reinterpret_cast<const char*>(&f), 4);
+  binary += '\3';
+  for (int32_t i : {0, 1, 2}) binary.append(reinterpret_cast<const char*>(&i), 4);
+
+  write_bytes(dir / "ascii.ply", header("ascii", "3", "1") + ascii);
+  write_bytes(dir / "binary.ply", header("binary_little_endian", "3", "1") + binary);
+  EXPECT_EQ(parse(mesh_scene("ascii.ply"), dir).triangles.size(), 1u);  // honest counts load
+  EXPECT_EQ(parse(mesh_scene("binary.ply"), dir).triangles.size(), 1u);
+
+  write_bytes(dir / "vertices.ply", header("ascii", "2000000000", "1") + ascii);
+  expect_error([&] { parse(mesh_scene("vertices.ply"), dir); },
+               "vertices.ply: its header declares 2000000000 'vertex', 1 'face' elements, but the file has only");
+  write_bytes(dir / "faces.ply", header("binary_little_endian", "3", "1000000000") + binary);
+  expect_error([&] { parse(mesh_scene("faces.ply"), dir); }, "faces.ply: its header declares 3 'vertex', 1000000000 'face'");
+  fs::remove_all(dir);
 }

@@ -224,7 +224,9 @@ struct LightCase {
 // the origin sees from behind. One χ² per origin: 4 tests, Šidák α = 1 − 0.99^(1/4) = 0.00251 each.
 // The kernel's pdf must also match the host's for every sample (relative 1e-4; float rounding of
 // d² and cos θ_l is ~1e-6 at the angles used here): it is the term of the triangle it sampled,
-// so it is matched against each triangle the ray crosses (barycentric slack 1e-6 at shared edges).
+// so it is matched against each triangle the ray crosses (barycentric slack 1e-5: the kernel aims
+// at the light point moved off the light by its rounding-error bound, ~3e-5 units here, which at
+// grazing angles moves where the direction crosses the light by a few times that).
 TEST(TransportLightSampling, DirectionsFollowPdf) {
   const LightCase cases[] = {
       {"cornell centre", kScenes / "cornell-box.json", {278, 500, 280}, {0, 1, 0}},
@@ -261,14 +263,14 @@ TEST(TransportLightSampling, DirectionsFollowPdf) {
       if (s.w == 0.0f) {  // must be a one-sided light seen from behind
         observed.back() += 1.0;
         bool back = false;
-        for (const HostLight& l : lights) back |= light_term(l, c.origin, w, 1e-6) < 0.0;
+        for (const HostLight& l : lights) back |= light_term(l, c.origin, w, 1e-5) < 0.0;
         if (!back && ++bad_zero <= 5) ADD_FAILURE() << "pdf 0 toward a light seen from the front, wi " << w.x << " " << w.y << " " << w.z;
         continue;
       }
       observed[cell(glm::dot(w, f.n), f.phi(w), -1.0, nz, nphi)] += 1.0;
       bool match = false;
       for (const HostLight& l : lights) {
-        double t = light_term(l, c.origin, w, 1e-6);
+        double t = light_term(l, c.origin, w, 1e-5);
         match |= t > 0.0 && std::abs(s.w - t) <= 1e-4 * t;
       }
       if (!match && ++bad_pdf <= 5)

@@ -12,6 +12,7 @@ class Args {
   bool has(const std::string& flag) const;
   std::string get(const std::string& flag, const std::string& fallback = "") const;
   int get_int(const std::string& flag, int fallback, int lo, int hi) const;
+  double get_seconds(const std::string& flag, double fallback) const;  // a finite number > 0
   const std::vector<std::string>& positional() const { return positional_; }
 
  private:

@@ -1,5 +1,6 @@
 // xi: a Monte Carlo path tracer on OpenCL. `xi help` lists the commands.
 #include <cctype>
+#include <cmath>
 #include <cstdio>
 #include <cstring>
 #include <exception>
@@ -64,19 +65,39 @@ int Args::get_int(const std::string& flag, int fallback, int lo, int hi) const {
   return (int)n;
 }
 
+double Args::get_seconds(const std::string& flag, double fallback) const {
+  if (!has(flag)) return fallback;
+  const std::string v = get(flag);
+  size_t used = 0;
+  double x = 0.0;
+  try {
+    x = std::stod(v, &used);
+  } catch (const std::exception&) {
+    used = 0;
+  }
+  if (used != v.size() || v.empty() || !std::isfinite(x) || x <= 0.0 || x > 1e9)
+    throw Error("expected a number of seconds > 0, got '" + v + "'", flag);
+  return x;
+}
+
 }  // namespace xi::cli
 
 static const char* kUsage =
     "usage: xi <command> [options]\n"
     "\n"
     "commands:\n"
-    "  render [SCENE.json]   render a scene (default: the bundled Cornell box)\n"
+    "  render [SCENE.json]   render a scene (default: the bundled Cornell box), or an asset file\n"
+    "                        (.gltf .glb .obj .ply .stl .off .dae .fbx) with its cameras and lights\n"
     "      -o OUT.exr            output EXR; a tone-mapped PNG is written beside it\n"
+    "      --camera NAME|INDEX   an asset file's camera (default: its first perspective camera)\n"
     "      --spp N               samples per pixel\n"
     "      --seed S              random seed\n"
     "      --max-depth K         maximum bounces (1 = direct light only)\n"
     "      --resolution WxH      override the scene's film size\n"
-    "      --sampler NAME        random | grid | stratified | sobol\n"
+    "      --sampler NAME        random | grid | stratified | sobol (default: the scene's, else\n"
+    "                            sobol); random and sobol are progressive: any prefix of a\n"
+    "                            render is a render; grid and stratified patterns need every spp,\n"
+    "                            so --time and --snapshot-every refuse them\n"
     "      --strategy NAME       mis | nee | bsdf (light transport)\n"
     "      --device D            OpenCL device: index or name substring (see `xi devices`)\n"
     "      --local-size N        work-group size (default 64; 0: the driver chooses)\n"
@@ -90,6 +111,15 @@ static const char* kUsage =
     "      --reference REF.exr   measure the error against REF after the render\n"
     "      --convergence OUT.csv with --reference: the error after every pass\n"
     "      --quiet               no progress bar and no summary\n"
+    "      --time SECONDS        stop after the pass that crosses this much render time\n"
+    "      --snapshot-every N    write the image so far every N passes\n"
+    "      --checkpoint FILE     save the render's state to FILE every --checkpoint-every\n"
+    "                            seconds (default 60) and when stopped early; removed once\n"
+    "                            the render completes\n"
+    "      --resume FILE         continue from a checkpoint (same scene, spp, seed, sampler,\n"
+    "                            strategy, depth, kernels, device); keeps checkpointing to FILE\n"
+    "      Ctrl-C or SIGTERM     finish the pass in flight, write the image with the spp done,\n"
+    "                            exit 130 or 143; a second signal stops at once, writing nothing\n"
     "  devices               list OpenCL platforms and devices\n"
     "  warp                  draw a sample set warped by a map (as PNG) or write it as CSV\n"
     "      --map NAME            square | sphere | hemisphere | cosine-hemisphere | disc |\n"

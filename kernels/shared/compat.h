@@ -65,6 +65,7 @@ static inline int4 xi_greater4(const float4& a, const float4& b) { return -int4(
 static inline float4 fmin(const float4& a, const float4& b) { return glm::min(a, b); }
 static inline float4 fmax(const float4& a, const float4& b) { return glm::max(a, b); }
 static inline float3 fabs(const float3& a) { return glm::abs(a); }
+static inline float4 fabs(const float4& a) { return glm::abs(a); }
 static inline uint clz(uint x) { return x ? (uint)__builtin_clz(x) : 32u; }
 static inline float cospi(float x) { return std::cos(XI_PI_DOUBLE * x); }
 static inline float sinpi(float x) { return std::sin(XI_PI_DOUBLE * x); }

@@ -4,12 +4,13 @@
 #ifndef XI_LIGHTS_H
 #define XI_LIGHTS_H
 #include "compat.h"
+#include "intersect.h"
 #include "layout.h"
 #include "warps.h"
 
 typedef struct {
   float3 wi;        // unit direction from the origin to the light point
-  float dist;       // distance to it
+  float dist;       // distance to it, the point moved off the light by its rounding error
   float pdf;        // solid-angle density of wi; 0 when the point's emitting side faces away
   float3 radiance;  // emitted toward the origin
 } LightSample;
@@ -44,9 +45,11 @@ static inline LightSample xi_sample_light(__global const float* light_cdf, __glo
   float2 u_point = make_float2(u_pick, u.y);
   float3 q0 = xyz(tri_verts[3u * lt]), q1 = xyz(tri_verts[3u * lt + 1u]), q2 = xyz(tri_verts[3u * lt + 2u]);
   float2 b = xi_square_to_triangle(u_point);
-  float3 q = b.x * q0 + b.y * q1 + (1.0f - b.x - b.y) * q2;
+  float3 q_error;
+  float3 q = xi_interpolate(q2, q0, q1, b.x, b.y, &q_error);  // b.x q0 + b.y q1 + (1 - b.x - b.y) q2
   float3 nl = normalize(cross(q1 - q0, q2 - q0));
-  float3 to_light = q - org;
+  // The shadow ray ends off the light's surface, on the origin's side: it cannot hit the light.
+  float3 to_light = xi_offset_ray_origin(q, q_error, nl, org - q) - org;
   ls.dist = length(to_light);
   ls.wi = to_light / ls.dist;
   MaterialData m = materials[tri_material[lt]];

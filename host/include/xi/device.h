@@ -46,11 +46,27 @@ struct Program {
   double build_seconds = 0.0;
   bool from_cache = false;
   std::string cache_file;
+  std::string key;  // hash of every kernel source, the build options, the device and its driver
 };
 
-// The folder holding the .cl files: $XI_KERNEL_DIR, else kernels/ beside or above the running
-// binary (build tree, install prefix share/xi/kernels), else the source tree's.
+// The folder holding the .cl files, the first of: $XI_KERNEL_DIR; the folder given to
+// set_kernel_dir(); kernels/ beside or above the running program, or its ../share/xi/kernels (an
+// installed `xi`); the source tree's kernels/ (programs in the build tree); the install prefix
+// chosen at configure time. A folder counts only if it holds shade.cl.
 std::filesystem::path kernel_dir();
+// Names the kernel folder for this process ("" forgets it); $XI_KERNEL_DIR still overrides it.
+void set_kernel_dir(const std::filesystem::path& dir);
+
+// A program built against an installed xi (CMake: find_package(xi), xi::xi) gets
+// XI_PACKAGE_KERNEL_DIR, that install's share/xi/kernels wherever its prefix was put; naming it
+// here, before main, means such a program finds the installed kernels rather than a source tree or
+// the prefix libxi was configured with.
+#ifdef XI_PACKAGE_KERNEL_DIR
+namespace detail {
+inline const bool package_kernel_dir_named = (set_kernel_dir(XI_PACKAGE_KERNEL_DIR), true);
+}
+#endif
+
 // Where built binaries are cached: $XI_CACHE_DIR, else $XDG_CACHE_HOME/xi, else ~/.cache/xi.
 std::filesystem::path cache_dir();
 

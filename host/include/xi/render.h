@@ -50,6 +50,17 @@ struct Launch {
   size_t global = 0;  // work items launched (an upper bound on the queue length)
 };
 
+// Everything a render accumulates between passes: with the same scene and options, a renderer
+// restored from it continues bitwise as if it had never stopped (film sums are added in sample order).
+struct RenderState {
+  int spp_done = 0;
+  int passes = 0;
+  double seconds = 0.0;  // render time so far: kept by the caller, carried through checkpoints
+  uint64_t extend_rays = 0, shadow_rays = 0;
+  uint32_t nonfinite = 0;
+  std::vector<glm::vec4> sum, sum_sq, albedo, normal;  // the film buffers, one vec4 per pixel
+};
+
 class Renderer {
  public:
   Renderer(Device& device, const Scene& scene, const RenderOptions& options);
@@ -72,6 +83,9 @@ class Renderer {
   Film film() const;
   Image mean() const;  // the first of the above, for cheap per-pass error tracking
   uint32_t nonfinite_samples() const;
+  // Between passes: the accumulated state (seconds left 0), and the way back to it.
+  RenderState state() const;
+  void restore(const RenderState& state);
 
   const std::vector<Launch>& launches() const { return launches_; }
   const Program& program() const { return program_; }

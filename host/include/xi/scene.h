@@ -55,9 +55,12 @@ struct Scene {
   RenderSettings render;
   std::vector<Material> materials;
   std::vector<Triangle> triangles;
+  std::vector<std::string> notes;     // what the loader chose for the user (camera, framing, background)
+  std::vector<std::string> warnings;  // what xi does not model and how it was mapped, one line per kind
 };
 
-// Reads a JSON scene file (format in README.md). Meshes are resolved relative to the file.
+// Reads a JSON scene file (format in README.md), or an asset file (.gltf, .glb, .obj, .ply...: see
+// is_asset_file) with load_asset's default options. Meshes are resolved relative to the file.
 // Throws xi::Error naming the file and the JSON path of the offending field.
 Scene load_scene(const std::filesystem::path& path);
 // Same, from text already in memory; base_dir resolves mesh paths.

@@ -45,6 +45,8 @@ const char* sampler_name(int sampler) {
   return "?";
 }
 
+bool sampler_is_progressive(int sampler) { return sampler == XI_SAMPLER_RANDOM || sampler == XI_SAMPLER_SOBOL; }
+
 std::vector<std::string> kernel_defines(const Features& f, int sampler, Strategy strategy) {
   std::vector<std::string> d{"XI_SAMPLER=" + std::to_string(sampler)};
   if (f.mirror) d.push_back("XI_HAS_MIRROR");

@@ -12,6 +12,7 @@
 #include <unistd.h>
 
 #include "xi/error.h"
+#include "xi/hash.h"
 
 namespace xi {
 namespace {
@@ -70,31 +71,12 @@ std::vector<Found> enumerate() {
   return out;
 }
 
-// FNV-1a, 64-bit: a cache key and a checksum, not a defence against tampering.
-struct Hasher {
-  uint64_t h = 0xcbf29ce484222325ull;
-  void add(const void* data, size_t n) {
-    auto* p = static_cast<const unsigned char*>(data);
-    for (size_t i = 0; i < n; ++i) h = (h ^ p[i]) * 0x100000001b3ull;
-  }
-  void add(const std::string& s) {
-    add(s.data(), s.size());
-    add("\0", 1);
-  }
-};
-
 std::string read_file(const std::filesystem::path& p) {
   std::ifstream in(p, std::ios::binary);
   if (!in) throw Error("cannot read kernel source", p.string());
   std::ostringstream ss;
   ss << in.rdbuf();
   return ss.str();
-}
-
-std::string hex(uint64_t v) {
-  char buf[17];
-  std::snprintf(buf, sizeof buf, "%016llx", (unsigned long long)v);
-  return buf;
 }
 
 constexpr char kMagic[8] = {'X', 'I', 'B', 'I', 'N', '0', '0', '1'};
@@ -202,6 +184,14 @@ Device Device::open(const std::string& requested) {
   return d;
 }
 
+// A function-local static: set_kernel_dir() runs during static initialisation (device.h).
+static std::filesystem::path& named_kernel_dir() {
+  static std::filesystem::path dir;
+  return dir;
+}
+
+void set_kernel_dir(const std::filesystem::path& dir) { named_kernel_dir() = dir; }
+
 std::filesystem::path kernel_dir() {
   if (const char* env = std::getenv("XI_KERNEL_DIR"); env && *env) {
     std::filesystem::path p(env);
@@ -209,11 +199,15 @@ std::filesystem::path kernel_dir() {
       throw Error("XI_KERNEL_DIR does not hold the kernels (no shade.cl)", p.string());
     return p;
   }
+  // libxi is a static library, so it cannot know where it was installed: an installed program is
+  // told by the CMake package (set_kernel_dir, device.h) or finds ../share/xi/kernels beside itself;
+  // the source tree and the configure-time prefix come last, for programs in the build tree.
   std::error_code ec;
   auto exe = std::filesystem::read_symlink("/proc/self/exe", ec).parent_path();
-  for (auto candidate : {exe / "kernels", exe.parent_path() / "kernels", exe.parent_path() / "share/xi/kernels",
-                         std::filesystem::path(XI_SOURCE_KERNEL_DIR), std::filesystem::path(XI_INSTALL_KERNEL_DIR)})
-    if (std::filesystem::exists(candidate / "shade.cl")) return candidate;
+  for (auto candidate : {named_kernel_dir(), exe / "kernels", exe.parent_path() / "kernels",
+                         exe.parent_path() / "share/xi/kernels", std::filesystem::path(XI_SOURCE_KERNEL_DIR),
+                         std::filesystem::path(XI_INSTALL_KERNEL_DIR)})
+    if (!candidate.empty() && std::filesystem::exists(candidate / "shade.cl")) return candidate;
   throw Error("cannot find the kernel sources", "set XI_KERNEL_DIR to the kernels/ folder");
 }
 
@@ -260,7 +254,8 @@ Program build_program(Device& device, const std::vector<std::string>& files,
   for (auto& f : files) stub += "#include \"" + f + "\"\n";
 
   Program result;
-  result.cache_file = (cache_dir() / (hex(key.h) + ".bin")).string();
+  result.key = hex(key.h);
+  result.cache_file = (cache_dir() / (result.key + ".bin")).string();
   cl::Device dev = device.device();
   std::vector<unsigned char> binary;
   if (read_cache(result.cache_file, key.h, &binary)) {

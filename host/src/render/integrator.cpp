@@ -1,5 +1,11 @@
+#include <sys/resource.h>
+
 #include <algorithm>
 #include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <fstream>
+#include <string>
 
 #include "xi/error.h"
 #include "xi/render.h"
@@ -17,6 +23,77 @@ cl::Buffer upload(cl::Context& ctx, const std::vector<T>& data) {
                     const_cast<T*>(data.data()));
 }
 
+// Device bytes per path in flight: path state, shadow rays and the two queues.
+size_t path_bytes() {
+  size_t bytes = 2 * sizeof(uint32_t);
+#define XI_ADD_SIZE(type, name) bytes += sizeof(type);
+  XI_PATH_STATE(XI_ADD_SIZE)
+  XI_SHADOW_STATE(XI_ADD_SIZE)
+#undef XI_ADD_SIZE
+  return bytes;
+}
+
+std::string gigabytes(double bytes) {
+  char buf[32];
+  std::snprintf(buf, sizeof buf, "%.2f GB", bytes * 1e-9);
+  return buf;
+}
+
+// Host memory this process can still take: what the system has available, and what is left of
+// an address-space limit (ulimit -v), whichever is less.
+double host_bytes_available() {
+  double available = INFINITY;
+  std::ifstream meminfo("/proc/meminfo");
+  for (std::string key; meminfo >> key;) {
+    double kb = 0;
+    meminfo >> kb;
+    if (key == "MemAvailable:") available = kb * 1024.0;
+    meminfo.ignore(256, '\n');
+  }
+  rlimit limit{};
+  if (getrlimit(RLIMIT_AS, &limit) == 0 && limit.rlim_cur != RLIM_INFINITY) {
+    double used = 0;  // the address space mapped already (libraries, the driver's arenas)
+    std::ifstream status("/proc/self/status");
+    for (std::string key; status >> key;) {
+      double kb = 0;
+      status >> kb;
+      if (key == "VmSize:") used = kb * 1024.0;
+      status.ignore(256, '\n');
+    }
+    available = std::min(available, (double)limit.rlim_cur - used);
+  }
+  return available;
+}
+
+// Checked before anything is allocated, so a frame too large stops with one error naming what it
+// needs and what there is, rather than in the driver (PoCL aborts on a failed allocation).
+void check_memory(Device& device, size_t pixels, size_t paths, size_t scene_bytes, size_t largest_scene_buffer) {
+  const double film = 4.0 * sizeof(glm::vec4) * pixels;  // sum, sum of squares, albedo, normal
+  const double needed = film + (double)paths * path_bytes() + (double)scene_bytes;
+  const std::string what = " (film " + gigabytes(film) + " for " + std::to_string(pixels) + " pixels, " +
+                           std::to_string(paths) + " paths in flight " + gigabytes((double)paths * path_bytes()) +
+                           ", scene " + gigabytes((double)scene_bytes) + ")";
+  const std::string where = device.info().name + "; lower --resolution or --paths-in-flight";
+  const double device_memory = (double)device.device().getInfo<CL_DEVICE_GLOBAL_MEM_SIZE>();
+  if (needed > device_memory)
+    throw Error("the render needs " + gigabytes(needed) + " of device memory" + what + ", the device has " +
+                    gigabytes(device_memory), where);
+  const double largest = std::max({sizeof(glm::vec4) * (double)pixels, sizeof(glm::vec4) * (double)paths,
+                                   (double)largest_scene_buffer});
+  const double max_alloc = (double)device.device().getInfo<CL_DEVICE_MAX_MEM_ALLOC_SIZE>();
+  if (largest > max_alloc)
+    throw Error("the render needs a buffer of " + gigabytes(largest) + what + ", the device allocates at most " +
+                    gigabytes(max_alloc) + " at once", where);
+  // The host reads the film back and resolves it (four vec4 and four vec3 images per pixel); a
+  // device that shares host memory (a CPU) takes its buffers from there too.
+  const bool shared = device.device().getInfo<CL_DEVICE_HOST_UNIFIED_MEMORY>();
+  const double host = (4.0 * sizeof(glm::vec4) + 4.0 * sizeof(glm::vec3)) * pixels + (shared ? needed : 0.0);
+  const double available = host_bytes_available();
+  if (host > available)
+    throw Error("the render needs " + gigabytes(host) + " of host memory" + what + ", " + gigabytes(available) +
+                    " is available", where);
+}
+
 }  // namespace
 
 size_t default_paths_in_flight(Device& device) {
@@ -25,14 +102,8 @@ size_t default_paths_in_flight(Device& device) {
   // gaps between launches (tens of microseconds each on NVIDIA's driver) are a small part of a pass.
   const bool gpu = device.device().getInfo<CL_DEVICE_TYPE>() & CL_DEVICE_TYPE_GPU;
   size_t paths = gpu ? (size_t)1 << 23 : (size_t)1 << 18;
-  // Path state, shadow rays and the two queues, per path; at most a quarter of the device memory,
-  // and no buffer over the device's largest allocation.
-  size_t bytes = 0;
-#define XI_ADD_SIZE(type, name) bytes += sizeof(type);
-  XI_PATH_STATE(XI_ADD_SIZE)
-  XI_SHADOW_STATE(XI_ADD_SIZE)
-#undef XI_ADD_SIZE
-  bytes += 2 * sizeof(uint32_t);
+  // At most a quarter of the device memory, and no buffer over the device's largest allocation.
+  const size_t bytes = path_bytes();
   const size_t mem = device.device().getInfo<CL_DEVICE_GLOBAL_MEM_SIZE>();
   const size_t max_alloc = device.device().getInfo<CL_DEVICE_MAX_MEM_ALLOC_SIZE>();
   paths = std::min({paths, mem / 4 / bytes, max_alloc / sizeof(glm::vec4)});
@@ -59,6 +130,16 @@ Renderer::Renderer(Device& device, const Scene& scene, const RenderOptions& opti
   samples_per_pass_ = options.samples_per_pass > 0 ? std::min(options.samples_per_pass, fits) : fits;
   paths_ = std::min(budget, pixels_ * samples_per_pass_);
   if (paths_ > UINT32_MAX / 2) throw Error("too many paths in flight", std::to_string(paths_));
+  size_t scene_bytes = 0, largest_scene_buffer = 0;
+  for (size_t b : {sizeof(BvhNode) * scene_.bvh.nodes.size(), sizeof(TriBlock) * scene_.bvh.blocks.size(),
+                   sizeof(glm::vec4) * scene_.tri_verts.size(), sizeof(glm::vec4) * scene_.tri_normals.size(),
+                   sizeof(uint32_t) * scene_.tri_material.size(), sizeof(MaterialData) * scene_.materials.size(),
+                   sizeof(float) * scene_.light_cdf.size(), sizeof(uint32_t) * scene_.light_tri.size(),
+                   sizeof(float) * scene_.tri_light_pdf.size()}) {
+    scene_bytes += b;
+    largest_scene_buffer = std::max(largest_scene_buffer, b);
+  }
+  check_memory(device, pixels_, paths_, scene_bytes, largest_scene_buffer);
 
   cl::Context& ctx = device.context();
 #define XI_ALLOCATE_BUFFER(type, name) name##_ = cl::Buffer(ctx, CL_MEM_READ_WRITE, sizeof(type) * paths_);
@@ -346,6 +427,39 @@ Renderer::Film Renderer::film() const {
     if (n >= 2.0f) f.variance.pixels[i] = glm::max((glm::vec3(sq[i]) - n * m * m) / (n - 1.0f), glm::vec3(0.0f)) / n;
   }
   return f;
+}
+
+RenderState Renderer::state() const {
+  RenderState st;
+  st.spp_done = spp_done_;
+  st.passes = passes_;
+  st.extend_rays = extend_rays_;
+  st.shadow_rays = shadow_rays_;
+  st.nonfinite = nonfinite_samples();
+  st.sum = read(film_sum_);
+  st.sum_sq = read(film_sum_sq_);
+  st.albedo = read(film_albedo_);
+  st.normal = read(film_normal_);
+  return st;
+}
+
+void Renderer::restore(const RenderState& st) {
+  for (auto* v : {&st.sum, &st.sum_sq, &st.albedo, &st.normal})
+    if (v->size() != pixels_)
+      throw Error("render state holds " + std::to_string(v->size()) + " pixels, the film " + std::to_string(pixels_));
+  if (st.spp_done < 0 || st.spp_done > options_.spp)
+    throw Error("render state has " + std::to_string(st.spp_done) + " spp, the render " + std::to_string(options_.spp));
+  cl::CommandQueue& q = device_.queue();
+  q.enqueueWriteBuffer(film_sum_, CL_TRUE, 0, sizeof(glm::vec4) * pixels_, st.sum.data());
+  q.enqueueWriteBuffer(film_sum_sq_, CL_TRUE, 0, sizeof(glm::vec4) * pixels_, st.sum_sq.data());
+  q.enqueueWriteBuffer(film_albedo_, CL_TRUE, 0, sizeof(glm::vec4) * pixels_, st.albedo.data());
+  q.enqueueWriteBuffer(film_normal_, CL_TRUE, 0, sizeof(glm::vec4) * pixels_, st.normal.data());
+  q.enqueueWriteBuffer(counters_, CL_TRUE, sizeof(uint32_t) * XI_COUNTER_NONFINITE, sizeof st.nonfinite,
+                      &st.nonfinite);
+  spp_done_ = st.spp_done;
+  passes_ = st.passes;
+  extend_rays_ = st.extend_rays;
+  shadow_rays_ = st.shadow_rays;
 }
 
 uint32_t Renderer::nonfinite_samples() const {

@@ -17,6 +17,9 @@
 #include <glm/gtc/matrix_transform.hpp>
 #include <nlohmann/json.hpp>
 
+#include "geometry.h"
+#include "mesh_check.h"
+#include "xi/asset.h"
 #include "xi/error.h"
 
 namespace xi {
@@ -25,11 +28,25 @@ namespace {
 namespace fs = std::filesystem;
 using json = nlohmann::json;
 constexpr float kInf = INFINITY;
+using namespace scene_detail;  // kMaxCoordinate, Transform, apply, within_range, degenerate (geometry.h)
 
 // Keys may contain '/' or '~' (material names); escape them as RFC 6901 says.
 std::string escape(std::string_view key) {
   std::string out;
   for (char c : key) out += c == '~' ? "~0" : c == '/' ? "~1" : std::string(1, c);
+  return out;
+}
+
+// Keys, names and file names come from the user and may hold any character: errors are one line,
+// so control characters are written as escapes (a key "a\nb" shows as 'a\nb').
+std::string one_line(std::string_view s) {
+  std::string out;
+  for (unsigned char c : s) {
+    if (c == '\n') out += "\\n";
+    else if (c == '\t') out += "\\t";
+    else if (c < 0x20 || c == 0x7f) out += "\\x" + std::string(1, "0123456789abcdef"[c >> 4]) + "0123456789abcdef"[c & 15];
+    else out += char(c);
+  }
   return out;
 }
 
@@ -40,7 +57,7 @@ class Node {
       : j_(j), path_(std::move(path)), file_(file) {}
 
   [[noreturn]] void fail(const std::string& what) const {
-    throw Error(what, file_ + ": " + (path_.empty() ? "/" : path_));
+    throw Error(one_line(what), one_line(file_ + ": " + (path_.empty() ? "/" : path_)));
   }
   const json& raw() const { return j_; }
   bool has(const std::string& key) const { return j_.is_object() && j_.contains(key); }
@@ -129,6 +146,8 @@ Camera read_camera(const Node& n) {
   c.position = n.at("position").vec3();
   c.look_at = n.at("look_at").vec3();
   c.up = n.at("up").vec3();
+  if (!within_range(c.position)) n.at("position").fail("coordinate beyond +-1e9");
+  if (!within_range(c.look_at)) n.at("look_at").fail("coordinate beyond +-1e9");
   const glm::vec3 dir = c.look_at - c.position;
   if (!(glm::length(dir) > 0.0f)) n.at("look_at").fail("look_at must differ from position");
   if (!(glm::length(glm::cross(glm::normalize(dir), c.up)) > 1e-6f * glm::length(c.up)))
@@ -150,8 +169,11 @@ Camera read_camera(const Node& n) {
 
   c.aperture_radius = n.number("aperture_radius", 0.0f);
   if (!(c.aperture_radius >= 0.0f)) n.at("aperture_radius").fail("must be >= 0");
+  if (c.aperture_radius > kMaxCoordinate) n.at("aperture_radius").fail("must be <= 1e9");
   c.focus_distance = n.number("focus_distance", glm::length(dir));
   if (!(c.focus_distance > 0.0f)) n.at("focus_distance").fail("must be > 0");
+  if (c.focus_distance > 4.0f * kMaxCoordinate)  // the default, the distance to look_at, is below 3.5e9
+    n.at("focus_distance").fail("must be <= 4e9");
   return c;
 }
 
@@ -182,12 +204,6 @@ Material read_material(const Node& n, const std::string& name) {
   }
   return m;
 }
-
-struct Transform {
-  glm::dmat4 m{1.0};
-  glm::dmat3 normal{1.0};  // inverse transpose of the linear part
-  bool flips = false;      // negative determinant: mirrored, so triangle winding must be swapped
-};
 
 Transform read_transform(const Node& n) {
   n.expect_object({"translate", "scale", "rotate", "matrix"});
@@ -224,23 +240,7 @@ Transform read_transform(const Node& n) {
   for (int c = 0; c < 3; ++c) size += glm::dot(linear[c], linear[c]);
   size = std::sqrt(size);
   if (!(std::abs(det) > 1e-12 * size * size * size)) n.fail("transform matrix is singular");
-  return {m, glm::transpose(glm::inverse(linear)), det < 0.0};
-}
-
-void apply(const Transform& t, Triangle& tri) {
-  for (auto& v : tri.v) v = glm::vec3(t.m * glm::dvec4(v, 1.0));
-  if (tri.has_normals)
-    for (auto& n : tri.n) n = glm::vec3(glm::normalize(t.normal * glm::dvec3(n)));
-  if (t.flips) {  // keep the front face (from the winding) on the same side as the normals
-    std::swap(tri.v[1], tri.v[2]);
-    std::swap(tri.n[1], tri.n[2]);
-  }
-}
-
-// Zero area up to float noise: |e1 x e2| tiny next to the squared edge lengths (also catches NaN).
-bool degenerate(const Triangle& t) {
-  const glm::dvec3 e1 = glm::dvec3(t.v[1]) - glm::dvec3(t.v[0]), e2 = glm::dvec3(t.v[2]) - glm::dvec3(t.v[0]);
-  return !(glm::length(glm::cross(e1, e2)) > 1e-6 * std::max(glm::dot(e1, e1), glm::dot(e2, e2)));
+  return make_transform(m);
 }
 
 Triangle flat(glm::vec3 a, glm::vec3 b, glm::vec3 c) {
@@ -295,6 +295,8 @@ std::vector<Triangle> load_mesh(const Node& file_node, const fs::path& base_dir)
   const fs::path path = base_dir / file_node.string();
   std::error_code ec;
   if (!fs::is_regular_file(path, ec)) file_node.fail("mesh file not found: " + path.string());
+  // Before Assimp allocates what the header claims (it would exhaust memory, not fail).
+  if (auto why = implausible_mesh_counts(path)) file_node.fail("cannot load mesh " + path.string() + ": " + *why);
   Assimp::Importer importer;
   const aiScene* scene = importer.ReadFile(
       path.string(), aiProcess_Triangulate | aiProcess_JoinIdenticalVertices | aiProcess_PreTransformVertices);
@@ -302,22 +304,8 @@ std::vector<Triangle> load_mesh(const Node& file_node, const fs::path& base_dir)
     file_node.fail("cannot load mesh " + path.string() + ": " + importer.GetErrorString());
   std::vector<Triangle> out;
   for (unsigned i = 0; i < scene->mNumMeshes; ++i) {
-    const aiMesh* mesh = scene->mMeshes[i];
-    for (unsigned f = 0; f < mesh->mNumFaces; ++f) {
-      const aiFace& face = mesh->mFaces[f];
-      if (face.mNumIndices != 3) continue;  // points and lines survive triangulation; skip them
-      Triangle t{};
-      t.has_normals = mesh->HasNormals();
-      for (int k = 0; k < 3; ++k) {
-        const aiVector3D& v = mesh->mVertices[face.mIndices[k]];
-        t.v[k] = {v.x, v.y, v.z};
-        if (t.has_normals) {
-          const aiVector3D& n = mesh->mNormals[face.mIndices[k]];
-          t.n[k] = {n.x, n.y, n.z};
-        }
-      }
-      out.push_back(t);
-    }
+    const std::vector<Triangle> tris = mesh_triangles(*scene->mMeshes[i]);
+    out.insert(out.end(), tris.begin(), tris.end());
   }
   return out;
 }
@@ -332,7 +320,7 @@ void read_shape(const Node& n, const std::map<std::string, uint32_t>& materials,
   else if (type == "sphere")
     n.expect_object({"type", "material", "transform", "center", "radius", "subdivisions"});
   else
-    n.at("type").fail("unknown shape type '" + type + "' (expected quad, triangle, mesh or sphere)");
+    n.at("type").fail("unknown shape type '" + type + "' (expected quad, triangle, mesh, sphere or asset)");
 
   const Node mat = n.at("material");
   const std::string name = mat.string();
@@ -349,6 +337,7 @@ void read_shape(const Node& n, const std::map<std::string, uint32_t>& materials,
     if (type == "quad") tris.push_back(flat(v[0], v[2], v[3]));
     for (Triangle& t : tris) {
       apply(xf, t);
+      if (!within_range(t)) verts.fail(type + " has a vertex coordinate beyond +-1e9 (after its transform)");
       if (degenerate(t)) verts.fail(type + " has zero area");
     }
   } else if (type == "sphere") {
@@ -356,24 +345,52 @@ void read_shape(const Node& n, const std::map<std::string, uint32_t>& materials,
     const float radius = n.at("radius").number();
     if (!(radius > 0.0f)) n.at("radius").fail("radius must be > 0");
     tris = icosphere(center, radius, int(n.integer("subdivisions", 4, 0, 8)));
-    for (Triangle& t : tris) apply(xf, t);
+    for (Triangle& t : tris) {
+      apply(xf, t);
+      if (!within_range(t)) n.fail("sphere reaches a vertex coordinate beyond +-1e9 (after its transform)");
+    }
   } else {
     const Node file = n.at("file");
-    std::vector<Triangle> loaded = load_mesh(file, base_dir);
-    for (size_t i = 0; i < loaded.size(); ++i) {
-      Triangle& t = loaded[i];
-      apply(xf, t);
-      for (const auto& v : t.v)  // NaN or Inf in the file's data (or overflow in the transform)
-        if (!std::isfinite(v.x + v.y + v.z))
-          file.fail("mesh " + file.string() + ": triangle " + std::to_string(i) + " has a non-finite vertex coordinate");
-      if (degenerate(t)) continue;  // common in real meshes and harmless to drop
-      for (const auto& nv : t.n) t.has_normals = t.has_normals && std::isfinite(nv.x + nv.y + nv.z);
-      tris.push_back(t);
-    }
+    tris = load_mesh(file, base_dir);
+    const long long bad = place_mesh(xf, tris);
+    if (bad >= 0)  // NaN or Inf in the file's data, or overflow in the transform
+      file.fail("mesh " + file.string() + ": triangle " + std::to_string(bad) +
+                " has a non-finite vertex coordinate or one beyond +-1e9 (after its transform)");
     if (tris.empty()) file.fail("mesh has no triangles (after dropping degenerate ones)");
   }
   for (Triangle& t : tris) t.material = found->second;
   out.insert(out.end(), tris.begin(), tris.end());
+}
+
+// {"type": "asset", "file": ..., "transform": ...}: an asset file's shapes with its own materials
+// (named "<file>:<material>"), node transforms first, then the shape's transform.
+void read_asset_shape(const Node& n, const fs::path& base_dir, Scene& s) {
+  n.expect_object({"type", "file", "transform"});
+  const Node file = n.at("file");
+  const fs::path path = base_dir / file.string();
+  std::error_code ec;
+  if (!fs::is_regular_file(path, ec)) file.fail("asset file not found: " + path.string());
+  AssetGeometry g;
+  try {
+    g = load_asset_geometry(path);
+  } catch (const Error& e) {
+    file.fail(e.message());
+  }
+  const Transform xf = n.has("transform") ? read_transform(n.at("transform")) : Transform{};
+  const long long bad = place_mesh(xf, g.triangles);
+  if (bad >= 0)
+    file.fail("asset " + file.string() + ": triangle " + std::to_string(bad) +
+              " has a coordinate beyond +-1e9 (after its transform)");
+  if (g.triangles.empty()) file.fail("asset has no triangles (after dropping degenerate ones)");
+  const uint32_t first = uint32_t(s.materials.size());
+  for (Material& m : g.materials) {
+    m.name = file.string() + ":" + m.name;
+    s.materials.push_back(std::move(m));
+  }
+  for (Triangle& t : g.triangles) t.material += first;
+  s.triangles.insert(s.triangles.end(), g.triangles.begin(), g.triangles.end());
+  for (const std::string& w : g.warnings)
+    if (std::find(s.warnings.begin(), s.warnings.end(), w) == s.warnings.end()) s.warnings.push_back(w);
 }
 
 }  // namespace
@@ -401,11 +418,11 @@ Scene parse_scene(const std::string& json_text, const std::string& source_name, 
   try {
     doc = json::parse(json_text, track);
   } catch (const json::parse_error& e) {
-    throw Error("invalid JSON: " + message(e), source_name + ": byte " + std::to_string(e.byte));
+    throw Error("invalid JSON: " + one_line(message(e)), one_line(source_name) + ": byte " + std::to_string(e.byte));
   } catch (const json::exception& e) {
     std::string path;
     for (const Level& l : stack) path += "/" + (l.array ? std::to_string(l.index) : escape(l.key));
-    throw Error("invalid JSON: " + message(e), source_name + ": " + (path.empty() ? "/" : path));
+    throw Error("invalid JSON: " + one_line(message(e)), one_line(source_name + ": " + (path.empty() ? "/" : path)));
   }
 
   Scene s;
@@ -447,14 +464,18 @@ Scene parse_scene(const std::string& json_text, const std::string& source_name, 
   const Node shapes = root.at("shapes");
   const auto list = shapes.elements();
   if (list.empty()) shapes.fail("scene has no shapes");
-  for (const Node& shape : list) read_shape(shape, index, base_dir, s.triangles);
+  for (const Node& shape : list) {
+    if (shape.has("type") && shape.at("type").raw() == "asset") read_asset_shape(shape, base_dir, s);
+    else read_shape(shape, index, base_dir, s.triangles);
+  }
   return s;
 }
 
 Scene load_scene(const fs::path& path) {
+  if (is_asset_file(path)) return load_asset(path);
   std::ifstream in(path, std::ios::binary);
   std::error_code ec;
-  if (!in || fs::is_directory(path, ec)) throw Error("cannot open scene file", path.string());
+  if (!in || fs::is_directory(path, ec)) throw Error("cannot open scene file", one_line(path.string()));
   std::stringstream text;
   text << in.rdbuf();
   return parse_scene(text.str(), path.string(), path.parent_path());

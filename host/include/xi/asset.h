@@ -1,0 +1,35 @@
+// Scenes from asset files (glTF, GLB, OBJ, PLY, ...) read through Assimp's scene graph: node
+// transforms, cameras and materials as the file gives them. Format notes in README.md.
+#pragma once
+#include <filesystem>
+#include <string>
+#include <vector>
+
+#include "xi/scene.h"
+
+namespace xi {
+
+struct AssetOptions {
+  std::string camera;  // a camera's name or index; empty: the file's first perspective camera
+  int height = 512;    // film height; the width follows the camera's aspect ratio
+};
+
+// The extensions read as assets: .gltf .glb .obj .ply .stl .off .dae .fbx (any case).
+bool is_asset_file(const std::filesystem::path& path);
+
+// A whole scene from an asset file. Camera: the chosen one, or without one, the bounding box framed
+// from +z (looking down -z, up +y, vfov 40). No emissive material: Scene::background is white (1).
+// Both decisions are stated in Scene::notes; what xi does not model is in Scene::warnings.
+// Throws xi::Error naming the file (and, for an unknown camera, listing the file's cameras).
+Scene load_asset(const std::filesystem::path& path, const AssetOptions& options = {});
+
+// An asset's shapes and materials in the file's world space (node transforms applied once), for
+// the JSON scene's "asset" shape. Triangle::material indexes `materials` (only the used ones).
+struct AssetGeometry {
+  std::vector<Material> materials;
+  std::vector<Triangle> triangles;
+  std::vector<std::string> warnings;  // one line per kind of thing xi does not model
+};
+AssetGeometry load_asset_geometry(const std::filesystem::path& path);
+
+}  // namespace xi

@@ -1,0 +1,408 @@
+// Asset files as scenes: Assimp's scene graph walked with its node transforms, its cameras (with
+// the corrections Assimp 5.2's glTF importer needs) and its materials mapped onto xi's.
+#include "xi/asset.h"
+
+#include <algorithm>
+#include <cctype>
+#include <cmath>
+#include <cstring>
+#include <fstream>
+#include <optional>
+#include <sstream>
+
+#include <assimp/Importer.hpp>
+#include <assimp/material.h>
+#include <assimp/postprocess.h>
+#include <assimp/scene.h>
+#include <nlohmann/json.hpp>
+
+#include "geometry.h"
+#include "mesh_check.h"
+#include "xi/error.h"
+
+namespace xi {
+
+namespace scene_detail {
+
+std::vector<Triangle> mesh_triangles(const aiMesh& mesh, uint32_t material) {
+  std::vector<Triangle> out;
+  out.reserve(mesh.mNumFaces);
+  for (unsigned f = 0; f < mesh.mNumFaces; ++f) {
+    const aiFace& face = mesh.mFaces[f];
+    if (face.mNumIndices != 3) continue;  // points and lines survive triangulation; skip them
+    Triangle t{};
+    t.has_normals = mesh.HasNormals();
+    t.material = material;
+    for (int k = 0; k < 3; ++k) {
+      const aiVector3D& v = mesh.mVertices[face.mIndices[k]];
+      t.v[k] = {v.x, v.y, v.z};
+      if (t.has_normals) {
+        const aiVector3D& n = mesh.mNormals[face.mIndices[k]];
+        t.n[k] = {n.x, n.y, n.z};
+      }
+    }
+    out.push_back(t);
+  }
+  return out;
+}
+
+long long place_mesh(const Transform& xf, std::vector<Triangle>& tris) {
+  size_t kept = 0;
+  for (size_t i = 0; i < tris.size(); ++i) {
+    Triangle t = tris[i];
+    apply(xf, t);
+    if (!within_range(t)) return (long long)i;
+    if (degenerate(t)) continue;  // common in real meshes and harmless to drop
+    for (const auto& nv : t.n) t.has_normals = t.has_normals && std::isfinite(nv.x + nv.y + nv.z);
+    tris[kept++] = t;
+  }
+  tris.resize(kept);
+  return -1;
+}
+
+}  // namespace scene_detail
+
+namespace {
+
+namespace fs = std::filesystem;
+using json = nlohmann::json;
+using namespace scene_detail;
+
+std::string lower_extension(const fs::path& path) {
+  std::string ext = path.extension().string();
+  for (char& c : ext) c = char(std::tolower((unsigned char)c));
+  return ext;
+}
+
+bool is_gltf(const fs::path& path) {
+  const std::string ext = lower_extension(path);
+  return ext == ".gltf" || ext == ".glb";
+}
+
+glm::dmat4 to_glm(const aiMatrix4x4& a) {  // Assimp is row-major (a1..a4 the first row)
+  glm::dmat4 m;
+  const float* r = &a.a1;
+  for (int row = 0; row < 4; ++row)
+    for (int col = 0; col < 4; ++col) m[col][row] = r[row * 4 + col];
+  return m;
+}
+
+glm::dmat4 global_transform(const aiNode* node) {
+  glm::dmat4 m(1.0);
+  for (; node; node = node->mParent) m = to_glm(node->mTransformation) * m;
+  return m;
+}
+
+// Assimp 5.2 does not read KHR_materials_emissive_strength (its glTF2 importer knows no such
+// extension: the emissive colour it gives is emissiveFactor alone), so the strength of each
+// material is read here from the file's JSON (the .gltf text, or a .glb's JSON chunk). Assimp keeps
+// the file's material order (and appends its default material), so index i is material i.
+// Empty when the JSON cannot be read here; otherwise one entry per material of the file.
+std::optional<std::vector<float>> gltf_emissive_strengths(const fs::path& path) {
+  std::vector<float> out;
+  try {
+    std::ifstream in(path, std::ios::binary);
+    std::string text((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+    if (lower_extension(path) == ".glb") {  // 12-byte header, then chunk 0: length, "JSON", text
+      uint32_t length = 0, type = 0;
+      if (text.size() < 20 || text.compare(0, 4, "glTF") != 0) return std::nullopt;
+      std::memcpy(&length, text.data() + 12, 4);
+      std::memcpy(&type, text.data() + 16, 4);
+      if (type != 0x4E4F534Au || length > text.size() - 20) return std::nullopt;
+      text = text.substr(20, length);
+    }
+    const json doc = json::parse(text);
+    if (!doc.is_object()) return std::nullopt;
+    if (!doc.contains("materials") || !doc["materials"].is_array()) return out;  // no materials
+    for (const json& m : doc["materials"]) {
+      float strength = 1.0f;
+      const json* s = nullptr;
+      if (m.is_object() && m.contains("extensions") && m["extensions"].is_object() &&
+          m["extensions"].contains("KHR_materials_emissive_strength")) {
+        const json& ext = m["extensions"]["KHR_materials_emissive_strength"];
+        if (ext.is_object() && ext.contains("emissiveStrength")) s = &ext["emissiveStrength"];
+      }
+      if (s && s->is_number() && std::isfinite(s->get<double>()) && s->get<double>() >= 0.0)
+        strength = float(s->get<double>());
+      out.push_back(strength);
+    }
+  } catch (const std::exception&) {
+    return std::nullopt;  // Assimp read the file; what it cannot give stays at strength 1
+  }
+  return out;
+}
+
+// One line per kind of thing xi does not model, in the order first met.
+struct Warnings {
+  std::vector<std::string> lines;
+  void add(const std::string& line) {
+    if (std::find(lines.begin(), lines.end(), line) == lines.end()) lines.push_back(line);
+  }
+};
+
+float get_float(const aiMaterial& m, const char* key, unsigned type, unsigned index, float def) {
+  float v = def;
+  return m.Get(key, type, index, v) == aiReturn_SUCCESS && std::isfinite(v) ? v : def;
+}
+
+glm::vec3 get_color(const aiMaterial& m, const char* key, unsigned type, unsigned index, glm::vec3 def) {
+  aiColor4D c;
+  if (m.Get(key, type, index, c) != aiReturn_SUCCESS) return def;
+  const glm::vec3 v(c.r, c.g, c.b);
+  return std::isfinite(v.x + v.y + v.z) ? v : def;
+}
+
+bool has_property(const aiMaterial& m, const char* key) {
+  const aiMaterialProperty* p = nullptr;
+  return aiGetMaterialProperty(&m, key, 0, 0, &p) == aiReturn_SUCCESS;
+}
+
+// glTF's metallic-roughness model (as Assimp hands it over) onto xi's materials:
+//   emissiveFactor x strength > 0      -> emitter (base colour as its diffuse albedo)
+//   transmission > 0                   -> glass with the material's ior (KHR_materials_ior, default 1.5)
+//   metallic 1, roughness 0            -> mirror tinted by the base colour
+//   anything else                      -> diffuse with the base colour
+// What that loses (textures, rough or partly metallic lobes, partial transmission, alpha) is one
+// warning per kind.
+Material convert_material(const aiMaterial& am, size_t index, float emissive_strength, Warnings& warn) {
+  Material m;
+  m.name = am.GetName().length ? am.GetName().C_Str() : "material " + std::to_string(index);
+  const glm::vec3 diffuse = get_color(am, AI_MATKEY_COLOR_DIFFUSE, glm::vec3(0.8f));
+  const glm::vec3 base = glm::clamp(get_color(am, AI_MATKEY_BASE_COLOR, diffuse), 0.0f, 1.0f);
+  const glm::vec3 emissive = glm::max(get_color(am, AI_MATKEY_COLOR_EMISSIVE, glm::vec3(0.0f)), 0.0f);
+  const float transmission = get_float(am, AI_MATKEY_TRANSMISSION_FACTOR, 0.0f);
+  const bool pbr = has_property(am, "$mat.metallicFactor");
+  const float metallic = get_float(am, AI_MATKEY_METALLIC_FACTOR, 0.0f);
+  const float roughness = get_float(am, AI_MATKEY_ROUGHNESS_FACTOR, 1.0f);
+  const float opacity = get_float(am, AI_MATKEY_OPACITY, 1.0f);
+  int two_sided = 0;
+  am.Get(AI_MATKEY_TWOSIDED, two_sided);
+
+  for (aiTextureType t : {aiTextureType_BASE_COLOR, aiTextureType_DIFFUSE, aiTextureType_EMISSIVE,
+                          aiTextureType_METALNESS, aiTextureType_DIFFUSE_ROUGHNESS, aiTextureType_NORMALS,
+                          aiTextureType_TRANSMISSION, aiTextureType_SPECULAR})
+    if (am.GetTextureCount(t) > 0) warn.add("textures are not modelled: their materials use their constant factors");
+  if (opacity < 1.0f) warn.add("alpha (opacity < 1) is not modelled: such surfaces are opaque");
+
+  m.albedo = base;
+  if (emissive_strength * std::max({emissive.x, emissive.y, emissive.z}) > 0.0f) {
+    m.type = MaterialType::Diffuse;
+    m.emission = emissive * emissive_strength;
+    m.two_sided = two_sided != 0;  // emissive metal or glass: a diffuse emitter (its reflection is minor)
+  } else if (transmission > 0.0f) {
+    m.type = MaterialType::Dielectric;
+    m.ior = std::clamp(get_float(am, AI_MATKEY_REFRACTI, 1.5f), 1.0f, 4.0f);
+    if (transmission < 1.0f) warn.add("partial transmission (factor < 1) is not modelled: rendered as clear glass");
+    if (roughness > 0.0f) warn.add("rough transmission is not modelled: rendered as smooth glass");
+  } else if (pbr && metallic >= 1.0f && roughness <= 0.0f) {
+    m.type = MaterialType::Mirror;
+  } else if (pbr && metallic > 0.0f) {
+    warn.add("rough or partly metallic surfaces are not modelled: rendered as diffuse with the base colour");
+  }
+  return m;
+}
+
+struct Loaded {
+  Assimp::Importer importer;
+  const aiScene* scene = nullptr;
+};
+
+void read_file(const fs::path& path, Loaded& l) {
+  std::error_code ec;
+  if (!fs::is_regular_file(path, ec)) throw Error("asset file not found", path.string());
+  // Before Assimp allocates what the header claims (it would exhaust memory, not fail).
+  if (auto why = implausible_mesh_counts(path)) throw Error("cannot load asset: " + *why, path.string());
+  l.scene = l.importer.ReadFile(path.string(), aiProcess_Triangulate | aiProcess_JoinIdenticalVertices);
+  if (!l.scene || (l.scene->mFlags & AI_SCENE_FLAGS_INCOMPLETE) || !l.scene->mRootNode)
+    throw Error(std::string("cannot load asset: ") + l.importer.GetErrorString(), path.string());
+}
+
+AssetGeometry geometry(const fs::path& path, const aiScene& scene) {
+  AssetGeometry g;
+  Warnings warn;
+  const auto file_materials = is_gltf(path) ? gltf_emissive_strengths(path) : std::nullopt;
+  const std::vector<float> strengths = file_materials.value_or(std::vector<float>{});
+  std::vector<int> remap(scene.mNumMaterials, -1);  // Assimp's index -> ours (only used materials)
+  auto material = [&](unsigned i) -> uint32_t {
+    if (i >= scene.mNumMaterials) throw Error("mesh names material " + std::to_string(i) + ", which does not exist", path.string());
+    if (remap[i] < 0) {
+      remap[i] = int(g.materials.size());
+      if (file_materials && i >= strengths.size()) {
+        // Assimp's default material, for primitives without one: glTF's default is a rough white
+        // metal, which xi does not model; a plain grey diffuse, without a warning for what the
+        // file never asked for.
+        Material m;
+        m.name = "default";
+        m.albedo = glm::vec3(0.8f);
+        g.materials.push_back(m);
+      } else {
+        g.materials.push_back(convert_material(*scene.mMaterials[i], i, i < strengths.size() ? strengths[i] : 1.0f, warn));
+      }
+    }
+    return uint32_t(remap[i]);
+  };
+  // Every node's meshes, through the node's global transform (applied here, once).
+  std::vector<std::pair<const aiNode*, glm::dmat4>> stack = {{scene.mRootNode, to_glm(scene.mRootNode->mTransformation)}};
+  while (!stack.empty()) {
+    auto [node, m] = stack.back();
+    stack.pop_back();
+    for (unsigned c = 0; c < node->mNumChildren; ++c)
+      stack.push_back({node->mChildren[c], m * to_glm(node->mChildren[c]->mTransformation)});
+    for (unsigned k = 0; k < node->mNumMeshes; ++k) {
+      if (node->mMeshes[k] >= scene.mNumMeshes) throw Error("node names a mesh that does not exist", path.string());
+      const aiMesh& mesh = *scene.mMeshes[node->mMeshes[k]];
+      std::vector<Triangle> tris = mesh_triangles(mesh, material(mesh.mMaterialIndex));
+      if (place_mesh(make_transform(m), tris) >= 0)
+        throw Error("mesh '" + std::string(mesh.mName.C_Str()) +
+                        "' has a non-finite vertex coordinate or one beyond +-1e9 (after its node transforms)",
+                    path.string());
+      g.triangles.insert(g.triangles.end(), tris.begin(), tris.end());
+    }
+  }
+  if (g.triangles.empty()) throw Error("asset has no triangles (after dropping degenerate ones)", path.string());
+  g.warnings = std::move(warn.lines);
+  return g;
+}
+
+struct CameraInfo {
+  std::string name;
+  bool perspective = true;
+  Camera camera;
+  float aspect = 1.0f;
+};
+
+// A file's cameras in world space. Assimp 5.2's glTF2 importer (checked against glTF2/cameras/
+// Cameras.gltf and files written by the tests) gets two things wrong, corrected here:
+//  - aiCamera::mHorizontalFOV is documented as half the horizontal angle, but holds yfov x aspectRatio
+//    (yfov being glTF's full vertical angle): the vertical fov is mHorizontalFOV / mAspect (mAspect 0,
+//    for a file without aspectRatio, multiplies by 1);
+//  - aiCamera::mPosition holds the camera node's translation although the node's transform (which the
+//    camera, named after its node, is placed by) has it too: used as documented it would count twice.
+//    For glTF the camera sits at its node's origin, looking down its -z with +y up.
+// Other formats are read as aiCamera documents them.
+std::vector<CameraInfo> cameras(const fs::path& path, const aiScene& scene) {
+  std::vector<CameraInfo> out;
+  const bool gltf = is_gltf(path);
+  for (unsigned i = 0; i < scene.mNumCameras; ++i) {
+    const aiCamera& c = *scene.mCameras[i];
+    CameraInfo info;
+    info.name = c.mName.C_Str();
+    const aiNode* node = scene.mRootNode->FindNode(c.mName);
+    const glm::dmat4 m = node ? global_transform(node) : glm::dmat4(1.0);
+    info.perspective = c.mHorizontalFOV > 0.0f;
+    info.aspect = c.mAspect > 0.0f ? c.mAspect : 1.0f;
+    const glm::dvec3 local_pos = gltf ? glm::dvec3(0.0) : glm::dvec3(c.mPosition.x, c.mPosition.y, c.mPosition.z);
+    const glm::dvec3 local_dir = gltf ? glm::dvec3(0, 0, -1) : glm::dvec3(c.mLookAt.x, c.mLookAt.y, c.mLookAt.z);
+    const glm::dvec3 local_up = gltf ? glm::dvec3(0, 1, 0) : glm::dvec3(c.mUp.x, c.mUp.y, c.mUp.z);
+    const glm::dvec3 pos = glm::dvec3(m * glm::dvec4(local_pos, 1.0));
+    const glm::dvec3 dir = glm::dmat3(m) * local_dir, up = glm::dmat3(m) * local_up;
+    info.camera.position = glm::vec3(pos);
+    info.camera.look_at = glm::vec3(pos + glm::normalize(dir));
+    info.camera.up = glm::vec3(glm::normalize(up));
+    info.camera.focus_distance = 1.0f;
+    const double vfov = gltf ? double(c.mHorizontalFOV) / info.aspect  // see above
+                             : 2.0 * std::atan(std::tan(double(c.mHorizontalFOV)) / info.aspect);
+    info.camera.vfov_degrees = float(glm::degrees(vfov));
+    out.push_back(info);
+  }
+  return out;
+}
+
+std::string describe(const std::vector<CameraInfo>& list) {
+  std::string s;
+  for (size_t i = 0; i < list.size(); ++i)
+    s += (i ? ", " : "") + std::to_string(i) + " '" + list[i].name + "'" + (list[i].perspective ? "" : " (orthographic)");
+  return s.empty() ? "none" : s;
+}
+
+}  // namespace
+
+bool is_asset_file(const fs::path& path) {
+  const std::string ext = lower_extension(path);
+  for (const char* e : {".gltf", ".glb", ".obj", ".ply", ".stl", ".off", ".dae", ".fbx"})
+    if (ext == e) return true;
+  return false;
+}
+
+AssetGeometry load_asset_geometry(const fs::path& path) {
+  Loaded l;
+  read_file(path, l);
+  return geometry(path, *l.scene);
+}
+
+Scene load_asset(const fs::path& path, const AssetOptions& options) {
+  Loaded l;
+  read_file(path, l);
+  AssetGeometry g = geometry(path, *l.scene);
+  Scene s;
+  s.source = path.string();
+  s.materials = std::move(g.materials);
+  s.triangles = std::move(g.triangles);
+  s.warnings = std::move(g.warnings);
+  if (options.height < 1 || options.height > 16384) throw Error("film height must be in [1, 16384]", path.string());
+
+  const std::vector<CameraInfo> list = cameras(path, *l.scene);
+  int chosen = -1;
+  if (!options.camera.empty()) {
+    const std::string& want = options.camera;
+    if (want.find_first_not_of("0123456789") == std::string::npos && want.size() < 9) {
+      const size_t i = std::stoul(want);
+      if (i < list.size()) chosen = int(i);
+    }
+    for (size_t i = 0; chosen < 0 && i < list.size(); ++i)
+      if (list[i].name == want) chosen = int(i);
+    if (chosen < 0)
+      throw Error("no camera '" + want + "' in " + path.filename().string() + " (its cameras: " + describe(list) + ")",
+                  "--camera");
+    if (!list[chosen].perspective)
+      throw Error("camera " + std::to_string(chosen) + " '" + list[chosen].name +
+                      "' is orthographic; xi renders perspective cameras (the file's cameras: " + describe(list) + ")",
+                  "--camera");
+  } else {
+    for (size_t i = 0; chosen < 0 && i < list.size(); ++i)
+      if (list[i].perspective) chosen = int(i);
+  }
+
+  float aspect = 1.0f;
+  if (chosen >= 0) {
+    const CameraInfo& c = list[chosen];
+    const glm::vec3 dir = c.camera.look_at - c.camera.position;
+    if (!within_range(c.camera.position) || !within_range(c.camera.look_at) || !(glm::length(dir) > 0.0f) ||
+        !(glm::length(glm::cross(glm::normalize(dir), c.camera.up)) > 1e-6f) ||
+        !(c.camera.vfov_degrees > 0.0f && c.camera.vfov_degrees < 180.0f))
+      throw Error("camera " + std::to_string(chosen) + " '" + c.name + "' cannot be used (degenerate transform or fov)",
+                  path.string());
+    s.camera = c.camera;
+    aspect = c.aspect;
+    char buf[160];
+    std::snprintf(buf, sizeof buf, "camera %d '%s' of %zu (vertical fov %.2f degrees, aspect %.4g)", chosen,
+                  c.name.c_str(), list.size(), c.camera.vfov_degrees, c.aspect);
+    s.notes.push_back(buf);
+  } else {
+    // Frame the bounding sphere of the box from +z: the glTF front view (y up, looking down -z).
+    glm::dvec3 lo(INFINITY), hi(-INFINITY);
+    for (const Triangle& t : s.triangles)
+      for (const auto& v : t.v) lo = glm::min(lo, glm::dvec3(v)), hi = glm::max(hi, glm::dvec3(v));
+    const glm::dvec3 centre = 0.5 * (lo + hi);
+    const double radius = std::max(0.5 * glm::length(hi - lo), 1e-6);
+    const double vfov = 40.0, distance = 1.1 * radius / std::sin(glm::radians(vfov / 2.0));
+    s.camera.position = glm::vec3(centre + glm::dvec3(0, 0, distance));
+    s.camera.look_at = glm::vec3(centre);
+    s.camera.up = {0.0f, 1.0f, 0.0f};
+    s.camera.vfov_degrees = float(vfov);
+    s.camera.focus_distance = float(distance);
+    s.notes.push_back(std::string(list.empty() ? "no camera in the file" : "no perspective camera in the file") +
+                      ": framing its bounding box from +z (looking down -z, up +y, vertical fov 40 degrees)");
+  }
+  s.height = options.height;
+  s.width = int(std::clamp(std::lround(options.height * double(aspect)), 1L, 16384L));
+
+  const bool lit = std::any_of(s.materials.begin(), s.materials.end(), [](const Material& m) { return m.is_emitter(); });
+  if (!lit) {
+    s.background = glm::vec3(1.0f);
+    s.notes.push_back("no emissive material: lit by a constant white background (radiance 1)");
+  }
+  return s;
+}
+
+}  // namespace xi

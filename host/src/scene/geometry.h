@@ -1,0 +1,72 @@
+// What the JSON scene reader (scene.cpp) and the asset reader (asset.cpp) share: affine transforms of
+// triangles, the coordinate limit, the checks on loaded triangles, and Assimp mesh conversion.
+#pragma once
+#include <algorithm>
+#include <cmath>
+#include <cstdint>
+#include <utility>
+#include <string>
+#include <string_view>
+#include <vector>
+
+#include <glm/glm.hpp>
+
+#include "xi/scene.h"
+
+struct aiMesh;
+
+namespace xi::scene_detail {
+
+// The largest coordinate (and camera length) a scene may have, after its transforms. The renderer
+// works in single precision, and a triangle's area and normal take the length of the cross product
+// of two edges, whose square grows as the fourth power of the edge: edges up to 2e9 give at most
+// 3 * (2 * (2e9)^2)^2 = 1.9e38 < FLT_MAX = 3.4e38. Beyond, light pdfs and normals overflow (and near
+// 1e19 the BVH builder's box extents do). Float spacing at 1e9 is 64 units anyway.
+constexpr float kMaxCoordinate = 1e9f;
+
+struct Transform {
+  glm::dmat4 m{1.0};
+  glm::dmat3 normal{1.0};  // inverse transpose of the linear part
+  bool flips = false;      // negative determinant: mirrored, so triangle winding must be swapped
+};
+
+// The normal matrix and mirroring of an affine matrix (the caller checks it is not singular).
+inline Transform make_transform(const glm::dmat4& m) {
+  const glm::dmat3 linear(m);
+  return {m, glm::transpose(glm::inverse(linear)), glm::determinant(linear) < 0.0};
+}
+
+inline void apply(const Transform& t, Triangle& tri) {
+  for (auto& v : tri.v) v = glm::vec3(t.m * glm::dvec4(v, 1.0));
+  if (tri.has_normals)
+    for (auto& n : tri.n) n = glm::vec3(glm::normalize(t.normal * glm::dvec3(n)));
+  if (t.flips) {  // keep the front face (from the winding) on the same side as the normals
+    std::swap(tri.v[1], tri.v[2]);
+    std::swap(tri.n[1], tri.n[2]);
+  }
+}
+
+// Every coordinate within +-kMaxCoordinate (false for NaN).
+inline bool within_range(glm::vec3 v) {
+  return std::abs(v.x) <= kMaxCoordinate && std::abs(v.y) <= kMaxCoordinate && std::abs(v.z) <= kMaxCoordinate;
+}
+inline bool within_range(const Triangle& t) {
+  return within_range(t.v[0]) && within_range(t.v[1]) && within_range(t.v[2]);
+}
+
+// Zero area up to float noise: |e1 x e2| tiny next to the squared edge lengths (also catches NaN).
+inline bool degenerate(const Triangle& t) {
+  const glm::dvec3 e1 = glm::dvec3(t.v[1]) - glm::dvec3(t.v[0]), e2 = glm::dvec3(t.v[2]) - glm::dvec3(t.v[0]);
+  return !(glm::length(glm::cross(e1, e2)) > 1e-6 * std::max(glm::dot(e1, e1), glm::dot(e2, e2)));
+}
+
+// The triangles of an Assimp mesh, in the mesh's own coordinates, with its vertex normals if it has
+// them; points and lines (which survive triangulation) are skipped. Defined in asset.cpp.
+std::vector<Triangle> mesh_triangles(const aiMesh& mesh, uint32_t material = 0);
+
+// Transforms loaded triangles in place, then checks them as every mesh is checked: a vertex beyond
+// +-1e9 (or not finite) is an error (the index of the first such triangle is returned, else -1),
+// degenerate triangles are dropped, non-finite normals turn the triangle's normals off.
+long long place_mesh(const Transform& xf, std::vector<Triangle>& tris);
+
+}  // namespace xi::scene_detail

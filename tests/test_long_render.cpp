@@ -1,0 +1,252 @@
+// Long renders: stopping on a signal, --time, --snapshot-every, checkpoints and --resume. Film sums
+// are added in sample order, so every way of stopping and resuming must give the very bits of an
+// uninterrupted render with the same spp: these tests compare images bitwise, not statistically.
+#include <gtest/gtest.h>
+
+#include <signal.h>
+
+#include <cstring>
+#include <regex>
+
+#include "cli_test.h"
+#include "xi/checkpoint.h"
+#include "xi/device.h"
+#include "xi/error.h"
+#include "xi/image.h"
+#include "xi/render.h"
+#include "xi/scene.h"
+
+using namespace xi_test;
+
+namespace {
+
+class LongRender : public CliTest {
+ protected:
+  // Every layer xi writes, bit for bit.
+  void expect_same_image(const std::string& a, const std::string& b) {
+    for (const char* layer : {"", "variance", "albedo", "normal"}) {
+      SCOPED_TRACE(std::string("layer '") + layer + "' of " + a + " and " + b);
+      const xi::Image x = xi::read_exr(work_ / a, layer), y = xi::read_exr(work_ / b, layer);
+      ASSERT_EQ(x.pixels.size(), y.pixels.size());
+      EXPECT_EQ(std::memcmp(x.pixels.data(), y.pixels.data(), x.pixels.size() * sizeof(glm::vec3)), 0);
+    }
+  }
+  int attr_int(const std::string& exr, const std::string& name) {
+    return std::get<int>(xi::read_exr_attributes(work_ / exr).at(name));
+  }
+  bool has_temp_files() const {
+    for (auto& f : files())
+      if (f.find(".tmp") != std::string::npos) return true;
+    return false;
+  }
+  // Waits until the program's stdout holds `text` (it prints its setup before the first pass).
+  bool wait_for_output(const std::string& text) const {
+    for (int i = 0; i < 60000; ++i, usleep(1000))
+      if (read_text(capture_ / "stdout").find(text) != std::string::npos) return true;
+    return false;
+  }
+};
+
+// 1 spp per pass on a tiny frame: many short passes, so a signal lands mid-render.
+const std::vector<std::string> kSmall = {"render", "--resolution", "16x16", "--samples-per-pass", "1", "--seed", "3",
+                                         "--quiet"};
+
+}  // namespace
+
+TEST_F(LongRender, SignalWritesThePassesDoneAndTheCheckpointResumes) {
+  // A snapshot after every pass tells the test the render is under way.
+  const pid_t pid =
+      start_xi(concat(kSmall, {"--spp", "1000", "-o", "cut.exr", "--snapshot-every", "1", "--checkpoint", "ck.bin"}));
+  ASSERT_TRUE(wait_for("cut.exr"));
+  kill(pid, SIGTERM);
+  const Outcome r = wait_xi(pid);
+  EXPECT_EQ(r.code, 143) << r.err;  // 128 + SIGTERM
+  std::smatch m;
+  ASSERT_TRUE(std::regex_search(r.err, m, std::regex("stopped by SIGTERM after pass (\\d+): (\\d+) of 1000 spp")))
+      << r.err;
+  const int spp = std::stoi(m[2]);
+  EXPECT_EQ(std::stoi(m[1]), spp);  // one spp per pass
+  EXPECT_GE(spp, 1);
+  EXPECT_LT(spp, 1000);
+  EXPECT_EQ(attr_int("cut.exr", "spp"), spp);
+  EXPECT_EQ(attr_int("cut.exr", "sppTarget"), 1000);
+  EXPECT_TRUE(fs::exists(work_ / "ck.bin"));
+  EXPECT_FALSE(has_temp_files());
+
+  // The stopped image is the render of the spp it reports.
+  ASSERT_EQ(run_xi(concat(kSmall, {"--spp", std::to_string(spp), "-o", "straight.exr"})).code, 0);
+  expect_same_image("cut.exr", "straight.exr");
+
+  // Resumed to the end, it is the uninterrupted render; the checkpoint goes once the image holds it.
+  const Outcome resumed = run_xi(concat(kSmall, {"--spp", "1000", "-o", "resumed.exr", "--resume", "ck.bin"}));
+  ASSERT_EQ(resumed.code, 0) << resumed.err;
+  EXPECT_FALSE(fs::exists(work_ / "ck.bin"));
+  ASSERT_EQ(run_xi(concat(kSmall, {"--spp", "1000", "-o", "full.exr"})).code, 0);
+  expect_same_image("resumed.exr", "full.exr");
+  EXPECT_EQ(attr_int("resumed.exr", "spp"), 1000);
+  EXPECT_EQ(xi::read_exr_attributes(work_ / "resumed.exr").count("sppTarget"), 0u);
+}
+
+TEST_F(LongRender, SecondSignalStopsAtOnceWritingNothing) {
+  // Two different signals back to back (two SIGINTs could merge while pending): the second arrives
+  // long before the pass in flight ends, even on a GPU, where a pass here takes milliseconds.
+  const pid_t pid = start_xi({"render", "--resolution", "256x256", "--samples-per-pass", "16", "--spp", "4096", "-o",
+                              "out.exr"});
+  ASSERT_TRUE(wait_for_output("paths in flight"));
+  kill(pid, SIGINT);
+  kill(pid, SIGTERM);
+  const Outcome r = wait_xi(pid);
+  EXPECT_EQ(r.code, 143) << r.err;  // 128 + SIGTERM, the second
+  EXPECT_EQ(r.err.find("stopped by"), std::string::npos) << r.err;
+  EXPECT_EQ(files(), std::set<std::string>{}) << "no image, no temporary file";
+}
+
+TEST_F(LongRender, NonProgressiveSamplerStopsWithoutAnImage) {
+  // A grid pattern is complete only at its spp: stopped, it leaves its state but no image.
+  const std::vector<std::string> grid = concat(kSmall, {"--sampler", "grid", "--spp", "1024", "--checkpoint", "ck.bin"});
+  std::vector<std::string> loud = concat(grid, {"-o", "out.exr"});
+  loud.erase(std::find(loud.begin(), loud.end(), "--quiet"));  // its setup lines say when it starts
+  const pid_t pid = start_xi(loud);
+  ASSERT_TRUE(wait_for_output("paths in flight"));
+  usleep(100000);
+  kill(pid, SIGINT);
+  const Outcome r = wait_xi(pid);
+  EXPECT_EQ(r.code, 130) << r.err;
+  EXPECT_NE(r.err.find("grid pattern is incomplete, no image written; state saved to ck.bin"), std::string::npos)
+      << r.err;
+  EXPECT_EQ(files(), std::set<std::string>{"ck.bin"});  // no image, no temporary file
+  ASSERT_EQ(run_xi(concat(grid, {"--resume", "ck.bin", "-o", "resumed.exr"})).code, 0);
+  ASSERT_EQ(run_xi(concat(kSmall, {"--sampler", "grid", "--spp", "1024", "-o", "full.exr"})).code, 0);
+  expect_same_image("resumed.exr", "full.exr");
+}
+
+TEST_F(LongRender, TimeStopsAfterThePassThatCrossesTheBudget) {
+  ASSERT_EQ(run_xi(concat(concat({"render"}, kFast), {"-o", "ref.exr"})).code, 0);  // any 32×32 image will do
+  const Outcome r = run_xi({"render", "--resolution", "32x32", "--spp", "100000", "--samples-per-pass", "1", "--time",
+                            "0.3", "--reference", "ref.exr", "--convergence", "log.csv", "-o", "out.exr", "--quiet"});
+  ASSERT_EQ(r.code, 0) << r.err;
+  EXPECT_NE(r.err.find("stopped by the time budget"), std::string::npos) << r.err;
+  // The log's seconds are the render time after each pass: the budget falls in the last pass.
+  std::istringstream csv(read_text(work_ / "log.csv"));
+  std::string line;
+  std::vector<std::pair<int, double>> rows;  // spp, seconds
+  std::getline(csv, line);
+  while (std::getline(csv, line)) {
+    std::smatch m;
+    ASSERT_TRUE(std::regex_search(line, m, std::regex("^\\d+,(\\d+),([0-9.]+),"))) << line;
+    rows.push_back({std::stoi(m[1]), std::stod(m[2])});
+  }
+  ASSERT_GE(rows.size(), 2u);
+  EXPECT_GE(rows.back().second, 0.3 - 1e-6);
+  EXPECT_LT(rows[rows.size() - 2].second, 0.3 + 1e-6);
+  const int spp = rows.back().first;
+  EXPECT_EQ(attr_int("out.exr", "spp"), spp);
+  EXPECT_EQ(attr_int("out.exr", "sppTarget"), 100000);
+  ASSERT_EQ(run_xi({"render", "--resolution", "32x32", "--spp", std::to_string(spp), "-o", "straight.exr", "--quiet"}).code, 0);
+  expect_same_image("out.exr", "straight.exr");
+}
+
+TEST_F(LongRender, ResumedAnyNumberOfTimesEqualsStraight) {
+  const std::vector<std::string> base = {"render", "--resolution", "24x16", "--spp", "12", "--samples-per-pass", "2",
+                                         "--seed", "7", "--quiet", "-o", "cut.exr"};
+  // A budget shorter than any pass: every run adds exactly one pass, then checkpoints.
+  Outcome r = run_xi(concat(base, {"--time", "1e-9", "--checkpoint", "ck.bin"}));
+  for (int spp = 2; spp < 12; spp += 2) {
+    ASSERT_EQ(r.code, 0) << r.err;
+    EXPECT_EQ(attr_int("cut.exr", "spp"), spp);
+    ASSERT_TRUE(fs::exists(work_ / "ck.bin"));
+    r = run_xi(concat(base, {"--time", "1e-9", "--resume", "ck.bin"}));
+  }
+  ASSERT_EQ(r.code, 0) << r.err;
+  EXPECT_EQ(attr_int("cut.exr", "spp"), 12);
+  EXPECT_FALSE(fs::exists(work_ / "ck.bin"));
+  std::vector<std::string> straight = base;
+  straight.back() = "straight.exr";
+  ASSERT_EQ(run_xi(straight).code, 0);
+  expect_same_image("cut.exr", "straight.exr");
+}
+
+TEST_F(LongRender, RefusesAnotherRendersCheckpoint) {
+  const std::vector<std::string> base = {"render", "--resolution", "24x16", "--spp", "12", "--samples-per-pass", "2",
+                                         "--seed", "7", "--quiet"};
+  ASSERT_EQ(run_xi(concat(base, {"--time", "1e-9", "--checkpoint", "ck.bin", "-o", "cut.exr"})).code, 0);
+  const std::string saved = read_text(work_ / "ck.bin");
+  struct Case {
+    std::vector<std::string> args;
+    std::vector<std::string> needles;
+  };
+  const fs::path mirror = fs::path(XI_SCENE_DIR) / "mirror.json";
+  const std::vector<Case> cases = {
+      {{"--seed", "8"}, {"--seed 7", "has 8"}},
+      {{"--spp", "13"}, {"--spp 12", "has 13"}},
+      {{"--sampler", "random"}, {"--sampler sobol", "has random"}},
+      {{"--strategy", "nee"}, {"--strategy mis", "has nee"}},
+      {{"--max-depth", "3"}, {"--max-depth", "has 3"}},
+      {{"--resolution", "24x18"}, {"another scene"}},
+      {{mirror.string()}, {"another scene"}},
+  };
+  const auto before = files();
+  for (const Case& c : cases) {
+    SCOPED_TRACE(c.args[0]);
+    expect_user_error(run_xi(concat(concat(base, c.args), {"--resume", "ck.bin", "-o", "x.exr"})), c.needles, before);
+  }
+  // Another kernel build: the same kernels with one more comment line.
+  const fs::path kernels = root_ / "kernels";
+  fs::copy(xi::kernel_dir(), kernels, fs::copy_options::recursive);
+  write_text(kernels / "shade.cl", read_text(kernels / "shade.cl") + "\n// edited\n");
+  setenv("XI_KERNEL_DIR", kernels.c_str(), 1);
+  expect_user_error(run_xi(concat(base, {"--resume", "ck.bin", "-o", "x.exr"})), {"kernel build"}, before);
+  unsetenv("XI_KERNEL_DIR");
+  // Damaged, foreign or missing files.
+  write_text(work_ / "ck.bin", saved.substr(0, saved.size() / 2));
+  expect_user_error(run_xi(concat(base, {"--resume", "ck.bin", "-o", "x.exr"})), {"damaged or truncated", "ck.bin"}, before);
+  write_text(work_ / "ck.bin", "P3\n1 1\n255\n0 0 0\n" + std::string(64, ' '));
+  expect_user_error(run_xi(concat(base, {"--resume", "ck.bin", "-o", "x.exr"})), {"not an xi checkpoint"}, before);
+  expect_user_error(run_xi(concat(base, {"--resume", "none.bin", "-o", "x.exr"})), {"no such checkpoint", "none.bin"}, before);
+  // Flags that need a progressive sampler, or bad values.
+  expect_user_error(run_xi(concat(base, {"--sampler", "grid", "--time", "10"})), {"--time", "grid"}, before);
+  expect_user_error(run_xi(concat(base, {"--sampler", "stratified", "--snapshot-every", "1"})),
+                    {"--snapshot-every", "stratified"}, before);
+  expect_user_error(run_xi(concat(base, {"--time", "soon"})), {"--time", "soon"}, before);
+  expect_user_error(run_xi(concat(base, {"--time", "-1"})), {"--time"}, before);
+  expect_user_error(run_xi(concat(base, {"--checkpoint-every", "5"})), {"--checkpoint-every", "--checkpoint"}, before);
+}
+
+// The library side: a checkpoint round-trips the state exactly, and one from another device is
+// refused (a test machine has one device, so the key is changed by hand).
+TEST(Checkpoint, RoundTripsAndRefusesAnotherDevice) {
+  xi::Device device = xi::Device::open("");
+  xi::Scene scene = xi::load_scene(kCornell);
+  scene.width = 8;
+  scene.height = 8;
+  xi::RenderOptions o;
+  o.spp = 4;
+  o.samples_per_pass = 1;
+  xi::Renderer renderer(device, scene, o);
+  renderer.run_pass();
+  xi::RenderState state = renderer.state();
+  state.seconds = 1.25;
+  const xi::CheckpointKey key = xi::checkpoint_key(renderer, kCornell, device.info().name);
+  const fs::path file = fs::temp_directory_path() / ("xi_checkpoint_" + std::to_string(::getpid()) + ".bin");
+  xi::write_checkpoint(file, key, state);
+  const xi::RenderState back = xi::read_checkpoint(file, key);
+  EXPECT_EQ(back.spp_done, 1);
+  EXPECT_EQ(back.passes, 1);
+  EXPECT_EQ(back.seconds, 1.25);
+  EXPECT_EQ(back.extend_rays, state.extend_rays);
+  EXPECT_GT(back.extend_rays, 0u);
+  ASSERT_EQ(back.sum.size(), 64u);
+  EXPECT_EQ(std::memcmp(back.sum.data(), state.sum.data(), 64 * sizeof(glm::vec4)), 0);
+  EXPECT_EQ(std::memcmp(back.sum_sq.data(), state.sum_sq.data(), 64 * sizeof(glm::vec4)), 0);
+
+  xi::CheckpointKey other = key;
+  other.device = "Some Other GPU";
+  xi::write_checkpoint(file, other, state);
+  try {
+    xi::read_checkpoint(file, key);
+    ADD_FAILURE() << "a checkpoint from another device was accepted";
+  } catch (const xi::Error& e) {
+    EXPECT_NE(std::string(e.what()).find("device Some Other GPU"), std::string::npos) << e.what();
+  }
+  fs::remove(file);
+}
