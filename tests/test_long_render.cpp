@@ -96,7 +96,8 @@ TEST_F(LongRender, SecondSignalStopsAtOnceWritingNothing) {
   kill(pid, SIGINT);
   kill(pid, SIGTERM);
   const Outcome r = wait_xi(pid);
-  EXPECT_EQ(r.code, 143) << r.err;  // 128 + SIGTERM, the second
+  // 128 + the signal handled second: pending signals may be handled in either order.
+  EXPECT_TRUE(r.code == 128 + SIGTERM || r.code == 128 + SIGINT) << r.code << ": " << r.err;
   EXPECT_EQ(r.err.find("stopped by"), std::string::npos) << r.err;
   EXPECT_EQ(files(), std::set<std::string>{}) << "no image, no temporary file";
 }
