@@ -39,28 +39,27 @@ std::string gigabytes(double bytes) {
   return buf;
 }
 
-// Host memory this process can still take: what the system has available, and what is left of
-// an address-space limit (ulimit -v), whichever is less.
-double host_bytes_available() {
-  double available = INFINITY;
-  std::ifstream meminfo("/proc/meminfo");
-  for (std::string key; meminfo >> key;) {
+// A "Key: value kB" line of a /proc file, in bytes; NaN if absent.
+double proc_bytes(const char* file, const std::string& wanted) {
+  std::ifstream in(file);
+  for (std::string key; in >> key;) {
     double kb = 0;
-    meminfo >> kb;
-    if (key == "MemAvailable:") available = kb * 1024.0;
-    meminfo.ignore(256, '\n');
+    in >> kb;
+    if (key == wanted) return kb * 1024.0;
+    in.ignore(256, '\n');
   }
+  return NAN;
+}
+
+// Host memory this process can still take: what the system has available, and what is left of
+// an address-space limit (ulimit -v) after what is mapped already, whichever is less.
+double host_bytes_available() {
+  double available = proc_bytes("/proc/meminfo", "MemAvailable:");
+  if (std::isnan(available)) available = INFINITY;
   rlimit limit{};
   if (getrlimit(RLIMIT_AS, &limit) == 0 && limit.rlim_cur != RLIM_INFINITY) {
-    double used = 0;  // the address space mapped already (libraries, the driver's arenas)
-    std::ifstream status("/proc/self/status");
-    for (std::string key; status >> key;) {
-      double kb = 0;
-      status >> kb;
-      if (key == "VmSize:") used = kb * 1024.0;
-      status.ignore(256, '\n');
-    }
-    available = std::min(available, (double)limit.rlim_cur - used);
+    const double used = proc_bytes("/proc/self/status", "VmSize:");
+    available = std::min(available, (double)limit.rlim_cur - (std::isnan(used) ? 0.0 : used));
   }
   return available;
 }
