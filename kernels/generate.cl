@@ -11,7 +11,7 @@ __kernel void generate(XI_PATH_PARAMS __global uint* restrict queue, __global ui
   uint count = wave.pixels * wave.samples;
   if (slot == 0u) counters[XI_COUNTER_RAYS(0)] = count;
   if (slot >= count) return;
-  uint pixel = wave.first_pixel + slot % wave.pixels, sample_index = wave.first_sample + slot / wave.pixels;
+  uint pixel = xi_frame_pixel(wave, slot), sample_index = wave.first_sample + slot / wave.pixels;
   float px = (float)(pixel % cam.width), py = (float)(pixel / cam.width);
   float2 u = xi_sample_2d(XI_SAMPLER, sampler, pixel, sample_index, XI_PAIR_PIXEL);
   // Film coordinates in [-1, 1]², x to the right, y up; pixel (0, 0) is the top-left corner.

@@ -172,7 +172,7 @@ __kernel void shade(XI_PATH_PARAMS __global const uint* restrict queue_in, __glo
   uint slot = active ? queue_in[i] : 0u;
   ShadeResult r = xi_shade_path(XI_PATH_ARGS slot, active, materials, tri_verts, tri_material, tri_normals,
                                 light_cdf, light_tri, tri_light_pdf, light_count, sampler,
-                                wave.first_pixel + slot % wave.pixels, wave.first_sample + slot / wave.pixels,
+                                xi_frame_pixel(wave, slot), wave.first_sample + slot / wave.pixels,
                                 max_depth, background);
   // Append to the ray and shadow queues: entries are counted in local memory and reserved with one
   // global atomic per work group, since a global atomic per item serialises the cores on one line.

@@ -11,6 +11,7 @@ packages=(
   libglm-dev nlohmann-json3-dev libopenexr-dev libassimp-dev libpng-dev zlib1g-dev
   libgtest-dev googletest
   assimp-testmodels  # the tests load its corpus of invalid model files
+  libopenmpi-dev openmpi-bin  # `mpirun -np N xi render` (optional at build time: XI_WITH_MPI)
 )
 if [ "${1:-}" = "--bench" ]; then
   packages+=(libembree-dev python3-matplotlib python3-numpy)

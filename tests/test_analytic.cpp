@@ -50,7 +50,7 @@ Render render(const xi::Scene& scene, int spp, uint32_t seed, int sampler, xi::S
   o.max_depth = max_depth;
   xi::Renderer r(device(), scene, o);
   r.render();
-  xi::Renderer::Film f = r.film();
+  xi::Film f = r.film();
   return {std::move(f.mean), std::move(f.variance), r.nonfinite_samples()};
 }
 

@@ -97,7 +97,7 @@ Result render(int w, int h, xi::RenderOptions opt) {
   xi::Renderer r(device(), scene, opt);
   r.render();
   EXPECT_EQ(r.spp_done(), opt.spp);
-  xi::Renderer::Film film = r.film();
+  xi::Film film = r.film();
   EXPECT_TRUE(bitwise_equal(film.mean, r.mean()));  // mean() is the cheap path to the same numbers
   return {std::move(film.mean), std::move(film.variance), r.nonfinite_samples(), device().info().name};
 }

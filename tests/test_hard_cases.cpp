@@ -54,7 +54,7 @@ xi::Scene transformed(xi::Scene s, const Similarity& t, bool inverse = false) {
   return s;
 }
 
-xi::Renderer::Film render(const xi::Scene& scene, uint32_t seed, int spp) {
+xi::Film render(const xi::Scene& scene, uint32_t seed, int spp) {
   xi::RenderOptions o;
   o.spp = spp;
   o.seed = seed;
@@ -91,8 +91,8 @@ TEST(HardCases, EveryBundledSceneRendersTheSameMovedFarAwayOrScaled) {
     for (const Similarity& t : kTransforms) {
       SCOPED_TRACE(path.filename().string() + ", " + t.name);
       const xi::Scene far = transformed(scene, t);
-      const xi::Renderer::Film base = render(transformed(far, t, true), 1, kSpp);
-      const xi::Renderer::Film moved = render(far, 2, kSpp);
+      const xi::Film base = render(transformed(far, t, true), 1, kSpp);
+      const xi::Film moved = render(far, 2, kSpp);
       int rejected = 0;
       double worst = 0.0;
       for (int by = 0; by < kRes; by += kBlock)
@@ -156,7 +156,7 @@ Shot shoot(const xi::Scene& scene, int spp, uint32_t seed, int max_depth, xi::St
   o.strategy = strategy;
   xi::Renderer r(device(), scene, o);
   r.render();
-  xi::Renderer::Film f = r.film();
+  xi::Film f = r.film();
   return {std::move(f.mean), std::move(f.variance), r.nonfinite_samples()};
 }
 

@@ -282,9 +282,11 @@ TEST_F(Kernel, GenerateCameraRays) {
 
   std::vector<vec3> org(pixels), dir(pixels);
   // Two waves of one sample, the second starting mid-row, as the renderer splits large films; then
-  // one wave of two samples of every pixel, as it fills a device with a small film.
-  for (WaveParams wave : {WaveParams{0, 500, sample, 1}, WaveParams{500, pixels - 500, sample, 1},
-                          WaveParams{0, pixels, sample, 2}}) {
+  // one wave of two samples of every pixel, as it fills a device with a small film; then a film of
+  // every third row from row 2 (one process's share of a distributed render), two samples.
+  const uint32_t share_pixels = W * 7;  // rows 2, 5, ..., 20 of 23
+  for (WaveParams wave : {WaveParams{0, 500, sample, 1, W, 0, 1, 0}, WaveParams{500, pixels - 500, sample, 1, W, 0, 1, 0},
+                          WaveParams{0, pixels, sample, 2, W, 0, 1, 0}, WaveParams{0, share_pixels, sample, 2, W, 2, 3, 0}}) {
     const uint32_t count = wave.pixels * wave.samples;
     PathState state(slots);
     PathBuffers b = upload(state);
@@ -304,7 +306,8 @@ TEST_F(Kernel, GenerateCameraRays) {
 
     for (uint32_t slot = 0; slot < count; ++slot) {
       SCOPED_TRACE(testing::Message() << "slot " << slot << " of the wave at " << wave.first_pixel);
-      const uint32_t pixel = wave.first_pixel + slot % wave.pixels, s = wave.first_sample + slot / wave.pixels;
+      const uint32_t film_pixel = wave.first_pixel + slot % wave.pixels, s = wave.first_sample + slot / wave.pixels;
+      const uint32_t pixel = (wave.first_row + film_pixel / W * wave.row_stride) * W + film_pixel % W;  // in the frame
       if (s != sample) {  // the second sample: a different jitter of the same pixel
         EXPECT_GT(glm::length(vec3(out.ray_dir[slot]) - vec3(out.ray_dir[slot % wave.pixels])), 0.0f);
         continue;
@@ -387,7 +390,9 @@ TEST_F(Kernel, AccumulateSumsAndDropsNonFinite) {
                     want_normal = normal;
   uint32_t nonfinite = 0;
   const float kNonFinite[] = {NAN, INFINITY, -INFINITY};
-  for (WaveParams wave : {WaveParams{100, 700, 0, 1}, WaveParams{450, 550, 1, 1}, WaveParams{300, 400, 2, 2}}) {
+  // (accumulate adds to film pixels: the frame's width and rows do not enter)
+  for (WaveParams wave : {WaveParams{100, 700, 0, 1, 40, 0, 1, 0}, WaveParams{450, 550, 1, 1, 40, 0, 1, 0},
+                          WaveParams{300, 400, 2, 2, 40, 0, 1, 0}}) {
     const uint32_t count = wave.pixels * wave.samples;
     PathState state(slots);  // garbage in the fields accumulate does not read
     for (uint32_t i = 0; i < count; ++i) {

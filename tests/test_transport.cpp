@@ -416,7 +416,7 @@ Render render(xi::Scene scene, int w, int h, const xi::RenderOptions& o) {
   scene.height = h;
   xi::Renderer r(device(), scene, o);
   r.render();
-  xi::Renderer::Film f = r.film();
+  xi::Film f = r.film();
   return {std::move(f.mean), std::move(f.variance), std::move(f.albedo), r.nonfinite_samples()};
 }
 

@@ -1,5 +1,6 @@
 // The `xi` program's subcommands and the small argument reader they share.
 #pragma once
+#include <exception>
 #include <string>
 #include <vector>
 
@@ -19,6 +20,9 @@ class Args {
   std::vector<std::pair<std::string, std::string>> values_;
   std::vector<std::string> positional_;
 };
+
+// One line for an error: xi::Error's what and where, an OpenCL call and its code, or what().
+std::string describe_error(const std::exception& e);
 
 int render(const std::vector<std::string>& args);
 int devices(const std::vector<std::string>& args);

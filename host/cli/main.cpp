@@ -8,6 +8,7 @@
 #include <vector>
 
 #include "cli.h"
+#include "team.h"
 #include "xi/device.h"
 #include "xi/error.h"
 
@@ -80,6 +81,12 @@ double Args::get_seconds(const std::string& flag, double fallback) const {
   return x;
 }
 
+std::string describe_error(const std::exception& e) {
+  if (auto* cl_error = dynamic_cast<const cl::Error*>(&e))
+    return std::string("OpenCL call ") + cl_error->what() + " failed with code " + std::to_string(cl_error->err());
+  return e.what();
+}
+
 }  // namespace xi::cli
 
 static const char* kUsage =
@@ -149,12 +156,10 @@ int main(int argc, char** argv) {
     if (command == "warp") return xi::cli::warp(args);
     if (command == "diff") return xi::cli::diff(args);
     throw xi::Error("unknown command '" + command + "'", "xi help lists the commands");
-  } catch (const xi::Error& e) {
-    std::fprintf(stderr, "xi: error: %s\n", e.what());
-  } catch (const cl::Error& e) {
-    std::fprintf(stderr, "xi: error: OpenCL call %s failed with code %d\n", e.what(), e.err());
+  } catch (const xi::cli::Team::QuietExit&) {
+    // a rank of an MPI job whose setup error rank 0 reports
   } catch (const std::exception& e) {
-    std::fprintf(stderr, "xi: error: %s\n", e.what());
+    std::fprintf(stderr, "xi: error: %s\n", xi::cli::describe_error(e).c_str());
   }
   return 1;
 }

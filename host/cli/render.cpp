@@ -7,7 +7,9 @@
 #include <csignal>
 #include <cstdio>
 #include <map>
+#include <memory>
 #include <optional>
+#include <thread>
 
 #include "cli.h"
 #include "xi/asset.h"
@@ -17,6 +19,7 @@
 #include "xi/metrics.h"
 #include "xi/profile.h"
 #include "xi/render.h"
+#include "team.h"
 
 namespace xi::cli {
 namespace {
@@ -89,28 +92,76 @@ void install_stop_handlers(const std::vector<std::filesystem::path>& outputs) {
   sigaction(SIGTERM, &sa, nullptr);
 }
 
-}  // namespace
+// Everything `xi render` sets up before the first pass. Rank 0 of a team also holds what only it
+// uses: the reference, the output paths it writes, the checkpoint it resumes from.
+struct Job {
+  std::filesystem::path scene_path;
+  bool asset = false;
+  Scene scene;
+  RenderOptions opt;
+  std::filesystem::path out, png, convergence, trace;
+  std::optional<Image> reference;
+  double time_budget = INFINITY;
+  int snapshot_every = 0;
+  std::filesystem::path resume, checkpoint;
+  double checkpoint_every = 60.0;
+  bool quiet = false, progress = false, profile = false, resolution_given = false;
+  std::optional<Device> device;
+  std::optional<Renderer> renderer;
+  CheckpointKey key;
+  RenderState resumed;  // rank 0: the whole frame's state read from --resume
+};
 
-int render(const std::vector<std::string>& argv) {
+// Each rank's device: --device (or $XI_DEVICE) as given; a comma-separated list gives local rank i
+// its item i mod the list's length. Without either, ranks of a team spread over this host's GPUs,
+// else share its CPU device.
+std::string device_selector(const Args& args, const Team& team) {
+  std::string selector = args.get("--device");
+  if (const char* env = std::getenv("XI_DEVICE"); selector.empty() && env) selector = env;
+  if (selector.find(',') != std::string::npos) {
+    std::vector<std::string> items;
+    for (size_t at = 0; at <= selector.size();) {
+      size_t comma = std::min(selector.find(',', at), selector.size());
+      items.push_back(selector.substr(at, comma - at));
+      at = comma + 1;
+    }
+    return items[team.local_rank() % items.size()];
+  }
+  if (selector.empty() && team.size() > 1) {
+    std::vector<DeviceInfo> gpus;
+    for (const DeviceInfo& d : list_devices())
+      if (d.type == "GPU") gpus.push_back(d);
+    if (!gpus.empty()) return std::to_string(gpus[team.local_rank() % gpus.size()].index);
+  }
+  return selector;
+}
+
+void prepare(Job& job, const std::vector<std::string>& argv, const Team& team) {
   Args args(argv,
             {"-o", "--spp", "--seed", "--device", "--max-depth", "--resolution", "--sampler", "--strategy",
              "--local-size", "--reference", "--convergence", "--trace", "--paths-in-flight", "--samples-per-pass",
              "--time", "--snapshot-every", "--checkpoint", "--checkpoint-every", "--resume", "--camera"},
             {"--profile", "--quiet", "--all-features"});
   if (args.positional().size() > 1) throw Error("expected at most one scene file", args.positional()[1]);
-  std::filesystem::path scene_path = args.positional().empty() ? default_scene() : std::filesystem::path(args.positional()[0]);
+  job.scene_path = args.positional().empty() ? default_scene() : std::filesystem::path(args.positional()[0]);
 
   // Check everything the user typed before the slow work starts.
   // An asset file (.gltf, .glb, .obj, .ply...) is a whole scene: its cameras, lights and materials.
-  const bool asset = is_asset_file(scene_path);
-  if (args.has("--camera") && !asset)
+  job.asset = is_asset_file(job.scene_path);
+  if (args.has("--camera") && !job.asset)
     throw Error("--camera chooses among an asset file's cameras (.gltf, .glb...); a JSON scene has one camera",
                 "--camera " + args.get("--camera"));
   AssetOptions asset_options;
   asset_options.camera = args.get("--camera");
-  Scene scene = asset ? load_asset(scene_path, asset_options) : load_scene(scene_path);
-  if (args.has("--resolution")) parse_resolution(args.get("--resolution"), &scene);
-  RenderOptions opt;
+  Scene& scene = job.scene;
+  scene = job.asset ? load_asset(job.scene_path, asset_options) : load_scene(job.scene_path);
+  job.resolution_given = args.has("--resolution");
+  if (job.resolution_given) parse_resolution(args.get("--resolution"), &scene);
+  if (team.size() > scene.height)
+    throw Error(std::to_string(team.size()) + " processes but the frame has " + std::to_string(scene.height) +
+                    " rows, and each process renders whole rows",
+                "mpirun -np; use at most " + std::to_string(scene.height));
+  RenderOptions& opt = job.opt;
   opt.spp = args.get_int("--spp", scene.render.spp, 1, 1 << 20);
   opt.max_depth = args.get_int("--max-depth", scene.render.max_depth, 1, 64);
   opt.seed = (uint32_t)args.get_int("--seed", (int)scene.render.seed, 0, INT32_MAX);
@@ -121,90 +172,120 @@ int render(const std::vector<std::string>& argv) {
   opt.paths_in_flight = (size_t)args.get_int("--paths-in-flight", 0, 0, 1 << 30);
   // A convergence log has one row per pass: one spp per pass unless asked otherwise.
   opt.samples_per_pass = args.get_int("--samples-per-pass", args.has("--convergence") ? 1 : 0, 0, 1 << 20);
-  opt.profile = args.has("--profile") || args.has("--trace");
-  std::filesystem::path out = args.get("-o", scene_path.stem().string() + ".exr");
-  if (out.extension() != ".exr") throw Error("the output must be an .exr file", "-o " + out.string());
-  auto out_dir = out.has_parent_path() ? out.parent_path() : std::filesystem::path(".");
-  if (!std::filesystem::is_directory(out_dir)) throw Error("output folder does not exist", out_dir.string());
-  // Error tracking against a reference, after every pass.
-  std::optional<Image> reference;
-  if (args.has("--reference")) {
-    reference = read_exr(args.get("--reference"));
-    if (reference->width != scene.width || reference->height != scene.height)
-      throw Error("reference is " + std::to_string(reference->width) + "x" + std::to_string(reference->height) +
-                      " but the render is " + std::to_string(scene.width) + "x" + std::to_string(scene.height),
-                  "--reference " + args.get("--reference"));
-  }
-  if (args.has("--convergence") && !reference) throw Error("--convergence needs --reference", "--convergence");
+  job.profile = args.has("--profile");
+  opt.profile = job.profile || args.has("--trace");
+  opt.rows = team.rows();
+  job.out = args.get("-o", job.scene_path.stem().string() + ".exr");
+  if (job.out.extension() != ".exr") throw Error("the output must be an .exr file", "-o " + job.out.string());
+  job.png = job.out;
+  job.png.replace_extension(".png");
+  job.convergence = args.get("--convergence");
+  job.trace = args.get("--trace");
+  if (args.has("--convergence") && !args.has("--reference")) throw Error("--convergence needs --reference", "--convergence");
   // Long renders: a time budget, snapshots, checkpoints. Grid and stratified patterns are complete
   // only at their spp, so a render cut short by --time or a snapshot would not be a valid image.
-  const double time_budget = args.get_seconds("--time", INFINITY);
-  const int snapshot_every = args.get_int("--snapshot-every", 0, 1, 1 << 20);
+  job.time_budget = args.get_seconds("--time", INFINITY);
+  job.snapshot_every = args.get_int("--snapshot-every", 0, 1, 1 << 20);
   for (const char* flag : {"--time", "--snapshot-every"})
     if (args.has(flag) && !sampler_is_progressive(opt.sampler))
       throw Error(std::string("the ") + sampler_name(opt.sampler) + " sampler's pattern is only complete at " +
                       std::to_string(opt.spp) + " spp, so it cannot stop early or show a partial image",
                   std::string(flag) + "; use --sampler sobol or random");
-  const std::filesystem::path resume = args.get("--resume");
-  const std::filesystem::path checkpoint = args.get("--checkpoint", resume.string());
-  const double checkpoint_every = args.get_seconds("--checkpoint-every", 60.0);
-  if (args.has("--checkpoint-every") && checkpoint.empty())
+  job.resume = args.get("--resume");
+  job.checkpoint = args.get("--checkpoint", job.resume.string());
+  job.checkpoint_every = args.get_seconds("--checkpoint-every", 60.0);
+  if (args.has("--checkpoint-every") && job.checkpoint.empty())
     throw Error("--checkpoint-every needs --checkpoint FILE", "--checkpoint-every");
-  if (!resume.empty() && !std::filesystem::is_regular_file(resume))
-    throw Error("no such checkpoint", "--resume " + resume.string());
-  if (!checkpoint.empty()) {
-    auto dir = checkpoint.has_parent_path() ? checkpoint.parent_path() : std::filesystem::path(".");
-    if (!std::filesystem::is_directory(dir))
-      throw Error("checkpoint folder does not exist", "--checkpoint " + dir.string());
+  // Rank 0 alone reads the reference and the checkpoint and writes every file, so only its folders
+  // must exist.
+  if (team.leader()) {
+    auto out_dir = job.out.has_parent_path() ? job.out.parent_path() : std::filesystem::path(".");
+    if (!std::filesystem::is_directory(out_dir)) throw Error("output folder does not exist", out_dir.string());
+    if (args.has("--reference")) {
+      job.reference = read_exr(args.get("--reference"));
+      if (job.reference->width != scene.width || job.reference->height != scene.height)
+        throw Error("reference is " + std::to_string(job.reference->width) + "x" +
+                        std::to_string(job.reference->height) + " but the render is " + std::to_string(scene.width) +
+                        "x" + std::to_string(scene.height),
+                    "--reference " + args.get("--reference"));
+    }
+    if (!job.resume.empty() && !std::filesystem::is_regular_file(job.resume))
+      throw Error("no such checkpoint", "--resume " + job.resume.string());
+    if (!job.checkpoint.empty()) {
+      auto dir = job.checkpoint.has_parent_path() ? job.checkpoint.parent_path() : std::filesystem::path(".");
+      if (!std::filesystem::is_directory(dir))
+        throw Error("checkpoint folder does not exist", "--checkpoint " + dir.string());
+    }
   }
-  const bool quiet = args.has("--quiet");
-  const bool progress = !quiet && isatty(STDERR_FILENO);
+  job.quiet = args.has("--quiet") || !team.leader();
+  job.progress = !job.quiet && isatty(STDERR_FILENO);
 
-  auto png = out;
-  png.replace_extension(".png");
-  std::vector<std::filesystem::path> outputs = {out, png};
-  for (const char* f : {"--convergence", "--trace"})
-    if (args.has(f)) outputs.push_back(args.get(f));
-  if (!checkpoint.empty()) outputs.push_back(checkpoint);
+  std::vector<std::filesystem::path> outputs;
+  if (team.leader()) {
+    outputs = {job.out, job.png};
+    for (const auto& f : {job.convergence, job.trace, job.checkpoint})
+      if (!f.empty()) outputs.push_back(f);
+  }
   install_stop_handlers(outputs);
 
-  // What the scene could not model, once per kind, after every check that could still fail.
-  for (const std::string& w : scene.warnings) std::fprintf(stderr, "xi: warning: %s\n", w.c_str());
-  Device device = Device::open(args.get("--device"));
-  Renderer renderer(device, scene, opt);
+  job.device.emplace(Device::open(device_selector(args, team)));
+  job.renderer.emplace(*job.device, scene, opt);
+  if (!job.checkpoint.empty()) job.key = checkpoint_key(*job.renderer, job.scene_path, job.device->info().name);
+  if (!job.resume.empty() && team.leader()) job.resumed = read_checkpoint(job.resume, job.key);
+}
+
+// Says what was set up (rank 0; a team's ranks each name their device).
+void print_setup(const Job& job, const Team& team, const std::vector<std::string>& rank_devices) {
+  const Renderer& renderer = *job.renderer;
   const CompiledScene& cs = renderer.compiled();
-  const CheckpointKey key =
-      checkpoint.empty() ? CheckpointKey{} : checkpoint_key(renderer, scene_path, device.info().name);
-  double seconds = 0.0;  // render time, this run's and any resumed run's
-  if (!resume.empty()) {
-    RenderState state = read_checkpoint(resume, key);
-    renderer.restore(state);
-    seconds = state.seconds;
+  const DeviceInfo& d = job.device->info();
+  std::printf("device: %s (%s, %d compute units)\n", d.name.c_str(), d.platform.c_str(), d.compute_units);
+  if (team.size() > 1) {
+    std::printf("processes: %d, each rendering every %d%s row of the frame\n", team.size(), team.size(),
+                team.size() == 2 ? "nd" : team.size() == 3 ? "rd" : "th");
+    for (int r = 0; r < team.size(); ++r) std::printf("  rank %d: %s\n", r, rank_devices[r].c_str());
+  }
+  std::printf("scene: %s, %zu triangles, %zu lights, features: %s\n", job.scene_path.string().c_str(),
+              job.scene.triangles.size(), cs.features.emitters ? cs.light_tri.size() : 0,
+              (job.opt.all_features ? Features::everything() : cs.features).describe().c_str());
+  for (const std::string& note : job.scene.notes) std::printf("%s\n", note.c_str());
+  if (job.asset)
+    std::printf("film: %dx%d (%s)\n", job.scene.width, job.scene.height,
+                job.resolution_given ? "--resolution" : "height 512, width from the camera's aspect ratio");
+  std::printf("bvh: %zu 4-wide nodes, %zu leaves, depth %d, stack %zu, built in %.2f ms\n", cs.bvh.stats.nodes,
+              cs.bvh.stats.leaves, cs.bvh.stats.depth, cs.bvh.stats.stack, cs.bvh.stats.build_seconds * 1e3);
+  std::printf("kernels: %s in %.3f s\n", renderer.program().from_cache ? "loaded from cache" : "compiled",
+              renderer.program().build_seconds);
+  std::printf("paths in flight: %zu, %d spp per pass%s\n", renderer.paths_in_flight(), renderer.samples_per_pass(),
+              team.size() > 1 ? " (rank 0)" : "");
+  if (!job.resume.empty())
+    std::printf("resumed from %s at %d spp\n", job.resume.string().c_str(), renderer.spp_done());
+  std::fflush(stdout);
+}
+
+int run(Job& job, Team& team) {
+  Renderer& renderer = *job.renderer;
+  const RenderOptions& opt = job.opt;
+  const Scene& scene = job.scene;
+  // The ranks agree on the spp of a pass (shares of different sizes fit different numbers), so they
+  // finish each pass together.
+  renderer.limit_samples_per_pass(team.min(renderer.samples_per_pass()));
+  double seconds = 0.0;  // render time, this run's and any resumed run's (rank 0's clock)
+  if (!job.resume.empty()) {
+    RenderState share = team.scatter(job.resumed, scene.width, scene.height);
+    renderer.restore(share);
+    seconds = share.seconds;
   }
   const double resumed_seconds = seconds;
-  if (!quiet) {
-    std::printf("device: %s (%s, %d compute units)\n", device.info().name.c_str(), device.info().platform.c_str(),
-                device.info().compute_units);
-    std::printf("scene: %s, %zu triangles, %zu lights, features: %s\n", scene_path.string().c_str(),
-                scene.triangles.size(), cs.features.emitters ? cs.light_tri.size() : 0,
-                (opt.all_features ? Features::everything() : cs.features).describe().c_str());
-    for (const std::string& note : scene.notes) std::printf("%s\n", note.c_str());
-    if (asset)
-      std::printf("film: %dx%d (%s)\n", scene.width, scene.height,
-                  args.has("--resolution") ? "--resolution" : "height 512, width from the camera's aspect ratio");
-    std::printf("bvh: %zu 4-wide nodes, %zu leaves, depth %d, stack %zu, built in %.2f ms\n", cs.bvh.stats.nodes,
-                cs.bvh.stats.leaves, cs.bvh.stats.depth, cs.bvh.stats.stack, cs.bvh.stats.build_seconds * 1e3);
-    std::printf("kernels: %s in %.3f s\n", renderer.program().from_cache ? "loaded from cache" : "compiled",
-                renderer.program().build_seconds);
-    std::printf("paths in flight: %zu, %d spp per pass\n", renderer.paths_in_flight(), renderer.samples_per_pass());
-    if (!resume.empty())
-      std::printf("resumed from %s at %d spp\n", resume.string().c_str(), renderer.spp_done());
-    std::fflush(stdout);
-  }
+  std::vector<std::string> rank_devices = team.gather_strings(job.device->info().name + " on " + team.host());
+  if (!job.quiet) print_setup(job, team, rank_devices);
+  // What the scene could not model, once per kind.
+  if (team.leader())
+    for (const std::string& w : scene.warnings) std::fprintf(stderr, "xi: warning: %s\n", w.c_str());
 
   // The convergence log: one row per pass; the time spent measuring the error is not counted.
   std::string csv;
-  if (reference) {
+  if (job.reference) {
     csv = "pass,spp,seconds";
     for (Metric m : all_metrics()) csv += std::string(",") + metric_name(m);
     csv += "\n";
@@ -212,100 +293,170 @@ int render(const std::vector<std::string>& argv) {
   std::map<std::string, double> last_error;
 
   const double pixels = (double)scene.width * scene.height;
+  // The whole frame's state, put together on rank 0 from every rank's rows (timed: the reduction).
+  double gather_seconds = 0.0;
+  auto frame_state = [&] {
+    auto t0 = std::chrono::steady_clock::now();
+    RenderState st = team.gather(renderer.state(), scene.width, scene.height);
+    gather_seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+    st.seconds = seconds;
+    return st;
+  };
   // The image so far, written atomically: spp is what it holds (sppTarget: what was asked for).
   auto write_image = [&](int spp) {
-    Renderer::Film film = renderer.film();
+    const RenderState st = frame_state();
+    if (!team.leader()) return;
+    const Film film = resolve_film(st, scene.width, scene.height);
     ExrAttributes attrs{{"spp", spp},
                         {"renderSeconds", seconds},
                         {"seed", (int)opt.seed},
-                        {"scene", std::filesystem::absolute(scene_path).string()},
-                        {"device", device.info().name},
+                        {"scene", std::filesystem::absolute(job.scene_path).string()},
+                        {"device", job.device->info().name},
                         {"sampler", std::string(sampler_name(opt.sampler))},
                         {"strategy", std::string(strategy_name(opt.strategy))},
                         {"maxDepth", opt.max_depth}};
+    if (team.size() > 1) attrs["processes"] = team.size();
     if (spp < opt.spp) attrs["sppTarget"] = opt.spp;
     for (auto& [name, value] : last_error) attrs["error." + name] = value;
-    write_exr(out, {{"", &film.mean}, {"variance", &film.variance}, {"albedo", &film.albedo}, {"normal", &film.normal}},
+    write_exr(job.out, {{"", &film.mean}, {"variance", &film.variance}, {"albedo", &film.albedo}, {"normal", &film.normal}},
               attrs);
-    write_png(png, film.mean);
+    write_png(job.png, film.mean);
   };
   auto save_checkpoint = [&] {
-    RenderState state = renderer.state();
-    state.seconds = seconds;
-    write_checkpoint(checkpoint, key, state);
+    const RenderState st = frame_state();
+    if (team.leader()) write_checkpoint(job.checkpoint, job.key, st);
   };
   auto last_checkpoint = std::chrono::steady_clock::now();
-  while (!renderer.done() && !g_signal && seconds - resumed_seconds < time_budget) {
-    auto t0 = std::chrono::steady_clock::now();
-    renderer.run_pass();
-    seconds += std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-    if (reference && (args.has("--convergence") || renderer.done())) {
-      Image now = renderer.mean();
-      char row[64];
-      std::snprintf(row, sizeof row, "%d,%d,%.6f", renderer.passes_done() - 1, renderer.spp_done(), seconds);
-      csv += row;
-      for (Metric m : all_metrics()) {
-        double e = image_metric(now, *reference, m);
-        last_error[metric_name(m)] = e;
-        std::snprintf(row, sizeof row, ",%.9g", e);
-        csv += row;
-      }
-      csv += "\n";
-    }
-    if (progress)
-      draw_progress(renderer.spp_done(), opt.spp, pixels * renderer.spp_done() / seconds * 1e-6, seconds);
-    if (renderer.done()) break;
-    if (snapshot_every && renderer.passes_done() % snapshot_every == 0) write_image(renderer.spp_done());
-    if (!checkpoint.empty() &&
-        std::chrono::duration<double>(std::chrono::steady_clock::now() - last_checkpoint).count() >= checkpoint_every) {
+  int stop_signal = 0;
+  for (;;) {
+    // Before each pass the ranks agree: a signal to any of them, or rank 0's clock, stops them all;
+    // rank 0's clock says when to checkpoint.
+    const bool time_up = seconds - resumed_seconds >= job.time_budget;
+    const bool checkpoint_due =
+        !job.checkpoint.empty() &&
+        std::chrono::duration<double>(std::chrono::steady_clock::now() - last_checkpoint).count() >= job.checkpoint_every;
+    const std::vector<int> agreed = team.max({(int)g_signal, team.leader() && time_up, team.leader() && checkpoint_due});
+    stop_signal = agreed[0];
+    if (renderer.done() || agreed[0] || agreed[1]) break;
+    if (agreed[2]) {
       save_checkpoint();
       last_checkpoint = std::chrono::steady_clock::now();
     }
+    auto t0 = std::chrono::steady_clock::now();
+    renderer.run_pass();
+    seconds += std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+    if (job.reference && (!job.convergence.empty() || renderer.done())) {
+      const Image now = team.gather(renderer.mean(), scene.height);
+      if (team.leader()) {
+        char row[64];
+        std::snprintf(row, sizeof row, "%d,%d,%.6f", renderer.passes_done() - 1, renderer.spp_done(), seconds);
+        csv += row;
+        for (Metric m : all_metrics()) {
+          double e = image_metric(now, *job.reference, m);
+          last_error[metric_name(m)] = e;
+          std::snprintf(row, sizeof row, ",%.9g", e);
+          csv += row;
+        }
+        csv += "\n";
+      }
+    }
+    if (job.progress)
+      draw_progress(renderer.spp_done(), opt.spp, pixels * renderer.spp_done() / seconds * 1e-6, seconds);
+    if (!renderer.done() && job.snapshot_every && renderer.passes_done() % job.snapshot_every == 0)
+      write_image(renderer.spp_done());
   }
-  if (progress) std::fputs("\n", stderr);
+  if (job.progress) std::fputs("\n", stderr);
   const bool stopped = !renderer.done();
-  const int exit_code = stopped && g_signal ? 128 + g_signal : 0;
-  if (stopped && !checkpoint.empty()) save_checkpoint();
-  if (stopped) {
-    const std::string why = g_signal ? (g_signal == SIGINT ? "SIGINT" : "SIGTERM") : "the time budget";
+  const int exit_code = stopped && stop_signal ? 128 + stop_signal : 0;
+  if (stopped && !job.checkpoint.empty()) save_checkpoint();
+  if (stopped && team.leader()) {
+    const std::string why =
+        stop_signal ? (stop_signal == SIGINT ? "SIGINT" : "SIGTERM") : "the time budget";
     const std::string at = std::to_string(renderer.spp_done()) + " of " + std::to_string(opt.spp) + " spp";
-    const std::string saved = checkpoint.empty() ? "" : "; state saved to " + checkpoint.string();
+    const std::string saved = job.checkpoint.empty() ? "" : "; state saved to " + job.checkpoint.string();
     if (renderer.spp_done() == 0 || !sampler_is_progressive(opt.sampler)) {
       const std::string reason = renderer.spp_done() == 0 ? "no sample was done"
                                                           : std::string("the ") + sampler_name(opt.sampler) +
                                                                 " pattern is incomplete";
       std::fprintf(stderr, "xi: stopped by %s at %s: %s, no image written%s\n", why.c_str(), at.c_str(),
                    reason.c_str(), saved.c_str());
-      return exit_code;
+    } else {
+      std::fprintf(stderr, "xi: stopped by %s after pass %d: %s%s\n", why.c_str(), renderer.passes_done(), at.c_str(),
+                   saved.c_str());
     }
-    std::fprintf(stderr, "xi: stopped by %s after pass %d: %s%s\n", why.c_str(), renderer.passes_done(), at.c_str(),
-                 saved.c_str());
   }
+  if (stopped && (renderer.spp_done() == 0 || !sampler_is_progressive(opt.sampler))) return exit_code;
   write_image(renderer.spp_done());
-  if (!stopped && !checkpoint.empty()) {  // the image holds the result now
+  const uint64_t rays = team.sum(renderer.extend_rays() + renderer.shadow_rays());
+  const uint64_t nonfinite = team.sum(renderer.nonfinite_samples());
+  if (!team.leader()) return exit_code;
+  if (!stopped && !job.checkpoint.empty()) {  // the image holds the result now
     std::error_code ec;
-    std::filesystem::remove(checkpoint, ec);
+    std::filesystem::remove(job.checkpoint, ec);
   }
-  if (args.has("--convergence")) {
-    write_atomically(args.get("--convergence"), [&](const std::filesystem::path& tmp) {
+  if (!job.convergence.empty()) {
+    write_atomically(job.convergence, [&](const std::filesystem::path& tmp) {
       std::FILE* f = std::fopen(tmp.c_str(), "w");
       if (!f || std::fputs(csv.c_str(), f) < 0 || std::fclose(f) != 0) throw Error("cannot write file", tmp.string());
     });
   }
-  if (args.has("--trace")) write_chrome_trace(args.get("--trace"), renderer.launches());
+  if (!job.trace.empty()) write_chrome_trace(job.trace, renderer.launches());
 
-  if (uint32_t bad = renderer.nonfinite_samples())
-    std::fprintf(stderr, "xi: warning: %u non-finite samples were dropped\n", bad);
-  if (!quiet) {
-    const double rays = (double)(renderer.extend_rays() + renderer.shadow_rays());
+  if (nonfinite) std::fprintf(stderr, "xi: warning: %llu non-finite samples were dropped\n", (unsigned long long)nonfinite);
+  if (!job.quiet) {
     const int spp = renderer.spp_done();
-    std::printf("%dx%d, %d spp, %.2f s, %.2f Msamples/s, %.2f Mrays/s\n", scene.width, scene.height, spp, seconds,
-                pixels * spp / seconds * 1e-6, rays / seconds * 1e-6);
-    std::printf("wrote %s and %s\n", out.string().c_str(), png.string().c_str());
-    if (reference) std::printf("error vs reference: rmse %.6g, relmse %.6g\n", last_error["rmse"], last_error["relmse"]);
-    if (args.has("--profile")) print_profile(stdout, renderer.launches(), seconds);
+    std::printf("%dx%d, %d spp, %.2f s, %.2f Msamples/s, %.2f Mrays/s%s\n", scene.width, scene.height, spp, seconds,
+                pixels * spp / seconds * 1e-6, (double)rays / seconds * 1e-6,
+                team.size() > 1 ? (", " + std::to_string(team.size()) + " processes").c_str() : "");
+    if (team.size() > 1)
+      std::printf("film state gathered from %d processes: %.1f MB in %.3f s\n", team.size(),
+                  4.0 * sizeof(glm::vec4) * pixels * 1e-6, gather_seconds);
+    std::printf("wrote %s and %s\n", job.out.string().c_str(), job.png.string().c_str());
+    if (job.reference)
+      std::printf("error vs reference: rmse %.6g, relmse %.6g\n", last_error["rmse"], last_error["relmse"]);
+    if (job.profile) {
+      if (team.size() > 1) std::printf("profile of rank 0:\n");
+      print_profile(stdout, renderer.launches(), seconds);
+    }
   }
   return exit_code;
+}
+
+// PoCL runs a CPU device on every core; ranks sharing a host split its cores instead (a variable
+// the user set wins). Read when OpenCL starts, so set before anything touches it.
+void share_cpu_cores(const Team& team) {
+  if (team.local_size() < 2 || std::getenv("POCL_MAX_PTHREAD_COUNT")) return;
+  const unsigned cores = std::max(1u, std::thread::hardware_concurrency());
+  setenv("POCL_MAX_PTHREAD_COUNT", std::to_string(std::max(1u, cores / team.local_size())).c_str(), 0);
+}
+
+}  // namespace
+
+int render(const std::vector<std::string>& argv) {
+  Team team;
+  share_cpu_cores(team);
+  // Setup can fail on any rank (a file, a device): the ranks agree on it, then render together.
+  auto job = std::make_unique<Job>();
+  std::string error;
+  try {
+    prepare(*job, argv, team);
+  } catch (const std::exception& e) {
+    error = describe_error(e);
+  }
+  team.agree_setup(error);
+  try {
+    const int code = run(*job, team);
+    // Rank 0 has written every file: only now may the others end, since mpirun ends the whole job
+    // when one rank exits with an error code. Rank 0's code is the job's.
+    team.barrier();
+    return team.leader() ? code : 0;
+  } catch (const std::exception& e) {
+    if (team.size() == 1) throw;
+    // The other ranks wait in the next collective: end the job.
+    std::fprintf(stderr, "xi: error: rank %d of %d (%s): %s\n", team.rank(), team.size(), team.host().c_str(),
+                 describe_error(e).c_str());
+    team.abort(1);
+  }
 }
 
 int devices(const std::vector<std::string>& argv) {

@@ -74,16 +74,30 @@ typedef struct {
 #define XI_PATH_ARGS XI_PATH_STATE(XI_ARG)
 #define XI_SHADOW_PARAMS XI_SHADOW_STATE(XI_PARAM)
 
-// Which (pixel, sample) items a wave holds: `pixels` consecutive pixels from first_pixel, each with
-// `samples` consecutive sample indices from first_sample. Item (path slot) k is pixel
-// first_pixel + k % pixels, sample first_sample + k / pixels, so neighbouring slots are
-// neighbouring pixels. A small frame puts several samples of each pixel in one wave.
+// Which (pixel, sample) items a wave holds: `pixels` consecutive pixels of the film from
+// first_pixel, each with `samples` consecutive sample indices from first_sample. Item (path slot) k
+// is film pixel first_pixel + k % pixels, sample first_sample + k / pixels, so neighbouring slots
+// are neighbouring pixels. A small frame puts several samples of each pixel in one wave.
+// The film holds rows first_row, first_row + row_stride, ... of a frame `width` pixels wide (all
+// rows: 0 and 1; one process of a distributed render: its share). Sample values depend on the frame
+// pixel only, so films of different rows put together make the frame's image bitwise.
 typedef struct {
   uint first_pixel;
   uint pixels;
   uint first_sample;
   uint samples;
+  uint width;
+  uint first_row;
+  uint row_stride;
+  uint pad;
 } WaveParams;
+
+// The frame pixel (y * width + x) of a wave's path slot.
+static inline uint xi_frame_pixel(WaveParams wave, uint slot) {
+  uint film_pixel = wave.first_pixel + slot % wave.pixels;
+  uint row = film_pixel / wave.width;
+  return (wave.first_row + row * wave.row_stride) * wave.width + film_pixel % wave.width;
+}
 
 // Counters in one small device buffer, zeroed per wave but for the non-finite count. Kernels read
 // their queue length from it, so the host launches over an upper bound without waiting for it.

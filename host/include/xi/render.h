@@ -11,6 +11,15 @@
 
 namespace xi {
 
+// A share of a frame's rows: first, first + stride, first + 2 stride, ... below its height. One
+// process of a distributed render takes rows {rank, ranks}; every pixel's samples are the same
+// whichever share holds it, so the shares' films put together equal the whole frame's bitwise.
+struct FilmRows {
+  int first = 0, stride = 1;
+  int count(int height) const { return first < height ? (height - first + stride - 1) / stride : 0; }
+  int frame_row(int k) const { return first + k * stride; }
+};
+
 struct RenderOptions {
   int spp = 64;
   int max_depth = 8;            // bounces; 1 gives direct light only
@@ -27,6 +36,7 @@ struct RenderOptions {
   // Samples per pixel one pass adds, at most; 0: as many as the paths in flight hold (a small frame
   // on a GPU needs several to fill it). 1 gives one pass per spp (a convergence log per spp).
   int samples_per_pass = 0;
+  FilmRows rows;                // the rows of the frame this renderer's film holds (default: all)
   bool profile = false;         // time every launch with OpenCL events (launches())
   int record_bounce = -1;       // if >= 0, keep the rays entering extend at this bounce (bench/)
 };
@@ -61,6 +71,19 @@ struct RenderState {
   std::vector<glm::vec4> sum, sum_sq, albedo, normal;  // the film buffers, one vec4 per pixel
 };
 
+// The rows `rows` of a whole frame's state (film buffers of width × height pixels), and back: the
+// share's rows copied into their places. Counters and spp are the frame's; merging adds none.
+RenderState select_rows(const RenderState& frame, FilmRows rows, int width, int height);
+void insert_rows(RenderState* frame, const RenderState& share, FilmRows rows, int width, int height);
+
+// The film resolved to images: per pixel, the mean radiance, the variance of that mean (sample
+// variance / sample count), and the mean first-hit albedo and normal.
+struct Film {
+  Image mean, variance, albedo, normal;
+};
+// The film buffers of a state (width × height pixels) resolved to images.
+Film resolve_film(const RenderState& state, int width, int height);
+
 class Renderer {
  public:
   Renderer(Device& device, const Scene& scene, const RenderOptions& options);
@@ -75,13 +98,13 @@ class Renderer {
   int samples_per_pass() const { return samples_per_pass_; }
   size_t paths_in_flight() const { return paths_; }
 
-  // The film resolved to images: per pixel, the mean radiance, the variance of that mean (sample
-  // variance / sample count), and the mean first-hit albedo and normal.
-  struct Film {
-    Image mean, variance, albedo, normal;
-  };
+  // The film (options().rows of the frame) resolved to images.
   Film film() const;
   Image mean() const;  // the first of the above, for cheap per-pass error tracking
+  int film_width() const { return (int)scene_.camera.width; }
+  int film_height() const { return options_.rows.count((int)scene_.camera.height); }
+  // Lowers the spp of each pass (the processes of a distributed render agree on one); n >= 1.
+  void limit_samples_per_pass(int n);
   uint32_t nonfinite_samples() const;
   // Between passes: the accumulated state (seconds left 0), and the way back to it.
   RenderState state() const;
@@ -108,6 +131,7 @@ class Renderer {
   void shadow(int bounce, size_t global);
   void accumulate(const WaveParams& wave);
   void run_wave(const WaveParams& wave);
+  WaveParams wave(size_t first_pixel, size_t pixels, int first_sample, uint32_t samples) const;
   void warm_up();
   void record(const cl::Buffer& queue, int bounce);
   void launch(cl::Kernel& kernel, const char* stage, int bounce, size_t global);

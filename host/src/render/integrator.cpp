@@ -123,7 +123,10 @@ Renderer::Renderer(Device& device, const Scene& scene, const RenderOptions& opti
   accumulate_ = cl::Kernel(program_.program, "accumulate");
 
   // Paths in flight: a wave holds several samples of every pixel when the budget allows it.
-  pixels_ = (size_t)scene.width * scene.height;
+  if (options.rows.first < 0 || options.rows.stride < 1 || options.rows.count(scene.height) < 1)
+    throw Error("the film's rows start at " + std::to_string(options.rows.first) + " every " +
+                std::to_string(options.rows.stride) + ": no row of a frame " + std::to_string(scene.height) + " high");
+  pixels_ = (size_t)scene.width * options.rows.count(scene.height);
   const size_t budget = options.paths_in_flight ? options.paths_in_flight : default_paths_in_flight(device);
   const int fits = (int)std::clamp<size_t>(budget / pixels_, 1, (size_t)options.spp);
   samples_per_pass_ = options.samples_per_pass > 0 ? std::min(options.samples_per_pass, fits) : fits;
@@ -302,13 +305,22 @@ void Renderer::run_wave(const WaveParams& wave) {
   q.enqueueReadBuffer(counters_, CL_FALSE, 0, sizeof(uint32_t) * counter_count_, wave_counters_.back().data());
 }
 
+void Renderer::limit_samples_per_pass(int n) {
+  if (n < 1) throw Error("samples per pass must be at least 1");
+  samples_per_pass_ = std::min(samples_per_pass_, n);  // the path state holds fewer at once
+}
+
+WaveParams Renderer::wave(size_t first_pixel, size_t pixels, int first_sample, uint32_t samples) const {
+  return WaveParams{(uint32_t)first_pixel, (uint32_t)pixels, (uint32_t)first_sample, samples, scene_.camera.width,
+                    (uint32_t)options_.rows.first, (uint32_t)options_.rows.stride, 0u};
+}
+
 void Renderer::run_pass() {
   if (done()) return;
   const uint32_t samples = (uint32_t)std::min(samples_per_pass_, options_.spp - spp_done_);
   const size_t pixels_per_wave = paths_ / samples;  // all pixels when samples > 1
   for (size_t first = 0; first < pixels_; first += pixels_per_wave)
-    run_wave(WaveParams{(uint32_t)first, (uint32_t)std::min(pixels_per_wave, pixels_ - first), (uint32_t)spp_done_,
-                        samples});
+    run_wave(wave(first, std::min(pixels_per_wave, pixels_ - first), spp_done_, samples));
   finish_pass();
   spp_done_ += (int)samples;
   passes_++;
@@ -386,12 +398,12 @@ double Renderer::trace_closest(const RayBatch& rays, std::vector<glm::vec4>* hit
 // Launches every stage once with no work, over the whole path state, so a driver that compiles per
 // launch configuration (PoCL) does it now, counted in the kernel build, not in the first pass.
 void Renderer::warm_up() {
-  const WaveParams empty{0, 1, 0, 0};  // no items; one pixel so that nothing divides by zero
+  const WaveParams empty = wave(0, 1, 0, 0);  // no items; one pixel so that nothing divides by zero
   generate(empty);
   extend(queue_a_, 0, paths_);
   shade(queue_a_, queue_b_, empty, 0, paths_);
   shadow(0, paths_);
-  accumulate(WaveParams{0, 0, 0, 0});
+  accumulate(wave(0, 0, 0, 0));
   device_.queue().finish();
   launches_.clear();
   launch_events_.clear();
@@ -405,27 +417,74 @@ std::vector<glm::vec4> Renderer::read(const cl::Buffer& film) const {
 
 Image Renderer::mean() const {
   auto sum = read(film_sum_);
-  Image img((int)scene_.camera.width, (int)scene_.camera.height);
+  Image img(film_width(), film_height());
   for (size_t i = 0; i < pixels_; ++i)
     if (sum[i].w > 0.0f) img.pixels[i] = glm::vec3(sum[i]) / sum[i].w;  // w: the sample count
   return img;
 }
 
-Renderer::Film Renderer::film() const {
-  auto sum = read(film_sum_), sq = read(film_sum_sq_), albedo = read(film_albedo_), normal = read(film_normal_);
-  const int w = (int)scene_.camera.width, h = (int)scene_.camera.height;
+Film Renderer::film() const { return resolve_film(state(), film_width(), film_height()); }
+
+namespace {
+// The film buffers of a state, one vec4 per pixel each.
+constexpr std::vector<glm::vec4> RenderState::*kFilmBuffers[] = {&RenderState::sum, &RenderState::sum_sq,
+                                                                  &RenderState::albedo, &RenderState::normal};
+
+void check_pixels(const RenderState& st, size_t pixels, const char* what) {
+  for (auto buffer : kFilmBuffers)
+    if ((st.*buffer).size() != pixels)
+      throw Error(std::string(what) + " holds " + std::to_string((st.*buffer).size()) + " pixels, not " +
+                  std::to_string(pixels));
+}
+}  // namespace
+
+Film resolve_film(const RenderState& st, int w, int h) {
+  const size_t pixels = (size_t)w * h;
+  check_pixels(st, pixels, "the render state");
   Film f{Image(w, h), Image(w, h), Image(w, h), Image(w, h)};
-  for (size_t i = 0; i < pixels_; ++i) {
-    float n = sum[i].w;
+  for (size_t i = 0; i < pixels; ++i) {
+    float n = st.sum[i].w;
     if (n <= 0.0f) continue;
-    glm::vec3 m = glm::vec3(sum[i]) / n;
+    glm::vec3 m = glm::vec3(st.sum[i]) / n;
     f.mean.pixels[i] = m;
-    f.albedo.pixels[i] = glm::vec3(albedo[i]) / n;
-    glm::vec3 nn = glm::vec3(normal[i]);
+    f.albedo.pixels[i] = glm::vec3(st.albedo[i]) / n;
+    glm::vec3 nn = glm::vec3(st.normal[i]);
     f.normal.pixels[i] = glm::length(nn) > 0.0f ? glm::normalize(nn) : nn;
-    if (n >= 2.0f) f.variance.pixels[i] = glm::max((glm::vec3(sq[i]) - n * m * m) / (n - 1.0f), glm::vec3(0.0f)) / n;
+    if (n >= 2.0f)
+      f.variance.pixels[i] = glm::max((glm::vec3(st.sum_sq[i]) - n * m * m) / (n - 1.0f), glm::vec3(0.0f)) / n;
   }
   return f;
+}
+
+
+RenderState select_rows(const RenderState& frame, FilmRows rows, int width, int height) {
+  check_pixels(frame, (size_t)width * height, "the frame's render state");
+  RenderState share;
+  share.spp_done = frame.spp_done;
+  share.passes = frame.passes;
+  share.seconds = frame.seconds;
+  share.extend_rays = frame.extend_rays;
+  share.shadow_rays = frame.shadow_rays;
+  share.nonfinite = frame.nonfinite;
+  const int n = rows.count(height);
+  for (auto buffer : kFilmBuffers) {
+    const std::vector<glm::vec4>& from = frame.*buffer;
+    std::vector<glm::vec4>& to = share.*buffer;
+    to.resize((size_t)width * n);
+    for (int k = 0; k < n; ++k)
+      std::copy_n(from.begin() + (size_t)rows.frame_row(k) * width, width, to.begin() + (size_t)k * width);
+  }
+  return share;
+}
+
+void insert_rows(RenderState* frame, const RenderState& share, FilmRows rows, int width, int height) {
+  check_pixels(*frame, (size_t)width * height, "the frame's render state");
+  const int n = rows.count(height);
+  check_pixels(share, (size_t)width * n, "the share's render state");
+  for (auto buffer : kFilmBuffers)
+    for (int k = 0; k < n; ++k)
+      std::copy_n((share.*buffer).begin() + (size_t)k * width, width,
+                  ((*frame).*buffer).begin() + (size_t)rows.frame_row(k) * width);
 }
 
 RenderState Renderer::state() const {
@@ -443,9 +502,7 @@ RenderState Renderer::state() const {
 }
 
 void Renderer::restore(const RenderState& st) {
-  for (auto* v : {&st.sum, &st.sum_sq, &st.albedo, &st.normal})
-    if (v->size() != pixels_)
-      throw Error("render state holds " + std::to_string(v->size()) + " pixels, the film " + std::to_string(pixels_));
+  check_pixels(st, pixels_, "the render state");
   if (st.spp_done < 0 || st.spp_done > options_.spp)
     throw Error("render state has " + std::to_string(st.spp_done) + " spp, the render " + std::to_string(options_.spp));
   cl::CommandQueue& q = device_.queue();
