@@ -20,32 +20,8 @@ using namespace xi_test;
 
 namespace {
 
-class LongRender : public CliTest {
- protected:
-  // Every layer xi writes, bit for bit.
-  void expect_same_image(const std::string& a, const std::string& b) {
-    for (const char* layer : {"", "variance", "albedo", "normal"}) {
-      SCOPED_TRACE(std::string("layer '") + layer + "' of " + a + " and " + b);
-      const xi::Image x = xi::read_exr(work_ / a, layer), y = xi::read_exr(work_ / b, layer);
-      ASSERT_EQ(x.pixels.size(), y.pixels.size());
-      EXPECT_EQ(std::memcmp(x.pixels.data(), y.pixels.data(), x.pixels.size() * sizeof(glm::vec3)), 0);
-    }
-  }
-  int attr_int(const std::string& exr, const std::string& name) {
-    return std::get<int>(xi::read_exr_attributes(work_ / exr).at(name));
-  }
-  bool has_temp_files() const {
-    for (auto& f : files())
-      if (f.find(".tmp") != std::string::npos) return true;
-    return false;
-  }
-  // Waits until the program's stdout holds `text` (it prints its setup before the first pass).
-  bool wait_for_output(const std::string& text) const {
-    for (int i = 0; i < 60000; ++i, usleep(1000))
-      if (read_text(capture_ / "stdout").find(text) != std::string::npos) return true;
-    return false;
-  }
-};
+// expect_same_image, attr_int, has_temp_files and wait_for_output are CliTest's (cli_test.h).
+class LongRender : public CliTest {};
 
 // 1 spp per pass on a tiny frame: many short passes, so a signal lands mid-render.
 const std::vector<std::string> kSmall = {"render", "--resolution", "16x16", "--samples-per-pass", "1", "--seed", "3",

@@ -101,6 +101,7 @@ struct Job {
   RenderOptions opt;
   std::filesystem::path out, png, convergence, trace;
   std::optional<Image> reference;
+  bool measured = false;  // --reference given: every rank's share of the mean is gathered to measure it
   double time_budget = INFINITY;
   int snapshot_every = 0;
   std::filesystem::path resume, checkpoint;
@@ -181,6 +182,7 @@ void prepare(Job& job, const std::vector<std::string>& argv, const Team& team) {
   job.png.replace_extension(".png");
   job.convergence = args.get("--convergence");
   job.trace = args.get("--trace");
+  job.measured = args.has("--reference");
   if (args.has("--convergence") && !args.has("--reference")) throw Error("--convergence needs --reference", "--convergence");
   // Long renders: a time budget, snapshots, checkpoints. Grid and stratified patterns are complete
   // only at their spp, so a render cut short by --time or a snapshot would not be a valid image.
@@ -345,7 +347,7 @@ int run(Job& job, Team& team) {
     auto t0 = std::chrono::steady_clock::now();
     renderer.run_pass();
     seconds += std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-    if (job.reference && (!job.convergence.empty() || renderer.done())) {
+    if (job.measured && (!job.convergence.empty() || renderer.done())) {  // collective: not job.reference, rank 0's
       const Image now = team.gather(renderer.mean(), scene.height);
       if (team.leader()) {
         char row[64];

@@ -111,15 +111,22 @@ void Team::agree_setup(const std::string& error) {
   }
   const std::vector<std::string> errors = gather_strings(error), hosts = gather_strings(host_);
   if (!max({error.empty() ? 0 : 1})[0]) return;
-  if (!leader()) throw QuietExit{};
-  const bool all_alike = std::all_of(errors.begin(), errors.end(), [&](const std::string& e) { return e == errors[0]; });
-  if (all_alike) throw Error(errors[0]);
-  std::string text;
-  for (int r = 0; r < size_; ++r)
-    if (!errors[r].empty())
-      text += (text.empty() ? "" : "\nxi: error: ") + std::string("rank ") + std::to_string(r) + " of " +
-              std::to_string(size_) + " (" + hosts[r] + "): " + errors[r];
-  throw Error(text);
+  if (leader()) {
+    const bool all_alike =
+        std::all_of(errors.begin(), errors.end(), [&](const std::string& e) { return e == errors[0]; });
+    std::string text;
+    for (int r = 0; r < size_; ++r)
+      if (!errors[r].empty() && !(all_alike && r > 0))
+        text += "xi: error: " + (all_alike ? "" : "rank " + std::to_string(r) + " of " + std::to_string(size_) + " (" +
+                                                     hosts[r] + "): ") +
+                errors[r] + "\n";
+    std::fputs(text.c_str(), stderr);
+    std::fflush(stderr);
+  }
+  // Rank 0 prints here, not in main: every rank exits with code 1, and mpirun ends the whole job when
+  // the first does, maybe before rank 0 had printed. So no rank ends before the error is out.
+  barrier();
+  throw QuietExit{};
 }
 
 void Team::barrier() {

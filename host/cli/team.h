@@ -32,8 +32,8 @@ class Team {
   FilmRows rows() const { return FilmRows{rank_, size_}; }
 
   // Setup is checked by all together: each rank gives its error ("" if none); if any rank failed,
-  // every rank throws, rank 0 with an xi::Error naming each failing rank (one line if all failed
-  // alike), the others with QuietExit so that the error is printed once.
+  // rank 0 prints the error, naming each failing rank (one line if all failed alike), and every rank
+  // throws QuietExit once it is printed. A team of one throws the xi::Error itself.
   void agree_setup(const std::string& error);
   struct QuietExit {};
 

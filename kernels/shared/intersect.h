@@ -108,7 +108,11 @@ static inline void xi_block_vertex(__global const TriBlock* b, int j, RayShear s
   *z = pz - s.o.z;
 }
 
-static inline BlockEdges xi_intersect_block(RayShear s, __global const TriBlock* b) {
+// The lanes of a block that the ray hits in (t error, tmax), as bits; *e gets the lanes' edge
+// functions, t·det and (when some lane hits) t's error bound, for xi_edge_hit to finish a lane
+// as xi_intersect_triangle would. The bound is computed only once a lane has passed the cheaper
+// tests: most blocks a ray visits it misses. (det = 0 gives t = ±inf or NaN, which fails them.)
+static inline uint xi_intersect_block(RayShear s, __global const TriBlock* b, float tmax, BlockEdges* e) {
   float4 ax, ay, az, bx, by, bz, cx, cy, cz;
   xi_block_vertex(b, 0, s, &ax, &ay, &az);
   xi_block_vertex(b, 1, s, &bx, &by, &bz);
@@ -116,16 +120,22 @@ static inline BlockEdges xi_intersect_block(RayShear s, __global const TriBlock*
   ax = ax - s.sx * az, ay = ay - s.sy * az;
   bx = bx - s.sx * bz, by = by - s.sy * bz;
   cx = cx - s.sx * cz, cy = cy - s.sy * cz;
-  BlockEdges e;
-  e.e0 = bx * cy - by * cx;
-  e.e1 = cx * ay - cy * ax;
-  e.e2 = ax * by - ay * bx;
-  e.t_det = e.e0 * s.sz * az + e.e1 * s.sz * bz + e.e2 * s.sz * cz;
+  e->e0 = bx * cy - by * cx;
+  e->e1 = cx * ay - cy * ax;
+  e->e2 = ax * by - ay * bx;
+  e->t_det = e->e0 * s.sz * az + e->e1 * s.sz * bz + e->e2 * s.sz * cz;
+  const float4 zero = make_float4(0.0f, 0.0f, 0.0f, 0.0f);
+  int4 mixed = (xi_less4(e->e0, zero) | xi_less4(e->e1, zero) | xi_less4(e->e2, zero)) &
+               (xi_greater4(e->e0, zero) | xi_greater4(e->e1, zero) | xi_greater4(e->e2, zero));
+  float4 det = e->e0 + e->e1 + e->e2;
+  float4 t = e->t_det / det;
+  int4 candidate = xi_greater4(t, zero) & xi_less4(t, make_float4(tmax, tmax, tmax, tmax)) & ~mixed;
+  if (xi_lane_bits(candidate) == 0u) return 0u;
   float4 max_x = fmax(fmax(fabs(ax), fabs(bx)), fabs(cx)), max_y = fmax(fmax(fabs(ay), fabs(by)), fabs(cy));
   float4 max_z = fmax(fmax(fabs(s.sz * az), fabs(s.sz * bz)), fabs(s.sz * cz));
-  float4 max_e = fmax(fmax(fabs(e.e0), fabs(e.e1)), fabs(e.e2));
-  e.t_err_det = XI_T_ERROR_DET(max_x, max_y, max_z, max_e);
-  return e;
+  float4 max_e = fmax(fmax(fabs(e->e0), fabs(e->e1)), fabs(e->e2));
+  e->t_err_det = XI_T_ERROR_DET(max_x, max_y, max_z, max_e);
+  return xi_lane_bits(candidate & xi_greater4(t, e->t_err_det / fabs(det)));
 }
 
 static inline float3 xi_safe_inverse(float3 d) {
@@ -149,18 +159,6 @@ static inline float3 xi_safe_inverse(float3 d) {
     stack[j] = (n)->child[k];                                            \
     stack_tn[j] = (tn_k);                                                \
   }
-
-// The lanes of a block's test that hit in (t error, tmax), as bits: xi_edge_hit on four lanes at
-// once. (det = 0 gives t = ±inf or NaN, which fails the range test.)
-static inline uint xi_block_hits(BlockEdges e, float tmax) {
-  const float4 zero = make_float4(0.0f, 0.0f, 0.0f, 0.0f);
-  int4 mixed = (xi_less4(e.e0, zero) | xi_less4(e.e1, zero) | xi_less4(e.e2, zero)) &
-               (xi_greater4(e.e0, zero) | xi_greater4(e.e1, zero) | xi_greater4(e.e2, zero));
-  float4 det = e.e0 + e.e1 + e.e2;
-  float4 t = e.t_det / det;
-  int4 in_range = xi_greater4(t, e.t_err_det / fabs(det)) & xi_less4(t, make_float4(tmax, tmax, tmax, tmax));
-  return xi_lane_bits(in_range & ~mixed);
-}
 
 // Takes lane `c` (x, y, z or w; index l) of a block's test, in lane order, as xi_intersect_triangle
 // would one triangle after the other: a closer hit becomes the best.
@@ -196,8 +194,8 @@ static inline uint xi_trace(__global const BvhNode* nodes, __global const TriBlo
       uint first = entry & XI_BVH_FIRST_MASK, end = first + 1u + ((entry >> 27) & 15u);
       for (uint k = first; k < end; ++k) {
         __global const TriBlock* blk = blocks + k;
-        BlockEdges e = xi_intersect_block(s, blk);
-        uint hits = xi_block_hits(e, best);
+        BlockEdges e;
+        uint hits = xi_intersect_block(s, blk, best, &e);
         if (hits == 0u) continue;
         float tt, uu, vv;
         XI_BLOCK_LANE(x, 0)
