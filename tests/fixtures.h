@@ -1,6 +1,9 @@
 // Fixtures shared by the test files: the device every library test renders on.
 #pragma once
 #include "xi/device.h"
+#include "xi/image.h"
+#include "xi/render.h"
+#include "xi/scene.h"
 
 namespace xi::test {
 
@@ -8,6 +11,20 @@ namespace xi::test {
 inline Device& device() {
   static Device d = Device::open("");
   return d;
+}
+
+// A render through the library on that device: the mean and the variance of each pixel's mean,
+// and how many samples were dropped as non-finite.
+struct Shot {
+  Image mean, variance;
+  uint32_t nonfinite = 0;
+};
+
+inline Shot render_shot(const Scene& scene, const RenderOptions& options) {
+  Renderer r(device(), scene, options);
+  r.render();
+  Film f = r.film();
+  return {std::move(f.mean), std::move(f.variance), r.nonfinite_samples()};
 }
 
 }  // namespace xi::test

@@ -22,6 +22,7 @@
 #include "xi/device.h"
 #include "xi/render.h"
 #include "xi/scene.h"
+#include "fixtures.h"
 
 namespace {
 
@@ -31,15 +32,9 @@ using namespace xi::stats;
 
 const fs::path kTestScenes = fs::path(XI_TEST_DATA_DIR) / "scenes";
 
-xi::Device& device() {
-  static xi::Device d = xi::Device::open("");
-  return d;
-}
+using xi::test::device;  // fixtures.h
 
-struct Render {
-  xi::Image mean, variance;  // variance: of each pixel's mean
-  uint32_t nonfinite = 0;
-};
+using Render = xi::test::Shot;
 
 Render render(const xi::Scene& scene, int spp, uint32_t seed, int sampler, xi::Strategy strategy, int max_depth) {
   xi::RenderOptions o;
@@ -48,10 +43,7 @@ Render render(const xi::Scene& scene, int spp, uint32_t seed, int sampler, xi::S
   o.sampler = sampler;
   o.strategy = strategy;
   o.max_depth = max_depth;
-  xi::Renderer r(device(), scene, o);
-  r.render();
-  xi::Film f = r.film();
-  return {std::move(f.mean), std::move(f.variance), r.nonfinite_samples()};
+  return xi::test::render_shot(scene, o);
 }
 
 // A rectangle of pixels [x0, x1) × [y0, y1).

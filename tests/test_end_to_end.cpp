@@ -31,6 +31,7 @@
 #include "xi/image.h"
 #include "xi/render.h"
 #include "xi/scene.h"
+#include "fixtures.h"
 
 namespace fs = std::filesystem;
 using json = nlohmann::json;
@@ -72,10 +73,7 @@ const Region kRegions[3] = {
     {"light", 27, 8, 37, 10},       // 10 × 2 = 20 pixels
 };
 
-xi::Device& device() {
-  static xi::Device d = xi::Device::open("");
-  return d;
-}
+using xi::test::device;  // fixtures.h
 
 struct Result {
   xi::Image mean;

@@ -26,15 +26,13 @@
 #include "xi/device.h"
 #include "xi/render.h"
 #include "xi/scene.h"
+#include "fixtures.h"
 
 namespace fs = std::filesystem;
 
 namespace {
 
-xi::Device& device() {
-  static xi::Device d = xi::Device::open("");
-  return d;
-}
+using xi::test::device;  // fixtures.h
 
 // p -> scale * p + shift, applied to everything that has a position or a length.
 struct Similarity {
@@ -54,15 +52,14 @@ xi::Scene transformed(xi::Scene s, const Similarity& t, bool inverse = false) {
   return s;
 }
 
-xi::Film render(const xi::Scene& scene, uint32_t seed, int spp) {
+xi::test::Shot render(const xi::Scene& scene, uint32_t seed, int spp) {
   xi::RenderOptions o;
   o.spp = spp;
   o.seed = seed;
   o.max_depth = scene.render.max_depth;
-  xi::Renderer r(device(), scene, o);
-  r.render();
-  EXPECT_EQ(r.nonfinite_samples(), 0u) << scene.source;
-  return r.film();
+  xi::test::Shot shot = xi::test::render_shot(scene, o);
+  EXPECT_EQ(shot.nonfinite, 0u) << scene.source;
+  return shot;
 }
 
 constexpr int kRes = 64, kBlock = 8, kSpp = 64;
@@ -102,8 +99,8 @@ TEST_P(HardCasesScene, RendersTheSameMovedFarAwayOrScaled) {
     for (const Similarity& t : kTransforms) {
       SCOPED_TRACE(path.filename().string() + ", " + t.name);
       const xi::Scene far = transformed(scene, t);
-      const xi::Film base = render(transformed(far, t, true), 1, kSpp);
-      const xi::Film moved = render(far, 2, kSpp);
+      const xi::test::Shot base = render(transformed(far, t, true), 1, kSpp);
+      const xi::test::Shot moved = render(far, 2, kSpp);
       int rejected = 0;
       double worst = 0.0;
       for (int by = 0; by < kRes; by += kBlock)
@@ -160,10 +157,7 @@ using glm::dvec2;
 using glm::dvec3;
 using glm::vec3;
 
-struct Shot {
-  xi::Image mean, variance;  // variance: of each pixel's mean
-  uint32_t nonfinite = 0;
-};
+using xi::test::Shot;
 
 Shot shoot(const xi::Scene& scene, int spp, uint32_t seed, int max_depth, xi::Strategy strategy = xi::Strategy::Mis) {
   xi::RenderOptions o;
@@ -172,10 +166,7 @@ Shot shoot(const xi::Scene& scene, int spp, uint32_t seed, int max_depth, xi::St
   o.max_depth = max_depth;
   o.sampler = XI_SAMPLER_RANDOM;
   o.strategy = strategy;
-  xi::Renderer r(device(), scene, o);
-  r.render();
-  xi::Film f = r.film();
-  return {std::move(f.mean), std::move(f.variance), r.nonfinite_samples()};
+  return xi::test::render_shot(scene, o);
 }
 
 uint32_t add_material(xi::Scene& s, const std::string& name, vec3 albedo, vec3 emission = vec3(0.0f),

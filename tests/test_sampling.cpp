@@ -18,6 +18,7 @@
 #include "warps.h"
 #include "xi/device.h"
 #include "xi/warp.h"
+#include "fixtures.h"
 
 namespace {
 
@@ -27,10 +28,7 @@ constexpr uint32_t kSeed = 0x5eedu;
 constexpr float kLast = 0x1.fffffep-1f;  // 1 − 2^-24, the largest ξ
 constexpr double kTwoPi = 2.0 * M_PI;
 
-xi::Device& device() {
-  static xi::Device d = xi::Device::open("");
-  return d;
-}
+using xi::test::device;  // fixtures.h
 
 const char* sampler_name(int s) {
   static const char* names[] = {"random", "grid", "stratified", "sobol"};

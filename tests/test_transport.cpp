@@ -24,6 +24,7 @@
 #include "xi/device.h"
 #include "xi/render.h"
 #include "xi/scene.h"
+#include "fixtures.h"
 
 namespace {
 
@@ -37,10 +38,7 @@ const fs::path kScenes = XI_SCENE_DIR;
 const fs::path kTestScenes = fs::path(XI_TEST_DATA_DIR) / "scenes";
 constexpr double kTwoPi = 2.0 * M_PI;
 
-xi::Device& device() {
-  static xi::Device d = xi::Device::open("");
-  return d;
-}
+using xi::test::device;  // fixtures.h
 
 // ---------------------------------------------------------------------------------------------
 // Tool kernels
