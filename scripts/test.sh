@@ -12,5 +12,5 @@ cd ..
 # tests that open no OpenCL device (CMakeLists.txt lists their suites; PoCL is not ASan-clean, so
 # device tests stay out) and the fuzz driver. A sanitizer report fails its test, and so this script.
 cmake -S . -B build-asan -DCMAKE_BUILD_TYPE=RelWithDebInfo -DXI_SANITIZE=ON >/dev/null
-cmake --build build-asan -j"$(nproc)"
+cmake --build build-asan -j"$(nproc)" --target xi_tests xi_fuzz
 ctest --test-dir build-asan --output-on-failure -j"$(nproc)" --timeout 900
