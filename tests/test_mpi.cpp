@@ -130,6 +130,17 @@ TEST_F(MpiRender, MoreProcessesThanRowsIsAnError) {
   EXPECT_EQ(r.err.find("rank "), std::string::npos) << r.err;
 }
 
+TEST_F(MpiRender, WhatRankZeroAloneChecksIsOnePlainLine) {
+  // Rank 0 alone reads the checkpoint and writes the files: its errors are the job's, unnamed.
+  for (const std::vector<std::string>& flags :
+       {std::vector<std::string>{"--resume", "missing.ckpt", "-o", "e.exr"}, {"-o", "no-such-folder/e.exr"}}) {
+    const Outcome r =
+        run_mpi(2, concat({"render", kCornell.string(), "--spp", "4", "--resolution", "8x8"}, flags));
+    expect_setup_error(r, {flags[0] == "--resume" ? "no such checkpoint" : "output folder does not exist"});
+    EXPECT_EQ(r.err.find("rank "), std::string::npos) << r.err;
+  }
+}
+
 TEST_F(MpiRender, AnUnusableDeviceOnOneRankIsNamed) {
   // A comma list gives local rank i item i: rank 0 gets device 0, rank 1 device 99.
   const Outcome r =

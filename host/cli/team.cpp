@@ -112,13 +112,18 @@ void Team::agree_setup(const std::string& error) {
   const std::vector<std::string> errors = gather_strings(error), hosts = gather_strings(host_);
   if (!max({error.empty() ? 0 : 1})[0]) return;
   if (leader()) {
+    // One plain line when every rank failed alike, or when rank 0 alone failed (what it alone checks:
+    // the output folder, the reference, the checkpoint); else a line per failing rank, named.
     const bool all_alike =
         std::all_of(errors.begin(), errors.end(), [&](const std::string& e) { return e == errors[0]; });
+    const bool only_rank_0 =
+        std::all_of(errors.begin() + 1, errors.end(), [](const std::string& e) { return e.empty(); });
+    const bool plain = all_alike || only_rank_0;
     std::string text;
     for (int r = 0; r < size_; ++r)
-      if (!errors[r].empty() && !(all_alike && r > 0))
-        text += "xi: error: " + (all_alike ? "" : "rank " + std::to_string(r) + " of " + std::to_string(size_) + " (" +
-                                                     hosts[r] + "): ") +
+      if (!errors[r].empty() && !(plain && r > 0))
+        text += "xi: error: " + (plain ? "" : "rank " + std::to_string(r) + " of " + std::to_string(size_) + " (" +
+                                                 hosts[r] + "): ") +
                 errors[r] + "\n";
     std::fputs(text.c_str(), stderr);
     std::fflush(stderr);
