@@ -13,10 +13,10 @@ inline Device& device() {
   return d;
 }
 
-// A render through the library on that device: the mean and the variance of each pixel's mean,
-// and how many samples were dropped as non-finite.
+// A render through the library on that device: the mean, the variance of each pixel's mean, the
+// mean first-hit albedo, and how many samples were dropped as non-finite.
 struct Shot {
-  Image mean, variance;
+  Image mean, variance, albedo;
   uint32_t nonfinite = 0;
 };
 
@@ -24,7 +24,7 @@ inline Shot render_shot(const Scene& scene, const RenderOptions& options) {
   Renderer r(device(), scene, options);
   r.render();
   Film f = r.film();
-  return {std::move(f.mean), std::move(f.variance), r.nonfinite_samples()};
+  return {std::move(f.mean), std::move(f.variance), std::move(f.albedo), r.nonfinite_samples()};
 }
 
 }  // namespace xi::test

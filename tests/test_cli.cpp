@@ -27,6 +27,7 @@
 #include "xi/image.h"
 #include "xi/render.h"
 #include "xi/scene.h"
+#include "fixtures.h"
 
 namespace fs = std::filesystem;
 using json = nlohmann::json;
@@ -116,7 +117,7 @@ TEST_F(CliRender, MatchesTheLibrary) {
   opt.seed = 17;
   opt.max_depth = scene.render.max_depth;
   opt.sampler = xi::parse_sampler(scene.render.sampler);
-  xi::Device device = xi::Device::open("");
+  xi::Device& device = xi::test::device();
   xi::Renderer renderer(device, scene, opt);
   renderer.render();
   const xi::Image lib = renderer.mean();
@@ -284,7 +285,7 @@ TEST_F(CliRender, PathsInFlightDoNotChangeTheImage) {
 // driver cannot start within 3 GB of address space, the line printed says which case did not apply.)
 TEST_F(CliBadInput, FrameTooLargeForMemory) {
   const auto before = files();
-  xi::Device device = xi::Device::open("");
+  xi::Device& device = xi::test::device();
   const double device_memory = (double)device.device().getInfo<CL_DEVICE_GLOBAL_MEM_SIZE>();
   if (device_memory < 17.22e9)
     expect_user_error(run_xi({"render", "--resolution", "16384x16384", "--spp", "1", "-o", "big.exr"}),

@@ -15,6 +15,7 @@
 #include "xi/image.h"
 #include "xi/render.h"
 #include "xi/scene.h"
+#include "fixtures.h"
 
 using namespace xi_test;
 
@@ -192,7 +193,7 @@ TEST_F(LongRender, RefusesAnotherRendersCheckpoint) {
 // The library side: a checkpoint round-trips the state exactly, and one from another device is
 // refused (a test machine has one device, so the key is changed by hand).
 TEST(Checkpoint, RoundTripsAndRefusesAnotherDevice) {
-  xi::Device device = xi::Device::open("");
+  xi::Device& device = xi::test::device();
   xi::Scene scene = xi::load_scene(kCornell);
   scene.width = 8;
   scene.height = 8;

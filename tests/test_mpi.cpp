@@ -7,6 +7,7 @@
 
 #include <signal.h>
 
+#include <optional>
 #include <regex>
 
 #include "cli_test.h"
@@ -45,6 +46,22 @@ class MpiRender : public CliTest {
 
   double attr_double(const std::string& exr, const std::string& name) {
     return std::get<double>(xi::read_exr_attributes(work_ / exr).at(name));
+  }
+
+  // Starts `args` on 2 ranks, waits until the file `ready` shows that passes are done (mpirun may
+  // hold rank 0's stdout back until the job ends), sends `sig` to rank 1 alone and waits for the
+  // job; nothing if it did not start or has no rank 1 (a failure already recorded).
+  std::optional<Outcome> signal_rank_1(const std::vector<std::string>& args, const std::string& ready, int sig) {
+    const pid_t pid = start_mpi(2, args);
+    const bool started = wait_for(ready);
+    const pid_t rank1 = rank_pid(pid, 1);
+    EXPECT_TRUE(started);
+    EXPECT_NE(rank1, 0) << "no rank 1 below mpirun " << pid;
+    const bool signalled = started && rank1 > 0;
+    if (signalled) kill(rank1, sig);
+    const Outcome r = wait_xi(pid, signalled ? 60.0 : 0.0);
+    if (!signalled) return std::nullopt;
+    return r;
   }
 };
 
@@ -152,14 +169,10 @@ TEST_F(MpiRender, AnUnusableDeviceOnOneRankIsNamed) {
 TEST_F(MpiRender, SignalToAnotherRankStopsAllAndRankZeroWritesThePassesDone) {
   // A snapshot after every pass tells the test that passes are done (a signal before the first
   // one would leave no image).
-  const pid_t pid = start_mpi(2, concat(kLong, {"--spp", "100000", "-o", "cut.exr", "--snapshot-every", "1"}));
-  const bool started = wait_for("cut.exr");
-  const pid_t rank1 = rank_pid(pid, 1);
-  EXPECT_TRUE(started);
-  EXPECT_NE(rank1, 0) << "no rank 1 below mpirun " << pid;
-  if (started && rank1 > 0) kill(rank1, SIGTERM);
-  const Outcome r = wait_xi(pid, started && rank1 > 0 ? 60.0 : 0.0);
-  ASSERT_TRUE(started && rank1 > 0);
+  const std::optional<Outcome> job =
+      signal_rank_1(concat(kLong, {"--spp", "100000", "-o", "cut.exr", "--snapshot-every", "1"}), "cut.exr", SIGTERM);
+  ASSERT_TRUE(job);
+  const Outcome& r = *job;
   EXPECT_EQ(r.code, 143) << r.err;  // 128 + SIGTERM, rank 0's code although rank 1 was signalled
   std::smatch m;
   ASSERT_TRUE(std::regex_search(r.err, m, std::regex("xi: stopped by SIGTERM after pass (\\d+): (\\d+) of 100000 spp")))
@@ -231,14 +244,9 @@ TEST_F(MpiRender, KilledRankEndsTheJobWithoutAnImage) {
   // back until the job ends, so its setup lines cannot) and leaves the state of a finished pass.
   const std::vector<std::string> args =
       concat(kLong, {"--spp", "100000", "-o", "out.exr", "--checkpoint", "ck.bin", "--checkpoint-every", "0.5"});
-  const pid_t pid = start_mpi(2, args);
-  const bool started = wait_for("ck.bin");
-  const pid_t rank1 = rank_pid(pid, 1);
-  EXPECT_TRUE(started);
-  EXPECT_NE(rank1, 0) << "no rank 1 below mpirun " << pid;
-  if (started && rank1 > 0) kill(rank1, SIGKILL);
-  const Outcome r = wait_xi(pid, started && rank1 > 0 ? 60.0 : 0.0);
-  ASSERT_TRUE(started && rank1 > 0);
+  const std::optional<Outcome> job = signal_rank_1(args, "ck.bin", SIGKILL);
+  ASSERT_TRUE(job);
+  const Outcome& r = *job;
   EXPECT_NE(r.code, 0) << r.err;
   EXPECT_EQ(r.err.find("xi: stopped by"), std::string::npos) << r.err;
   // No image, no temporary file: the job ended mid-render. The last checkpoint is whole: one

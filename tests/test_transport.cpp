@@ -393,10 +393,7 @@ TEST(TransportBsdfSampling, GlassFollowsFresnelAndSnell) {
 // ---------------------------------------------------------------------------------------------
 // Renders
 
-struct Render {
-  xi::Image mean, variance, albedo;  // variance: of each pixel's mean
-  uint32_t nonfinite = 0;
-};
+using Render = xi::test::Shot;
 
 xi::RenderOptions options(int spp, uint32_t seed, xi::Strategy strategy = xi::Strategy::Mis, int max_depth = 8,
                           int sampler = XI_SAMPLER_RANDOM) {
@@ -412,10 +409,7 @@ xi::RenderOptions options(int spp, uint32_t seed, xi::Strategy strategy = xi::St
 Render render(xi::Scene scene, int w, int h, const xi::RenderOptions& o) {
   scene.width = w;
   scene.height = h;
-  xi::Renderer r(device(), scene, o);
-  r.render();
-  xi::Film f = r.film();
-  return {std::move(f.mean), std::move(f.variance), std::move(f.albedo), r.nonfinite_samples()};
+  return xi::test::render_shot(scene, o);
 }
 
 // A rectangle of pixels [x0, x1) × [y0, y1) that sees one material of albedo `albedo` only.
