@@ -110,7 +110,7 @@ static const char* kUsage =
     "                            mpirun a list D0,D1,... gives local rank i item i mod its length\n"
     "      --local-size N        work-group size (default 64; 0: the driver chooses)\n"
     "      --paths-in-flight N   most (pixel, sample) paths in one wave (default: sized for the\n"
-    "                            device, 2^18 on a CPU, 2^23 on a GPU, within 1/4 of its memory)\n"
+    "                            device, 2^18 on a CPU, 2^25 on a GPU, within 1/4 of its memory)\n"
     "      --samples-per-pass N  most spp one pass adds (default: what the paths in flight hold;\n"
     "                            1 with --convergence)\n"
     "      --all-features        compile every kernel feature, not just what the scene uses\n"
