@@ -228,9 +228,7 @@ Image Team::gather(const Image& share, int height) {
     std::vector<glm::vec3> rows_of_r((size_t)share.width * their.count(height));
     if (r == 0) rows_of_r = share.pixels;
     else receive(r, rows_of_r.data(), sizeof(glm::vec3) * rows_of_r.size());
-    for (int k = 0; k < their.count(height); ++k)
-      std::copy_n(rows_of_r.begin() + (size_t)k * share.width, share.width,
-                  frame.pixels.begin() + (size_t)their.frame_row(k) * share.width);
+    their.insert(rows_of_r, &frame.pixels, share.width, height);
   }
   return frame;
 }

@@ -1,5 +1,6 @@
 // The wavefront integrator: path state in device buffers, stage launches, the progressive loop.
 #pragma once
+#include <algorithm>
 #include <cstdint>
 #include <string>
 #include <vector>
@@ -18,6 +19,21 @@ struct FilmRows {
   int first = 0, stride = 1;
   int count(int height) const { return first < height ? (height - first + stride - 1) / stride : 0; }
   int frame_row(int k) const { return first + k * stride; }
+
+  // A share's pixels (its row k is frame row frame_row(k)) taken out of a frame's, or put back:
+  // the one place that knows how rows interleave, for render states and images alike.
+  template <class T>
+  std::vector<T> select(const std::vector<T>& frame, int width, int height) const {
+    std::vector<T> share((size_t)width * count(height));
+    for (int k = 0; k < count(height); ++k)
+      std::copy_n(frame.begin() + (size_t)frame_row(k) * width, width, share.begin() + (size_t)k * width);
+    return share;
+  }
+  template <class T>
+  void insert(const std::vector<T>& share, std::vector<T>* frame, int width, int height) const {
+    for (int k = 0; k < count(height); ++k)
+      std::copy_n(share.begin() + (size_t)k * width, width, frame->begin() + (size_t)frame_row(k) * width);
+  }
 };
 
 struct RenderOptions {

@@ -467,25 +467,14 @@ RenderState select_rows(const RenderState& frame, FilmRows rows, int width, int 
   share.extend_rays = frame.extend_rays;
   share.shadow_rays = frame.shadow_rays;
   share.nonfinite = frame.nonfinite;
-  const int n = rows.count(height);
-  for (auto buffer : kFilmBuffers) {
-    const std::vector<glm::vec4>& from = frame.*buffer;
-    std::vector<glm::vec4>& to = share.*buffer;
-    to.resize((size_t)width * n);
-    for (int k = 0; k < n; ++k)
-      std::copy_n(from.begin() + (size_t)rows.frame_row(k) * width, width, to.begin() + (size_t)k * width);
-  }
+  for (auto buffer : kFilmBuffers) share.*buffer = rows.select(frame.*buffer, width, height);
   return share;
 }
 
 void insert_rows(RenderState* frame, const RenderState& share, FilmRows rows, int width, int height) {
   check_pixels(*frame, (size_t)width * height, "the frame's render state");
-  const int n = rows.count(height);
-  check_pixels(share, (size_t)width * n, "the share's render state");
-  for (auto buffer : kFilmBuffers)
-    for (int k = 0; k < n; ++k)
-      std::copy_n((share.*buffer).begin() + (size_t)k * width, width,
-                  ((*frame).*buffer).begin() + (size_t)rows.frame_row(k) * width);
+  check_pixels(share, (size_t)width * rows.count(height), "the share's render state");
+  for (auto buffer : kFilmBuffers) rows.insert(share.*buffer, &((*frame).*buffer), width, height);
 }
 
 RenderState Renderer::state() const {
