@@ -105,7 +105,10 @@ class CliTest : public ::testing::Test {
   // Runs `xi ARGS...` in work_, after the shell command `setup` if any (e.g. a ulimit).
   Outcome run_xi(const std::vector<std::string>& args, const std::string& setup = "") {
     std::string cmd = (setup.empty() ? "" : setup + "; ") + "cd " + quote(work_.string()) + " && " + quote(XI_CLI_PATH);
-    for (const auto& a : args) cmd += " " + quote(a);
+    for (const auto& a : args) {
+      cmd += ' ';
+      cmd += quote(a);
+    }
     cmd += " >" + quote((capture_ / "stdout").string()) + " 2>" + quote((capture_ / "stderr").string());
     const int status = std::system(cmd.c_str());
     Outcome r;
@@ -163,9 +166,9 @@ class CliTest : public ::testing::Test {
         if (fs::read_symlink(proc / "exe", ec) != xi) continue;
         std::string env = read_text(proc / "environ");
         std::replace(env.begin(), env.end(), '\0', '\n');
-        env = "\n" + env;
+        env.insert(env.begin(), '\n');
         for (const char* var : {"OMPI_COMM_WORLD_RANK", "PMIX_RANK", "PMI_RANK"})
-          if (env.find("\n" + std::string(var) + "=" + r + "\n") != std::string::npos) return p;
+          if (env.find(std::string("\n") + var + "=" + r + "\n") != std::string::npos) return p;
       }
     }
     return 0;

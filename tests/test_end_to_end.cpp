@@ -347,7 +347,8 @@ TEST(EndToEndReference, DISABLED_GenerateCornellRegions) {
   doc["device"] = r.device;
   // Written by hand rather than with dump(indent) so that each pixel row is one line.
   std::string text = "{\n";
-  for (auto it = doc.begin(); it != doc.end(); ++it) text += " " + json(it.key()).dump() + ": " + it.value().dump() + ",\n";
+  for (auto it = doc.begin(); it != doc.end(); ++it)
+    text += std::string(" ") + json(it.key()).dump() + ": " + it.value().dump() + ",\n";
   text += " \"regions\": [\n";
   for (int i = 0; i < 3; ++i) {
     const Region& reg = kRegions[i];
