@@ -109,7 +109,7 @@ static inline void xi_block_vertex(__global const TriBlock* b, int j, RayShear s
 }
 
 // The lanes of a block that the ray hits in (t error, tmax), as bits; *e gets the lanes' edge
-// functions, t·det and (when some lane hits) t's error bound, for xi_edge_hit to finish a lane
+// functions, t·det and t's error bound (set whenever a lane hits), for xi_edge_hit to finish a lane
 // as xi_intersect_triangle would. (det = 0 gives t = ±inf or NaN, which fails the tests.) On a CPU
 // (XI_CPU_DEVICE, set by the host) the bound is computed only once a lane has passed the cheaper
 // tests, as most blocks a ray visits it misses: extend +7% on PoCL. A GPU warp computes it whenever
