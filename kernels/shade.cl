@@ -165,15 +165,14 @@ __kernel void shade(XI_PATH_PARAMS __global const uint* restrict queue_in, __glo
                     __global const uint* restrict tri_material, __global const float4* restrict tri_normals,
                     __global const float* restrict light_cdf, __global const uint* restrict light_tri,
                     __global const float* restrict tri_light_pdf, uint light_count,
-                    SamplerParams sampler, WaveParams wave, uint max_depth, float4 background) {
+                    SamplerParams sampler, uint max_depth, float4 background) {
   volatile __local uint group_count[2], group_base[2];  // for the queue appends below
   uint i = get_global_id(0);
   bool active = i < counters[XI_COUNTER_RAYS(bounce)];  // launched over an upper bound
   uint slot = active ? queue_in[i] : 0u;
   ShadeResult r = xi_shade_path(XI_PATH_ARGS slot, active, materials, tri_verts, tri_material, tri_normals,
-                                light_cdf, light_tri, tri_light_pdf, light_count, sampler,
-                                xi_frame_pixel(wave, slot), wave.first_sample + slot / wave.pixels,
-                                max_depth, background);
+                                light_cdf, light_tri, tri_light_pdf, light_count, sampler, item_pixel[slot],
+                                item_sample[slot], max_depth, background);
   // Append to the ray and shadow queues: entries are counted in local memory and reserved with one
   // global atomic per work group, since a global atomic per item serialises the cores on one line.
   if (get_local_id(0) == 0u) group_count[0] = group_count[1] = 0u;

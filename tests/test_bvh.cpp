@@ -72,7 +72,7 @@ struct Bounds {
   bool operator==(const Bounds&) const = default;
 };
 Bounds lane_bounds(const BvhNode& n, int k) {
-  return {vec3(n.lo_x[k], n.lo_y[k], n.lo_z[k]), vec3(n.hi_x[k], n.hi_y[k], n.hi_z[k])};
+  return {vec3(n.bounds[0][k], n.bounds[2][k], n.bounds[4][k]), vec3(n.bounds[1][k], n.bounds[3][k], n.bounds[5][k])};
 }
 Bounds root_bounds(const xi::Bvh& bvh) {
   Bounds b;
@@ -144,7 +144,7 @@ Walk check_tree(const xi::Bvh& bvh, const std::vector<xi::Triangle>& tris) {
           for (int l = 0; l < 4; ++l) {
             const uint32_t p = blk.tri[l];
             if (p == XI_BVH_EMPTY) {
-              EXPECT_TRUE(std::isnan(blk.x[0][l]) && std::isnan(blk.y[1][l]) && std::isnan(blk.z[2][l]));
+              EXPECT_TRUE(std::isnan(blk.coord[0][0][l]) && std::isnan(blk.coord[1][1][l]) && std::isnan(blk.coord[2][2][l]));
               EXPECT_EQ(b + 1, first + count) << "a block with an unused lane before the leaf's last";
               continue;
             }
@@ -158,7 +158,7 @@ Walk check_tree(const xi::Bvh& bvh, const std::vector<xi::Triangle>& tris) {
             for (int j = 0; j < 3; ++j) {
               const vec3 v = tris[bvh.order[p]].v[j];
               content.grow(v);
-              EXPECT_TRUE(vec3(blk.x[j][l], blk.y[j][l], blk.z[j][l]) == v) << "block " << b << " lane " << l;
+              EXPECT_TRUE(vec3(blk.coord[0][j][l], blk.coord[1][j][l], blk.coord[2][j][l]) == v) << "block " << b << " lane " << l;
             }
           }
         }
@@ -343,7 +343,7 @@ TEST(BvhBuild, CoincidentCopies) {
     for (TriBlock& b : blocks)
       for (int l = 0; l < 4; ++l)
         if (b.tri[l] != keep && b.tri[l] != XI_NO_HIT)
-          for (int j = 0; j < 3; ++j) b.x[j][l] = 0.1f, b.y[j][l] = 0.1f, b.z[j][l] = 0.0f;
+          for (int j = 0; j < 3; ++j) b.coord[0][j][l] = 0.1f, b.coord[1][j][l] = 0.1f, b.coord[2][j][l] = 0.0f;
     EXPECT_EQ(xi_trace(cs.bvh.nodes.data(), blocks.data(), o, d, INFINITY, false, &tt, &u, &v), keep);
     EXPECT_EQ(xi_trace(cs.bvh.nodes.data(), blocks.data(), o, d, 2.0f, true, &tt, &u, &v), keep);
   }
@@ -370,6 +370,24 @@ TEST(BvhBuild, ExponentialSpacing) {
     ASSERT_LT(pos, tris.size()) << "triangle " << i;
     EXPECT_EQ(cs.bvh.order[pos], i);
   }
+}
+
+// Spawned origins step one float past their error box with xi_round_away, an integer step of the
+// bit pattern: it must be exactly nextafter toward ±∞ as offset's sign says (x unchanged for 0),
+// across zero, denormals, the smallest and largest normals and 10^5 random finite floats.
+TEST(Spawn, RoundAwayIsNextafter) {
+  std::vector<float> xs = {0.0f, -0.0f, 0x1p-149f, -0x1p-149f, 0x1p-126f, -0x1p-126f, 1.0f, -1.0f,
+                           0x1.fffffep+127f, -0x1.fffffep+127f, 3.0e-39f, -3.0e-39f};
+  std::mt19937 rng(0x5a17u);
+  while (xs.size() < 100000) {
+    const float x = as_float(rng());
+    if (std::isfinite(x)) xs.push_back(x);
+  }
+  for (float x : xs)
+    for (float offset : {1e-3f, -1e-3f, 0.0f}) {
+      const float want = offset > 0.0f ? std::nextafter(x, INFINITY) : offset < 0.0f ? std::nextafter(x, -INFINITY) : x;
+      ASSERT_EQ(as_uint(xi_round_away(x, offset)), as_uint(want)) << "x " << x << " offset " << offset;
+    }
 }
 
 }  // namespace

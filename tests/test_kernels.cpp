@@ -308,6 +308,8 @@ TEST_F(Kernel, GenerateCameraRays) {
       SCOPED_TRACE(testing::Message() << "slot " << slot << " of the wave at " << wave.first_pixel);
       const uint32_t film_pixel = wave.first_pixel + slot % wave.pixels, s = wave.first_sample + slot / wave.pixels;
       const uint32_t pixel = (wave.first_row + film_pixel / W * wave.row_stride) * W + film_pixel % W;  // in the frame
+      EXPECT_EQ(out.item_pixel[slot], pixel);  // what shade draws its samples for
+      EXPECT_EQ(out.item_sample[slot], s);
       if (s != sample) {  // the second sample: a different jitter of the same pixel
         EXPECT_GT(glm::length(vec3(out.ray_dir[slot]) - vec3(out.ray_dir[slot % wave.pixels])), 0.0f);
         continue;

@@ -23,8 +23,6 @@
 #include <cstring>
 #include <glm/glm.hpp>
 
-#define XI_PI_DOUBLE 3.14159265358979323846
-
 #define __global
 #define __local
 #define __constant
@@ -67,8 +65,6 @@ static inline float4 fmax(const float4& a, const float4& b) { return glm::max(a,
 static inline float3 fabs(const float3& a) { return glm::abs(a); }
 static inline float4 fabs(const float4& a) { return glm::abs(a); }
 static inline uint clz(uint x) { return x ? (uint)__builtin_clz(x) : 32u; }
-static inline float cospi(float x) { return std::cos(XI_PI_DOUBLE * x); }
-static inline float sinpi(float x) { return std::sin(XI_PI_DOUBLE * x); }
 static inline float clamp(float x, float lo, float hi) { return std::fmin(std::fmax(x, lo), hi); }
 static inline uint as_uint(float f) { uint u; std::memcpy(&u, &f, 4); return u; }
 static inline float as_float(uint u) { float f; std::memcpy(&f, &u, 4); return f; }

@@ -25,8 +25,8 @@ typedef struct {
 #define XI_BVH_FIRST_MASK 0x07ffffffu
 #define XI_BVH_EMPTY 0xffffffffu
 typedef struct {
-  float4 lo_x, hi_x, lo_y, hi_y, lo_z, hi_z;  // child boxes, lane k = child k
-  uint child[XI_BVH_WIDTH];                   // interior child: its node index; leaf: see above
+  float4 bounds[6];          // child boxes, lane k = child k: lo x, hi x, lo y, hi y, lo z, hi z
+  uint child[XI_BVH_WIDTH];  // interior child: its node index; leaf: see above
   uint pad[4];                                // 128 bytes: two whole cache lines
 } BvhNode;
 
@@ -36,8 +36,8 @@ typedef struct {
 // works on four triangles (lane k = triangle tri[k]). An unused lane has NaN vertices, which no
 // ray hits, and tri XI_NO_HIT.
 typedef struct {
-  float4 x[3], y[3], z[3];  // vertex j's coordinates
-  uint tri[4];              // the triangles' positions in BVH order (index of tri_verts / 3)
+  float4 coord[3][3];  // [axis][j]: coordinate x, y or z of vertex j
+  uint tri[4];         // the triangles' positions in BVH order (index of tri_verts / 3)
 } TriBlock;
 
 typedef struct {
@@ -59,6 +59,8 @@ typedef struct {
   F(float4, throughput) /* rgb; w: solid-angle pdf of the last BSDF sample, 0 if specular */ \
   F(float4, radiance)   /* rgb gathered so far */                           \
   F(uint, depth)        /* bounces so far */                              \
+  F(uint, item_pixel)   /* the wave item's frame pixel (set by generate) */ \
+  F(uint, item_sample)  /* and its sample index */                          \
   F(float4, aov_albedo) /* rgb: reflectance at the first hit (for denoisers) */ \
   F(float4, aov_normal) /* xyz: shading normal at the first hit, facing the camera */
 

@@ -54,20 +54,31 @@ static inline float2 xi_square_to_disc_naive(float2 u) {
   return make_float2(u.x * cos(theta), u.x * sin(theta));
 }
 
+// cos(πx) and sin(πx) for |x| ≤ 1/4, by their Taylor series: the first terms left out are below
+// 2e-9 there. A few multiply-adds, where the library's cospi and sinpi reduce any argument (they
+// took 6% of shade on PoCL).
+static inline float xi_cospi_quarter(float x) {
+  float y = XI_PI * x, y2 = y * y;
+  return 1.0f + y2 * (-1.0f / 2.0f + y2 * (1.0f / 24.0f + y2 * (-1.0f / 720.0f +
+                y2 * (1.0f / 40320.0f + y2 * (-1.0f / 3628800.0f)))));
+}
+static inline float xi_sinpi_quarter(float x) {
+  float y = XI_PI * x, y2 = y * y;
+  return y * (1.0f + y2 * (-1.0f / 6.0f + y2 * (1.0f / 120.0f + y2 * (-1.0f / 5040.0f + y2 * (1.0f / 362880.0f)))));
+}
+
 // --- Concentric disc (Shirley–Chiu): squares of the domain map to rings, keeping strata compact.
+// The angle is π/4 · b/a in the right and left wedges (radius a) and π/2 − π/4 · a/b in the top
+// and bottom ones (radius b), where cos and sin swap, so both need only |x| ≤ 1/4 half-turns.
 static inline float2 xi_square_to_concentric_disc(float2 u) {
   float a = 2.0f * u.x - 1.0f, b = 2.0f * u.y - 1.0f;
   if (a == 0.0f && b == 0.0f) return make_float2(0.0f, 0.0f);
-  // The angle in half-turns (θ/π), so cospi/sinpi need no costly range reduction.
-  float r, theta_pi;
   if (fabs(a) > fabs(b)) {
-    r = a;
-    theta_pi = 0.25f * (b / a);
-  } else {
-    r = b;
-    theta_pi = 0.5f - 0.25f * (a / b);
+    float x = 0.25f * (b / a);
+    return make_float2(a * xi_cospi_quarter(x), a * xi_sinpi_quarter(x));
   }
-  return make_float2(r * cospi(theta_pi), r * sinpi(theta_pi));
+  float x = 0.25f * (a / b);
+  return make_float2(b * xi_sinpi_quarter(x), b * xi_cospi_quarter(x));
 }
 static inline float2 xi_concentric_disc_to_square(float2 p) {
   float r = sqrt(p.x * p.x + p.y * p.y);

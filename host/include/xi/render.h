@@ -142,8 +142,7 @@ class Renderer {
   // upper bound on its queue: the kernel reads the length from counters_).
   void generate(const WaveParams& wave);
   void extend(const cl::Buffer& queue, int bounce, size_t global);
-  void shade(const cl::Buffer& queue_in, const cl::Buffer& queue_out, const WaveParams& wave, int bounce,
-             size_t global);
+  void shade(const cl::Buffer& queue_in, const cl::Buffer& queue_out, int bounce, size_t global);
   void shadow(int bounce, size_t global);
   void accumulate(const WaveParams& wave);
   void run_wave(const WaveParams& wave);

@@ -137,14 +137,14 @@ struct Collapser {
     const uint32_t first_block = (uint32_t)bvh.blocks.size(), blocks = (count + 3) / 4;
     for (uint32_t b = 0; b < blocks; ++b) {
       TriBlock blk;
-      for (int j = 0; j < 3; ++j) blk.x[j] = blk.y[j] = blk.z[j] = glm::vec4(NAN);
+      for (auto& axis : blk.coord) std::fill(axis, axis + 3, glm::vec4(NAN));
       for (uint32_t k = 0; k < 4; ++k) {
         const uint32_t p = first + 4 * b + k;
         blk.tri[k] = 4 * b + k < count ? p : XI_NO_HIT;
         if (blk.tri[k] == XI_NO_HIT) continue;
         for (int j = 0; j < 3; ++j) {
           const glm::vec3& v = tris[bvh.order[p]].v[j];
-          blk.x[j][k] = v.x, blk.y[j][k] = v.y, blk.z[j][k] = v.z;
+          for (int a = 0; a < 3; ++a) blk.coord[a][j][k] = v[a];
         }
       }
       bvh.blocks.push_back(blk);
@@ -190,9 +190,7 @@ struct Collapser {
     for (size_t k = 0; k < kids.size(); ++k)
       if (!(child[k] & XI_BVH_LEAF)) below = std::max(below, collapse(kids[k], child[k], depth + 1));
     BvhNode& n = bvh.nodes[wide];
-    n.lo_x = glm::make_vec4(lo[0]), n.hi_x = glm::make_vec4(hi[0]);
-    n.lo_y = glm::make_vec4(lo[1]), n.hi_y = glm::make_vec4(hi[1]);
-    n.lo_z = glm::make_vec4(lo[2]), n.hi_z = glm::make_vec4(hi[2]);
+    for (int a = 0; a < 3; ++a) n.bounds[2 * a] = glm::make_vec4(lo[a]), n.bounds[2 * a + 1] = glm::make_vec4(hi[a]);
     std::copy(child, child + XI_BVH_WIDTH, n.child);
     // Traversal pushes up to one entry per lane and pops one to descend into an interior child.
     return std::max(kids.size(), kids.size() - 1 + below);

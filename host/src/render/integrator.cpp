@@ -228,8 +228,7 @@ void Renderer::extend(const cl::Buffer& queue, int bounce, size_t global) {
   launch(extend_, "extend", bounce, global);
 }
 
-void Renderer::shade(const cl::Buffer& queue_in, const cl::Buffer& queue_out, const WaveParams& wave, int bounce,
-                     size_t global) {
+void Renderer::shade(const cl::Buffer& queue_in, const cl::Buffer& queue_out, int bounce, size_t global) {
   int arg = bind_path_state(shade_);
   shade_.setArg(arg++, queue_in);
   shade_.setArg(arg++, queue_out);
@@ -245,7 +244,6 @@ void Renderer::shade(const cl::Buffer& queue_in, const cl::Buffer& queue_out, co
   shade_.setArg(arg++, tri_light_pdf_);
   shade_.setArg(arg++, scene_.features.emitters ? (uint32_t)scene_.light_tri.size() : 0u);
   shade_.setArg(arg++, sampler_params());
-  shade_.setArg(arg++, wave);
   shade_.setArg(arg++, (uint32_t)options_.max_depth);
   shade_.setArg(arg++, scene_.background);
   launch(shade_, "shade", bounce, global);
@@ -291,7 +289,7 @@ void Renderer::run_wave(const WaveParams& wave) {
   for (int bounce = 0; bounce <= options_.max_depth && bound > 0; ++bounce) {
     if (bounce == options_.record_bounce) record(*in, bounce);
     extend(*in, bounce, bound);
-    shade(*in, *out, wave, bounce, bound);
+    shade(*in, *out, bounce, bound);
     shadow(bounce, bound);  // at most one shadow ray per path
     q.enqueueReadBuffer(counters_, CL_FALSE, sizeof(uint32_t) * XI_COUNTER_RAYS(bounce + 1), sizeof(uint32_t),
                         &ray_counts_[bounce + 1], nullptr, &counted[bounce + 1]);
@@ -402,7 +400,7 @@ void Renderer::warm_up() {
   const WaveParams empty = wave(0, 1, 0, 0);  // no items; one pixel so that nothing divides by zero
   generate(empty);
   extend(queue_a_, 0, paths_);
-  shade(queue_a_, queue_b_, empty, 0, paths_);
+  shade(queue_a_, queue_b_, 0, paths_);
   shadow(0, paths_);
   accumulate(wave(0, 0, 0, 0));
   device_.queue().finish();
