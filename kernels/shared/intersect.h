@@ -150,12 +150,14 @@ static inline float3 xi_safe_inverse(float3 d) {
 // A little slack on box tests so rounding never rejects a box that a triangle in it would hit.
 #define XI_BOX_SLACK 1.00000024f
 
-// Pushes child lane `k` of node `n` if bit k of `hits` says the ray enters its box (at tn_k),
-// keeping the entries pushed for this node sorted so the nearest is on top.
+// Pushes child lane `k` of node `n` if bit k of `hits` says the ray enters its box (at tn_k). A
+// closest-hit query keeps the entries pushed for this node sorted so the nearest is on top; an
+// any-hit query (shadow rays) stops at whichever hit it finds, so it skips the sort (shadow stage
+// on PoCL: the engine 5% faster, the Cornell box the same).
 #define XI_PUSH_CHILD(n, k, tn_k)                                        \
   if (hits & (1u << (k))) {                                              \
     uint j = sp++;                                                       \
-    for (; j > base && stack_tn[j - 1u] < (tn_k); --j) {                 \
+    for (; !any_hit && j > base && stack_tn[j - 1u] < (tn_k); --j) {     \
       stack[j] = stack[j - 1u];                                          \
       stack_tn[j] = stack_tn[j - 1u];                                    \
     }                                                                    \
