@@ -27,7 +27,7 @@ typedef struct {
 typedef struct {
   float4 bounds[6];          // child boxes, lane k = child k: lo x, hi x, lo y, hi y, lo z, hi z
   uint child[XI_BVH_WIDTH];  // interior child: its node index; leaf: see above
-  uint pad[4];                                // 128 bytes: two whole cache lines
+  uint pad[4];               // 128 bytes: two whole cache lines
 } BvhNode;
 
 #define XI_NO_HIT 0xffffffffu
