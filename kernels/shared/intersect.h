@@ -187,7 +187,7 @@ static inline uint xi_trace(__global const BvhNode* nodes, __global const TriBlo
                             float3 d, float tmax, bool any_hit, float* t, float* u, float* v) {
   RayShear s = xi_ray_shear(o, d);
   float3 inv_d = xi_safe_inverse(d);
-  // Which of a node's bounds (lo_x, hi_x, lo_y, ...) is each axis's near plane: an index, so a
+  // Which of a node's bounds (lo x, hi x, lo y, ...) is each axis's near plane: an index, so a
   // node's slab test loads its planes without a choice per plane.
   int near_x = inv_d.x < 0.0f ? 1 : 0, near_y = inv_d.y < 0.0f ? 3 : 2, near_z = inv_d.z < 0.0f ? 5 : 4;
   uint stack[XI_BVH_STACK];

@@ -60,6 +60,8 @@ struct RenderOptions {
 // The paths-in-flight budget for a device when RenderOptions::paths_in_flight is 0: enough to
 // fill it, and within a quarter of its memory.
 size_t default_paths_in_flight(Device& device);
+// Device bytes per path in flight: path state, shadow rays and the two queues.
+size_t path_bytes();
 
 struct RayBatch {
   std::vector<glm::vec4> org, dir;  // xyz used

@@ -23,16 +23,6 @@ cl::Buffer upload(cl::Context& ctx, const std::vector<T>& data) {
                     const_cast<T*>(data.data()));
 }
 
-// Device bytes per path in flight: path state, shadow rays and the two queues.
-size_t path_bytes() {
-  size_t bytes = 2 * sizeof(uint32_t);
-#define XI_ADD_SIZE(type, name) bytes += sizeof(type);
-  XI_PATH_STATE(XI_ADD_SIZE)
-  XI_SHADOW_STATE(XI_ADD_SIZE)
-#undef XI_ADD_SIZE
-  return bytes;
-}
-
 std::string gigabytes(double bytes) {
   char buf[32];
   std::snprintf(buf, sizeof buf, "%.2f GB", bytes * 1e-9);
@@ -94,6 +84,15 @@ void check_memory(Device& device, size_t pixels, size_t paths, size_t scene_byte
 }
 
 }  // namespace
+
+size_t path_bytes() {
+  size_t bytes = 2 * sizeof(uint32_t);
+#define XI_ADD_SIZE(type, name) bytes += sizeof(type);
+  XI_PATH_STATE(XI_ADD_SIZE)
+  XI_SHADOW_STATE(XI_ADD_SIZE)
+#undef XI_ADD_SIZE
+  return bytes;
+}
 
 size_t default_paths_in_flight(Device& device) {
   // A CPU runs a few work items per core at a time: a wave that fits its caches is the faster one.
