@@ -30,7 +30,6 @@ __kernel void generate(XI_PATH_PARAMS __global uint* restrict queue, __global ui
   ray_dir[slot] = (float4)(dir, 0.0f);
   throughput[slot] = (float4)(1.0f, 1.0f, 1.0f, 0.0f);
   radiance[slot] = (float4)(0.0f);
-  depth[slot] = 0u;
   item_pixel[slot] = pixel;  // shade draws its samples for them without redoing the divisions
   item_sample[slot] = sample_index;
   aov_albedo[slot] = (float4)(0.0f);

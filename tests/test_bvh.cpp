@@ -1,7 +1,7 @@
 // BVH build and host-side traversal: the tree's invariants on three kinds of input, then closest-
 // and any-hit queries of xi_trace (intersect.h, run on the host over the arrays compile_scene lays
 // out for the kernels) against a brute-force loop over every triangle; and the one-float step that
-// spawned ray origins take past their error bound (intersect.h's xi_round_away).
+// spawned ray origins take past their error bound (spawn.h's xi_round_away).
 #include <gtest/gtest.h>
 
 #include <algorithm>
@@ -15,6 +15,7 @@
 #include <glm/glm.hpp>
 
 #include "intersect.h"
+#include "spawn.h"
 #include "xi/bvh.h"
 #include "xi/compiled_scene.h"
 #include "xi/scene.h"

@@ -325,6 +325,16 @@ TEST_F(CliBadInput, BadSpp) {
   }
 }
 
+TEST_F(CliBadInput, BadShadeLanes) {
+  const auto before = files();
+  for (const std::string lanes : {"3", "9", "-1", "abc"}) {
+    SCOPED_TRACE(lanes);
+    expect_user_error(run_xi({"render", "-o", "out.exr", "--quiet", "--resolution", "32x32", "--spp", "1",
+                              "--shade-lanes", lanes}),
+                      {"--shade-lanes", lanes}, before);
+  }
+}
+
 TEST_F(CliBadInput, BadResolution) {
   const auto before = files();
   for (const std::string res : {"64", "0x10", "10x0", "-5x5", "10x", "x10", "10x10x", "10*10", "abc", "20000x10"}) {

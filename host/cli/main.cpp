@@ -109,6 +109,8 @@ static const char* kUsage =
     "      --device D            OpenCL device: index or name substring (see `xi devices`); under\n"
     "                            mpirun a list D0,D1,... gives local rank i item i mod its length\n"
     "      --local-size N        work-group size (default 64; 0: the driver chooses)\n"
+    "      --shade-lanes N       paths per shade work item, 1 or 8 (default: 8 on a CPU, 1 on\n"
+    "                            a GPU)\n"
     "      --paths-in-flight N   most (pixel, sample) paths in one wave (default: sized for the\n"
     "                            device, 2^18 on a CPU, 2^25 on a GPU, within 1/4 of its memory)\n"
     "      --samples-per-pass N  most spp one pass adds (default: what the paths in flight hold;\n"

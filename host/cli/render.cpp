@@ -140,7 +140,7 @@ std::string device_selector(const Args& args, const Team& team) {
 void prepare(Job& job, const std::vector<std::string>& argv, const Team& team) {
   Args args(argv,
             {"-o", "--spp", "--seed", "--device", "--max-depth", "--resolution", "--sampler", "--strategy",
-             "--local-size", "--reference", "--convergence", "--trace", "--paths-in-flight", "--samples-per-pass",
+             "--local-size", "--shade-lanes", "--reference", "--convergence", "--trace", "--paths-in-flight", "--samples-per-pass",
              "--time", "--snapshot-every", "--checkpoint", "--checkpoint-every", "--resume", "--camera"},
             {"--profile", "--quiet", "--all-features"});
   if (args.positional().size() > 1) throw Error("expected at most one scene file", args.positional()[1]);
@@ -169,6 +169,7 @@ void prepare(Job& job, const std::vector<std::string>& argv, const Team& team) {
   opt.sampler = parse_sampler(args.get("--sampler", scene.render.sampler));
   opt.strategy = parse_strategy(args.get("--strategy", "mis"));
   opt.local_size = (size_t)args.get_int("--local-size", (int)opt.local_size, 0, 1024);
+  opt.shade_lanes = args.get_int("--shade-lanes", 0, 0, 8);
   opt.all_features = args.has("--all-features");
   opt.paths_in_flight = (size_t)args.get_int("--paths-in-flight", 0, 0, 1 << 30);
   // A convergence log has one row per pass: one spp per pass unless asked otherwise.

@@ -1,64 +1,82 @@
 // Scattering: Lambertian (albedo/π), perfect mirror, smooth dielectric. Directions are unit
-// vectors pointing away from the surface; `n` is the normal on the side of wo.
+// vectors pointing away from the surface; `n` is the normal on the side of wo. Written on lane
+// types (lanes.h).
 #ifndef XI_BSDF_H
 #define XI_BSDF_H
-#include "compat.h"
+#include "lanes.h"
+#include "layout.h"
 #include "warps.h"
 
+// A material's parameters, lane k holding those of path k's material.
+typedef struct {
+  xfloat3 albedo;
+  xfloat ior;
+  xfloat3 emission;
+  xfloat two_sided;  // > 0 when both faces emit
+  xuint type;        // XI_MATERIAL_*
+} ShadingMaterial;
+
+#ifdef XI_DEVICE
+static inline XI_INLINE ShadingMaterial xi_gather_material(__global const MaterialData* materials, xuint i) {
+  // MaterialData is three float4s: albedo, emission, then type in the first word of the third.
+  __global const float4* f = (__global const float4*)materials;
+  ShadingMaterial m;
+  m.albedo = xi_gather_xyz(f, 3u * i, &m.ior);
+  m.emission = xi_gather_xyz(f, 3u * i + 1u, &m.two_sided);
+  m.type = xi_gather_uint((__global const uint*)materials, 12u * i + 8u);
+  return m;
+}
+#endif
+
 // Lambertian: sampled by the cosine-weighted hemisphere, so f·cos/pdf = albedo.
-static inline float3 xi_lambert_sample(float3 n, float2 u, float* pdf) {
-  float3 d = xi_square_to_cosine_hemisphere(u);
+static inline xfloat3 xi_lambert_sample(xfloat3 n, xfloat2 u, xfloat* pdf) {
+  xfloat3 d = xi_square_to_cosine_hemisphere(u);
   *pdf = xi_cosine_hemisphere_pdf(d);
   return xi_to_world(d, n);
 }
-static inline float xi_lambert_pdf(float3 n, float3 wi) { return fmax(dot(n, wi), 0.0f) * XI_INV_PI; }
+static inline xfloat xi_lambert_pdf(xfloat3 n, xfloat3 wi) { return fmax(xi_dot3(n, wi), (xfloat)0.0f) * XI_INV_PI; }
 
-static inline float3 xi_reflect(float3 wo, float3 n) { return n * (2.0f * dot(wo, n)) - wo; }
+static inline xfloat3 xi_reflect(xfloat3 wo, xfloat3 n) { return xi_sub3(xi_scale3(n, 2.0f * xi_dot3(wo, n)), wo); }
 
 // Fresnel reflectance of a smooth dielectric boundary for unpolarised light. cos_i is measured on
 // the side light arrives from; eta = n_transmitted / n_incident. Returns 1 under total internal
 // reflection.
-static inline float xi_fresnel_dielectric(float cos_i, float eta) {
+static inline xfloat xi_fresnel_dielectric(xfloat cos_i, xfloat eta) {
   cos_i = clamp(cos_i, 0.0f, 1.0f);
-  float sin2_t = (1.0f - cos_i * cos_i) / (eta * eta);
-  if (sin2_t >= 1.0f) return 1.0f;
-  float cos_t = xi_safe_sqrt(1.0f - sin2_t);
-  float r_par = (eta * cos_i - cos_t) / (eta * cos_i + cos_t);
-  float r_perp = (cos_i - eta * cos_t) / (cos_i + eta * cos_t);
-  return 0.5f * (r_par * r_par + r_perp * r_perp);
+  xfloat sin2_t = (1.0f - cos_i * cos_i) / (eta * eta);
+  xfloat cos_t = xi_safe_sqrt(1.0f - sin2_t);
+  xfloat r_par = (eta * cos_i - cos_t) / (eta * cos_i + cos_t);
+  xfloat r_perp = (cos_i - eta * cos_t) / (cos_i + eta * cos_t);
+  return sin2_t >= 1.0f ? (xfloat)1.0f : 0.5f * (r_par * r_par + r_perp * r_perp);
 }
 
 // Refraction of wo through a boundary with normal n (on wo's side) and relative index eta.
 // Returns false under total internal reflection.
-static inline bool xi_refract(float3 wo, float3 n, float eta, float3* wt) {
-  float cos_i = dot(n, wo);
-  float sin2_t = fmax(0.0f, 1.0f - cos_i * cos_i) / (eta * eta);
-  if (sin2_t >= 1.0f) return false;
-  float cos_t = xi_safe_sqrt(1.0f - sin2_t);
-  *wt = -wo / eta + n * (cos_i / eta - cos_t);
-  return true;
+static inline xmask xi_refract(xfloat3 wo, xfloat3 n, xfloat eta, xfloat3* wt) {
+  xfloat cos_i = xi_dot3(n, wo);
+  xfloat sin2_t = fmax((xfloat)0.0f, 1.0f - cos_i * cos_i) / (eta * eta);
+  xfloat cos_t = xi_safe_sqrt(1.0f - sin2_t);
+  *wt = xi_add3(make_xfloat3(-wo.x / eta, -wo.y / eta, -wo.z / eta), xi_scale3(n, cos_i / eta - cos_t));
+  return sin2_t < 1.0f;
 }
 
 // Smooth dielectric: chooses reflection with probability F, else refraction, so the weight is
 // the tint alone (energy conserving). `entering`: wo is on the outside (geometric normal side).
 // Returns the new direction; *reflected tells which lobe was taken.
-static inline float3 xi_dielectric_sample(float3 wo, float3 n, float ior, bool entering, float u,
-                                          bool* reflected) {
-  float eta = entering ? ior : 1.0f / ior;
-  float f = xi_fresnel_dielectric(dot(n, wo), eta);
-  float3 wt;
-  if (u < f || !xi_refract(wo, n, eta, &wt)) {
-    *reflected = true;
-    return xi_reflect(wo, n);
-  }
-  *reflected = false;
-  return normalize(wt);
+static inline xfloat3 xi_dielectric_sample(xfloat3 wo, xfloat3 n, xfloat ior, xmask entering, xfloat u,
+                                           xmask* reflected) {
+  xfloat eta = entering ? ior : 1.0f / ior;
+  xfloat f = xi_fresnel_dielectric(xi_dot3(n, wo), eta);
+  xfloat3 wt;
+  xmask refracts = xi_refract(wo, n, eta, &wt);
+  *reflected = u < f || !refracts;
+  return xi_select3(*reflected, xi_reflect(wo, n), xi_normalize3(wt));
 }
 
 // Power heuristic (β = 2) for multiple importance sampling of two strategies.
-static inline float xi_power_heuristic(float pdf_a, float pdf_b) {
-  float a = pdf_a * pdf_a, b = pdf_b * pdf_b;
-  return a + b > 0.0f ? a / (a + b) : 0.0f;
+static inline xfloat xi_power_heuristic(xfloat pdf_a, xfloat pdf_b) {
+  xfloat a = pdf_a * pdf_a, b = pdf_b * pdf_b;
+  return a + b > 0.0f ? a / (a + b) : (xfloat)0.0f;
 }
 
 #endif

@@ -93,8 +93,7 @@ static inline float as_float_i(int i) { float f; std::memcpy(&f, &i, 4); return 
 // Bit k set where lane k of a comparison is true.
 static inline uint xi_lane_bits(int4 m) { return (uint)((m.x & 1) | (m.y & 2) | (m.z & 4) | (m.w & 8)); }
 
-static inline float xi_max3(float3 v) { return fmax(v.x, fmax(v.y, v.z)); }
-// sqrt of a value that rounding may have pushed slightly below zero.
-static inline float xi_safe_sqrt(float x) { return sqrt(fmax(x, 0.0f)); }
+// gamma(n) = n eps / (1 - n eps), eps = 2^-24: the relative error bound of n rounded operations.
+#define XI_GAMMA(n) ((n) * 0x1p-24f / (1.0f - (n) * 0x1p-24f))
 
 #endif

@@ -44,9 +44,6 @@ static inline RayShear xi_ray_shear(float3 o, float3 d) {
   return s;
 }
 
-// gamma(n) = n eps / (1 - n eps), eps = 2^-24: the relative error bound of n rounded operations.
-#define XI_GAMMA(n) ((n) * 0x1p-24f / (1.0f - (n) * 0x1p-24f))
-
 // The bound on the rounding error of t, times |det| (Pharr, Jakob and Humphreys, Physically Based
 // Rendering 4th ed., "Managing Rounding Error"), from the largest magnitudes of the sheared vertex
 // coordinates (x, y; z scaled by sz) and of the edge functions. A hit within it may be the surface
@@ -242,37 +239,6 @@ static inline uint xi_trace(__global const BvhNode* nodes, __global const TriBlo
     }
     entry = stack[sp];
   }
-}
-
-// Spawning rays robustly at any scale (after Pharr, Jakob and Humphreys, Physically Based Rendering
-// 4th ed., "Managing Rounding Error"). p0 + b1 (p1 - p0) + b2 (p2 - p0) lies exactly in the
-// triangle's plane for any b1, b2, so only the rounding of this sum moves the computed point off the
-// plane: at most gamma(1) |p| + gamma(4) (|b1 (p1 - p0)| + |b2 (p2 - p0)|) per axis (the edges'
-// own rounding included). That is an ulp or so of the coordinates, against the gamma(7) |p| that
-// the barycentric form b0 p0 + b1 p1 + b2 p2 allows, so offsets stay small far from the origin.
-static inline float3 xi_interpolate(float3 p0, float3 p1, float3 p2, float b1, float b2, float3* error) {
-  float3 d1 = b1 * (p1 - p0), d2 = b2 * (p2 - p0);
-  float3 p = p0 + d1 + d2;
-  *error = XI_GAMMA(1) * fabs(p) + XI_GAMMA(4) * (fabs(d1) + fabs(d2));
-  return p;
-}
-
-// nextafter(x, ±inf) by the sign of offset, for finite x: one step of the bit pattern, up in
-// magnitude when offset points away from zero. (PoCL's nextafter took 7% of shade.)
-static inline float xi_round_away(float x, float offset) {
-  if (offset == 0.0f) return x;
-  if (x == 0.0f) return offset > 0.0f ? 0x1p-149f : -0x1p-149f;
-  return as_float_i(as_int(x) + ((x > 0.0f) == (offset > 0.0f) ? 1 : -1));
-}
-
-// Moves p (per-axis error bound `error`) off its surface along the geometric normal n, to the side
-// of the direction w, just past the box the exact point may lie in, so a ray leaving it cannot hit
-// that surface again; then one more ulp away, for the rounding of the sum.
-static inline float3 xi_offset_ray_origin(float3 p, float3 error, float3 n, float3 w) {
-  float d = dot(fabs(n), error);
-  float3 offset = dot(w, n) < 0.0f ? -d * n : d * n;
-  float3 o = p + offset;
-  return make_float3(xi_round_away(o.x, offset.x), xi_round_away(o.y, offset.y), xi_round_away(o.z, offset.z));
 }
 
 #ifdef __OPENCL_VERSION__

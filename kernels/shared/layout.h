@@ -58,7 +58,6 @@ typedef struct {
   F(float4, hit)        /* t (< 0: miss), barycentric u, v, as_float(tri) */ \
   F(float4, throughput) /* rgb; w: solid-angle pdf of the last BSDF sample, 0 if specular */ \
   F(float4, radiance)   /* rgb gathered so far */                           \
-  F(uint, depth)        /* bounces so far */                              \
   F(uint, item_pixel)   /* the wave item's frame pixel (set by generate) */ \
   F(uint, item_sample)  /* and its sample index */                          \
   F(float4, aov_albedo) /* rgb: reflectance at the first hit (for denoisers) */ \

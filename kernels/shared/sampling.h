@@ -3,7 +3,7 @@
 // fixed block of pairs per bounce (see XI_PAIR_* below), so every sampler sees 2D points.
 #ifndef XI_SAMPLING_H
 #define XI_SAMPLING_H
-#include "compat.h"
+#include "lanes.h"
 #include "rng.h"
 
 #define XI_SAMPLER_RANDOM 0
@@ -42,37 +42,42 @@ static inline SamplerParams xi_make_sampler_params(uint seed, uint spp) {
 
 // Kensler's hash-based permutation of [0, n) (Correlated Multi-Jittered Sampling, 2013):
 // cycle-walks a bijection on the next power of two until the value falls inside [0, n).
-static inline uint xi_permute(uint i, uint n, uint p) {
+static inline xuint xi_permute(xuint i, uint n, xuint p) {
   uint w = n - 1u;
   w |= w >> 1;
   w |= w >> 2;
   w |= w >> 4;
   w |= w >> 8;
   w |= w >> 16;
+  // Each path walks until its value is inside; with lanes, a path that is done keeps its value.
+  xmask walking = XI_TRUE;
   do {
-    i ^= p;
-    i *= 0xe170893du;
-    i ^= p >> 16;
-    i ^= (i & w) >> 4;
-    i ^= p >> 8;
-    i *= 0x0929eb3fu;
-    i ^= p >> 23;
-    i ^= (i & w) >> 1;
-    i *= 1u | p >> 27;
-    i *= 0x6935fa69u;
-    i ^= (i & w) >> 11;
-    i *= 0x74dcb303u;
-    i ^= (i & w) >> 2;
-    i *= 0x9e501cc3u;
-    i ^= (i & w) >> 2;
-    i *= 0xc860a3dfu;
-    i &= w;
-    i ^= i >> 5;
-  } while (i >= n);
+    xuint j = i;
+    j ^= p;
+    j *= 0xe170893du;
+    j ^= p >> 16;
+    j ^= (j & w) >> 4;
+    j ^= p >> 8;
+    j *= 0x0929eb3fu;
+    j ^= p >> 23;
+    j ^= (j & w) >> 1;
+    j *= 1u | p >> 27;
+    j *= 0x6935fa69u;
+    j ^= (j & w) >> 11;
+    j *= 0x74dcb303u;
+    j ^= (j & w) >> 2;
+    j *= 0x9e501cc3u;
+    j ^= (j & w) >> 2;
+    j *= 0xc860a3dfu;
+    j &= w;
+    j ^= j >> 5;
+    i = walking ? j : i;
+    walking = walking && i >= n;
+  } while (XI_ANY(walking));
   return (i + p) % n;
 }
 
-static inline uint xi_reverse_bits(uint v) {
+static inline xuint xi_reverse_bits(xuint v) {
   v = ((v >> 1) & 0x55555555u) | ((v & 0x55555555u) << 1);
   v = ((v >> 2) & 0x33333333u) | ((v & 0x33333333u) << 2);
   v = ((v >> 4) & 0x0f0f0f0fu) | ((v & 0x0f0f0f0fu) << 4);
@@ -82,7 +87,7 @@ static inline uint xi_reverse_bits(uint v) {
 
 // The bits of index multiplied by the Pascal matrix mod 2 (entry (i, j) = C(j, i) mod 2), in five
 // butterfly steps: the matrix of size 2^n is [[P, P], [0, P]] with P of size 2^(n−1).
-static inline uint xi_pascal_bits(uint index) {
+static inline xuint xi_pascal_bits(xuint index) {
   index ^= (index >> 1) & 0x55555555u;
   index ^= (index >> 2) & 0x33333333u;
   index ^= (index >> 4) & 0x0f0f0f0fu;
@@ -94,14 +99,14 @@ static inline uint xi_pascal_bits(uint index) {
 // The first two dimensions of the Sobol sequence, a (0,2)-sequence in base 2, as 32-bit fractions:
 // dimension 0 is the van der Corput radical inverse, dimension 1 uses the Pascal generator matrix
 // (direction numbers v₀ = 1/2, v_{k+1} = v_k ⊕ v_k/2), both read with bit 0 as the half.
-static inline uint xi_sobol_bits(uint index, uint dim) {
+static inline xuint xi_sobol_bits(xuint index, uint dim) {
   return xi_reverse_bits(dim == 0u ? index : xi_pascal_bits(index));
 }
 
 // The Laine–Karras permutation: each bit of v is changed only as a function of the bits below it.
 // On a bit-reversed fraction that is a nested uniform (Owen) scramble: each bit changes as a
 // function of the more significant bits, so every elementary interval keeps its share of points.
-static inline uint xi_laine_karras(uint v, uint seed) {
+static inline xuint xi_laine_karras(xuint v, xuint seed) {
   v ^= v * 0x3d20adeau;
   v += seed;
   v *= (seed >> 16) | 1u;
@@ -110,16 +115,16 @@ static inline uint xi_laine_karras(uint v, uint seed) {
   return v;
 }
 
-static inline uint xi_owen_scramble(uint v, uint seed) {
+static inline xuint xi_owen_scramble(xuint v, xuint seed) {
   return xi_reverse_bits(xi_laine_karras(xi_reverse_bits(v), seed));
 }
 
 // Which sample of the set a pair of dimensions uses, for grid and stratified. Pair 0 uses the
 // sample index itself; every other pair shuffles the set by its own permutation so dimensions do
 // not correlate.
-static inline uint xi_padded_index(SamplerParams p, uint pixel, uint index, uint pair) {
+static inline xuint xi_padded_index(SamplerParams p, xuint pixel, xuint index, uint pair) {
   if (pair == 0u) return index;
-  return xi_permute(index, p.spp, xi_hash4(p.seed, pixel, pair, 0x5eed5u));
+  return xi_permute(index, p.spp, xi_hash4(p.seed, pixel, (xuint)pair, 0x5eed5u));
 }
 
 // Sobol indices are taken modulo 2^20, the most samples per pixel a render has.
@@ -131,38 +136,38 @@ static inline uint xi_padded_index(SamplerParams p, uint pixel, uint index, uint
 // aligned block of 2^m indices onto another such block, so every 2^m-sample prefix is still a
 // (0,m,2)-net in every pair, while the pairs decorrelate. Nothing depends on the final spp: a
 // render's first N samples are what a render of N samples draws.
-static inline XI_INLINE float2 xi_sobol_2d(uint seed, uint pixel, uint index, uint pair) {
-  uint h = xi_hash4(seed, pixel, pair, 0x50b01u);
-  uint i = index & XI_SOBOL_INDEX_MASK;
+static inline XI_INLINE xfloat2 xi_sobol_2d(uint seed, xuint pixel, xuint index, uint pair) {
+  xuint h = xi_hash4(seed, pixel, (xuint)pair, 0x50b01u);
+  xuint i = index & XI_SOBOL_INDEX_MASK;
   if (pair != 0u) i = xi_owen_scramble(i, xi_mix32(h ^ 0x2f6b7a1du)) & XI_SOBOL_INDEX_MASK;
   // (The compiler cancels the bit reversal at the end of xi_sobol_bits against the one at the
   // start of xi_owen_scramble.)
-  return make_float2(xi_unit_float(xi_owen_scramble(xi_sobol_bits(i, 0u), xi_mix32(h))),
+  return make_xfloat2(xi_unit_float(xi_owen_scramble(xi_sobol_bits(i, 0u), xi_mix32(h))),
                      xi_unit_float(xi_owen_scramble(xi_sobol_bits(i, 1u), xi_mix32(h ^ 0xa511e9b3u))));
 }
 
 // (cell + j) / n for j in [0, 1), kept strictly inside the cell: rounding may carry a j close to 1
 // onto the next cell's edge.
-static inline float xi_in_cell(uint cell, float j, uint n) {
-  float x = ((float)cell + j) / (float)n;
-  float next = (float)(cell + 1u) / (float)n;
-  return x < next ? x : nextafter(next, 0.0f);
+static inline xfloat xi_in_cell(xuint cell, xfloat j, uint n) {
+  xfloat x = (xi_to_float(cell) + j) / (float)n;
+  xfloat next = xi_to_float(cell + 1u) / (float)n;
+  return x < next ? x : nextafter(next, (xfloat)0.0f);
 }
 
-static inline XI_INLINE float2 xi_sample_2d(int sampler, SamplerParams p, uint pixel, uint index, uint pair) {
+static inline XI_INLINE xfloat2 xi_sample_2d(int sampler, SamplerParams p, xuint pixel, xuint index, uint pair) {
   if (sampler == XI_SAMPLER_RANDOM) {
-    return make_float2(xi_unit_float(xi_hash4(p.seed, pixel, index, 2u * pair)),
-                       xi_unit_float(xi_hash4(p.seed, pixel, index, 2u * pair + 1u)));
+    return make_xfloat2(xi_unit_float(xi_hash4(p.seed, pixel, index, 2u * pair)),
+                        xi_unit_float(xi_hash4(p.seed, pixel, index, 2u * pair + 1u)));
   }
   if (sampler == XI_SAMPLER_SOBOL) return xi_sobol_2d(p.seed, pixel, index, pair);
-  uint s = xi_padded_index(p, pixel, index % p.spp, pair);
+  xuint s = xi_padded_index(p, pixel, index % p.spp, pair);
   // Grid: the centre of cell s; stratified: a uniform point inside it.
-  float jx = 0.5f, jy = 0.5f;
+  xfloat jx = 0.5f, jy = 0.5f;
   if (sampler == XI_SAMPLER_STRATIFIED) {
     jx = xi_unit_float(xi_hash4(p.seed, pixel, index, 2u * pair));
     jy = xi_unit_float(xi_hash4(p.seed, pixel, index, 2u * pair + 1u));
   }
-  return make_float2(xi_in_cell(s % p.nx, jx, p.nx), xi_in_cell(s / p.nx, jy, p.ny));
+  return make_xfloat2(xi_in_cell(s % p.nx, jx, p.nx), xi_in_cell(s / p.nx, jy, p.ny));
 }
 
 #endif

@@ -1,10 +1,13 @@
 // Warps of the unit square [0,1)² to the domains the renderer samples, each with its pdf (with
 // respect to area on the disc/triangle, solid angle on the sphere) and, where one exists, its
-// inverse. Inputs at 0 and at the largest float below 1 give finite results.
+// inverse. Inputs at 0 and at the largest float below 1 give finite results. The maps that shade
+// uses are written on lane types (lanes.h); the others, for the tools and tests, are compiled only
+// where XI_LANES is 1.
 #ifndef XI_WARPS_H
 #define XI_WARPS_H
-#include "compat.h"
+#include "lanes.h"
 
+#if XI_LANES == 1
 // The angle of (x, y) in [0, 1) turns.
 static inline float xi_turns(float y, float x) {
   float t = atan2(y, x) * (0.5f * XI_INV_PI);
@@ -53,33 +56,34 @@ static inline float2 xi_square_to_disc_naive(float2 u) {
   float theta = 2.0f * XI_PI * u.y;
   return make_float2(u.x * cos(theta), u.x * sin(theta));
 }
+#endif
 
 // cos(πx) and sin(πx) for |x| ≤ 1/4, by their Taylor series: the first terms left out are below
 // 2e-9 there. A few multiply-adds, where the library's cospi and sinpi reduce any argument (they
 // took 6% of shade on PoCL).
-static inline float xi_cospi_quarter(float x) {
-  float y = XI_PI * x, y2 = y * y;
+static inline xfloat xi_cospi_quarter(xfloat x) {
+  xfloat y = XI_PI * x, y2 = y * y;
   return 1.0f + y2 * (-1.0f / 2.0f + y2 * (1.0f / 24.0f + y2 * (-1.0f / 720.0f +
                 y2 * (1.0f / 40320.0f + y2 * (-1.0f / 3628800.0f)))));
 }
-static inline float xi_sinpi_quarter(float x) {
-  float y = XI_PI * x, y2 = y * y;
+static inline xfloat xi_sinpi_quarter(xfloat x) {
+  xfloat y = XI_PI * x, y2 = y * y;
   return y * (1.0f + y2 * (-1.0f / 6.0f + y2 * (1.0f / 120.0f + y2 * (-1.0f / 5040.0f + y2 * (1.0f / 362880.0f)))));
 }
 
 // --- Concentric disc (Shirley–Chiu): squares of the domain map to rings, keeping strata compact.
 // The angle is π/4 · b/a in the right and left wedges (radius a) and π/2 − π/4 · a/b in the top
 // and bottom ones (radius b), where cos and sin swap, so both need only |x| ≤ 1/4 half-turns.
-static inline float2 xi_square_to_concentric_disc(float2 u) {
-  float a = 2.0f * u.x - 1.0f, b = 2.0f * u.y - 1.0f;
-  if (a == 0.0f && b == 0.0f) return make_float2(0.0f, 0.0f);
-  if (fabs(a) > fabs(b)) {
-    float x = 0.25f * (b / a);
-    return make_float2(a * xi_cospi_quarter(x), a * xi_sinpi_quarter(x));
-  }
-  float x = 0.25f * (a / b);
-  return make_float2(b * xi_sinpi_quarter(x), b * xi_cospi_quarter(x));
+static inline xfloat2 xi_square_to_concentric_disc(xfloat2 u) {
+  xfloat a = 2.0f * u.x - 1.0f, b = 2.0f * u.y - 1.0f;
+  xmask wide = fabs(a) > fabs(b);  // the right or left wedge
+  xfloat r = wide ? a : b;
+  xfloat x = 0.25f * (wide ? b / a : a / b);  // 0/0 only at the centre, which is set apart
+  xfloat c = xi_cospi_quarter(x), s = xi_sinpi_quarter(x);
+  xmask centre = a == 0.0f && b == 0.0f;
+  return make_xfloat2(centre ? (xfloat)0.0f : r * (wide ? c : s), centre ? (xfloat)0.0f : r * (wide ? s : c));
 }
+#if XI_LANES == 1
 static inline float2 xi_concentric_disc_to_square(float2 p) {
   float r = sqrt(p.x * p.x + p.y * p.y);
   float theta = atan2(p.y, p.x);  // (−π, π]
@@ -101,23 +105,27 @@ static inline float2 xi_concentric_disc_to_square(float2 p) {
   return make_float2(clamp(0.5f * (a + 1.0f), 0.0f, XI_ONE_MINUS_EPSILON),
                      clamp(0.5f * (b + 1.0f), 0.0f, XI_ONE_MINUS_EPSILON));
 }
+#endif
 
 // --- Cosine-weighted hemisphere by Malley's method: a uniform disc sample projected up to the
 // hemisphere, z = √(1 − x² − y²). pdf = cos θ / π.
-static inline float3 xi_square_to_cosine_hemisphere(float2 u) {
-  float2 d = xi_square_to_concentric_disc(u);
-  return make_float3(d.x, d.y, xi_safe_sqrt(1.0f - d.x * d.x - d.y * d.y));
+static inline xfloat3 xi_square_to_cosine_hemisphere(xfloat2 u) {
+  xfloat2 d = xi_square_to_concentric_disc(u);
+  return make_xfloat3(d.x, d.y, xi_safe_sqrt(1.0f - d.x * d.x - d.y * d.y));
 }
-static inline float xi_cosine_hemisphere_pdf(float3 d) { return fmax(d.z, 0.0f) * XI_INV_PI; }
+static inline xfloat xi_cosine_hemisphere_pdf(xfloat3 d) { return fmax(d.z, (xfloat)0.0f) * XI_INV_PI; }
+#if XI_LANES == 1
 static inline float2 xi_cosine_hemisphere_to_square(float3 d) {
   return xi_concentric_disc_to_square(make_float2(d.x, d.y));
 }
+#endif
 
 // --- Uniform triangle: barycentrics (b0, b1) with b0 = 1 − √ξ₁, b1 = ξ₂√ξ₁; pdf 1 / area.
-static inline float2 xi_square_to_triangle(float2 u) {
-  float su = sqrt(u.x);
-  return make_float2(1.0f - su, u.y * su);
+static inline xfloat2 xi_square_to_triangle(xfloat2 u) {
+  xfloat su = sqrt(u.x);
+  return make_xfloat2(1.0f - su, u.y * su);
 }
+#if XI_LANES == 1
 static inline float2 xi_triangle_to_square(float2 b) {
   float su = 1.0f - b.x;
   return make_float2(clamp(su * su, 0.0f, XI_ONE_MINUS_EPSILON),
@@ -165,18 +173,20 @@ static inline float xi_warp_pdf(int map, float3 p) {
   }
 }
 
+#endif
+
 // An orthonormal basis around a unit normal (Duff et al. 2017, branchless).
-static inline void xi_basis(float3 n, float3* t, float3* b) {
-  float s = n.z >= 0.0f ? 1.0f : -1.0f;
-  float a = -1.0f / (s + n.z);
-  float c = n.x * n.y * a;
-  *t = make_float3(1.0f + s * n.x * n.x * a, s * c, -s * n.x);
-  *b = make_float3(c, s + n.y * n.y * a, -n.y);
+static inline void xi_basis(xfloat3 n, xfloat3* t, xfloat3* b) {
+  xfloat s = n.z >= 0.0f ? (xfloat)1.0f : (xfloat)-1.0f;
+  xfloat a = -1.0f / (s + n.z);
+  xfloat c = n.x * n.y * a;
+  *t = make_xfloat3(1.0f + s * n.x * n.x * a, s * c, -s * n.x);
+  *b = make_xfloat3(c, s + n.y * n.y * a, -n.y);
 }
-static inline float3 xi_to_world(float3 v, float3 n) {
-  float3 t, b;
+static inline xfloat3 xi_to_world(xfloat3 v, xfloat3 n) {
+  xfloat3 t, b;
   xi_basis(n, &t, &b);
-  return t * v.x + b * v.y + n * v.z;
+  return xi_add3(xi_add3(xi_scale3(t, v.x), xi_scale3(b, v.y)), xi_scale3(n, v.z));
 }
 
 #endif

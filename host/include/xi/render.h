@@ -46,6 +46,9 @@ struct RenderOptions {
   // distinct local size, and queue lengths change every bounce.
   size_t local_size = 64;
   bool all_features = false;    // compile every feature in, whatever the scene uses
+  // Paths each shade work item takes, 1 or 8 (kernels/shared/lanes.h); 0: 8 on a CPU device, where
+  // float8 arithmetic across paths is what fills its vector units, 1 elsewhere.
+  int shade_lanes = 0;
   // Most paths in flight at once, (pixel, sample) items of one wave; 0 sizes it for the device
   // (default_paths_in_flight). The image does not depend on it.
   size_t paths_in_flight = 0;
@@ -151,7 +154,8 @@ class Renderer {
   WaveParams wave(size_t first_pixel, size_t pixels, int first_sample, uint32_t samples) const;
   void warm_up();
   void record(const cl::Buffer& queue, int bounce);
-  void launch(cl::Kernel& kernel, const char* stage, int bounce, size_t global);
+  // Launches over global items (queue entries), items_per_work_item of them per work item.
+  void launch(cl::Kernel& kernel, const char* stage, int bounce, size_t global, size_t items_per_work_item = 1);
   void finish_pass();
   SamplerParams sampler_params() const;
   int bind_path_state(cl::Kernel& kernel);               // returns the next argument index
@@ -161,7 +165,8 @@ class Renderer {
   Device& device_;
   RenderOptions options_;
   CompiledScene scene_;
-  Program program_;
+  Program program_;  // every stage's kernels (shade's are built apart, for their lane count)
+  int shade_lanes_ = 1;
   size_t pixels_ = 0;
   size_t paths_ = 0;           // path state slots: the most (pixel, sample) items of one wave
   int samples_per_pass_ = 1;

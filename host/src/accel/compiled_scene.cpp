@@ -1,8 +1,12 @@
 #include "xi/compiled_scene.h"
 
 #include <cmath>
+#include <cstddef>
 
 #include "xi/error.h"
+
+// shade's xi_gather_material (bsdf.h) reads a material as three float4s with the type first in the third.
+static_assert(sizeof(MaterialData) == 48 && offsetof(MaterialData, type) == 32, "MaterialData layout");
 
 namespace xi {
 

@@ -13,9 +13,10 @@
 namespace xi {
 namespace {
 
-// The kernel files, one per wavefront stage, built into one program.
-const std::vector<std::string> kStageFiles = {"generate.cl", "extend.cl", "shade.cl", "shadow.cl",
-                                              "accumulate.cl"};
+// The kernel files, one per wavefront stage, built into one program; shade.cl is built apart,
+// with XI_LANES set (its helpers are written for one lane type per program).
+const std::vector<std::string> kStageFiles = {"generate.cl", "extend.cl", "shadow.cl", "accumulate.cl"};
+const std::string kShadeFile = "shade.cl";
 
 template <typename T>
 cl::Buffer upload(cl::Context& ctx, const std::vector<T>& data) {
@@ -115,10 +116,21 @@ Renderer::Renderer(Device& device, const Scene& scene, const RenderOptions& opti
   if (options.max_depth < 1 || options.max_depth > 64) throw Error("max depth must be in 1..64", "--max-depth");
   if (options.samples_per_pass < 0) throw Error("samples per pass must be at least 1 (0: automatic)");
   Features f = options.all_features ? Features::everything() : scene_.features;
-  program_ = build_program(device, kStageFiles, kernel_defines(f, options.sampler, options.strategy));
+  shade_lanes_ = options.shade_lanes ? options.shade_lanes : (device.info().type == "CPU" ? 8 : 1);
+  if (shade_lanes_ != 1 && shade_lanes_ != 8)
+    throw Error("shade lanes must be 1 or 8, not " + std::to_string(shade_lanes_), "--shade-lanes");
+  const std::vector<std::string> defines = kernel_defines(f, options.sampler, options.strategy);
+  std::vector<std::string> shade_defines = defines;
+  shade_defines.push_back("XI_LANES=" + std::to_string(shade_lanes_));
+  program_ = build_program(device, kStageFiles, defines);
+  Program shade_program = build_program(device, {kShadeFile}, shade_defines);
+  // One key, build time and cache state for all the kernels (checkpoints and `xi render` use them).
+  program_.key += shade_program.key;
+  program_.build_seconds += shade_program.build_seconds;
+  program_.from_cache = program_.from_cache && shade_program.from_cache;
   generate_ = cl::Kernel(program_.program, "generate");
   extend_ = cl::Kernel(program_.program, "extend");
-  shade_ = cl::Kernel(program_.program, "shade");
+  shade_ = cl::Kernel(shade_program.program, "shade");
   shadow_ = cl::Kernel(program_.program, "shadow");
   accumulate_ = cl::Kernel(program_.program, "accumulate");
 
@@ -191,9 +203,10 @@ int Renderer::bind_shadow_state(cl::Kernel& kernel, int arg) {
 
 // Enqueues without waiting: the in-order queue runs the stages one after the other. Only with
 // profiling does a launch carry an event, read when the pass is done.
-void Renderer::launch(cl::Kernel& kernel, const char* stage, int bounce, size_t global_items) {
+void Renderer::launch(cl::Kernel& kernel, const char* stage, int bounce, size_t global_items,
+                      size_t items_per_work_item) {
   const size_t local = options_.local_size;
-  const size_t n = std::max<size_t>(global_items, 1);
+  const size_t n = std::max<size_t>((global_items + items_per_work_item - 1) / items_per_work_item, 1);
   const size_t global = local ? (n + local - 1) / local * local : n;
   cl::Event event;
   device_.queue().enqueueNDRangeKernel(kernel, cl::NullRange, cl::NDRange(global),
@@ -245,7 +258,7 @@ void Renderer::shade(const cl::Buffer& queue_in, const cl::Buffer& queue_out, in
   shade_.setArg(arg++, sampler_params());
   shade_.setArg(arg++, (uint32_t)options_.max_depth);
   shade_.setArg(arg++, scene_.background);
-  launch(shade_, "shade", bounce, global);
+  launch(shade_, "shade", bounce, global, (size_t)shade_lanes_);
 }
 
 void Renderer::shadow(int bounce, size_t global) {

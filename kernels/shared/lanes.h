@@ -1,0 +1,207 @@
+// Lane types for the shading code. shade takes XI_LANES paths per work item: 8 on CPU devices,
+// where PoCL runs work items one after another and only float8 arithmetic fills the vector units;
+// 1 on GPUs, whose hardware already gives each path its own lane. The sampler, warps, BSDFs, light
+// sampling and spawn offsets that shade calls are written once on these types: with XI_LANES 1 (GPU
+// builds, the tool kernels, the host's tests) they are float, uint, bool, float2 and float3; with 8,
+// float8, uint8, int8 masks and structs of float8 for 2D and 3D values.
+//
+// Generic code keeps to what both forms accept: arithmetic and comparison operators, built-ins
+// such as sqrt and fmax, `m ? a : b` on xfloat/xuint with constants cast to the lane type, the
+// xi_*3 functions below for 3D values, XI_ANY for a mask that steers a loop, and the xi_gather_*
+// loads for memory indexed per path.
+#ifndef XI_LANES_H
+#define XI_LANES_H
+#include "compat.h"
+
+#ifndef XI_LANES
+#define XI_LANES 1
+#endif
+
+#if XI_LANES == 8
+
+typedef float8 xfloat;
+typedef uint8 xuint;
+typedef int8 xint;
+typedef int8 xmask;  // a comparison's result: −1 in a lane where true, 0 where false
+typedef struct {
+  xfloat x, y;
+} xfloat2;
+typedef struct {
+  xfloat x, y, z;
+} xfloat3;
+
+#define xi_to_float(v) convert_float8(v)
+#define xi_as_uint(v) as_uint8(v)
+#define xi_as_int(v) as_int8(v)
+#define xi_as_float(v) as_float8(v)
+#define XI_ANY(m) any(m)
+#define XI_TRUE ((xmask)-1)
+#define XI_FALSE ((xmask)0)
+#define XI_LANE_INDEX ((uint8)(0u, 1u, 2u, 3u, 4u, 5u, 6u, 7u))
+// Every function here is forced inline: left as calls, the structs of float8 went through memory.
+// Lane loops: unrolled, so every lane access has a constant index and stays in registers (left as
+// a loop, PoCL went through the stack for each lane and shade ran 2.5× slower).
+#define XI_FOR_LANES(k) _Pragma("unroll") for (int k = 0; k < 8; ++k)
+
+static inline XI_INLINE xfloat2 make_xfloat2(xfloat x, xfloat y) {
+  xfloat2 v;
+  v.x = x;
+  v.y = y;
+  return v;
+}
+static inline XI_INLINE xfloat3 make_xfloat3(xfloat x, xfloat y, xfloat z) {
+  xfloat3 v;
+  v.x = x;
+  v.y = y;
+  v.z = z;
+  return v;
+}
+static inline XI_INLINE xfloat3 xi_add3(xfloat3 a, xfloat3 b) { return make_xfloat3(a.x + b.x, a.y + b.y, a.z + b.z); }
+static inline XI_INLINE xfloat3 xi_sub3(xfloat3 a, xfloat3 b) { return make_xfloat3(a.x - b.x, a.y - b.y, a.z - b.z); }
+static inline XI_INLINE xfloat3 xi_mul3(xfloat3 a, xfloat3 b) { return make_xfloat3(a.x * b.x, a.y * b.y, a.z * b.z); }
+static inline XI_INLINE xfloat3 xi_scale3(xfloat3 a, xfloat s) { return make_xfloat3(a.x * s, a.y * s, a.z * s); }
+static inline XI_INLINE xfloat3 xi_neg3(xfloat3 a) { return make_xfloat3(-a.x, -a.y, -a.z); }
+static inline XI_INLINE xfloat3 xi_abs3(xfloat3 a) { return make_xfloat3(fabs(a.x), fabs(a.y), fabs(a.z)); }
+static inline XI_INLINE xfloat xi_dot3(xfloat3 a, xfloat3 b) { return a.x * b.x + a.y * b.y + a.z * b.z; }
+static inline XI_INLINE xfloat3 xi_cross3(xfloat3 a, xfloat3 b) {
+  return make_xfloat3(a.y * b.z - a.z * b.y, a.z * b.x - a.x * b.z, a.x * b.y - a.y * b.x);
+}
+static inline XI_INLINE xfloat3 xi_div3(xfloat3 a, xfloat s) { return make_xfloat3(a.x / s, a.y / s, a.z / s); }
+static inline XI_INLINE xfloat xi_length3(xfloat3 a) { return sqrt(xi_dot3(a, a)); }
+static inline XI_INLINE xfloat3 xi_normalize3(xfloat3 a) { return xi_scale3(a, 1.0f / xi_length3(a)); }
+static inline XI_INLINE xfloat3 xi_select3(xmask m, xfloat3 a, xfloat3 b) {
+  return make_xfloat3(m ? a.x : b.x, m ? a.y : b.y, m ? a.z : b.z);
+}
+static inline XI_INLINE xfloat3 xi_splat3(float3 v) { return make_xfloat3((xfloat)v.x, (xfloat)v.y, (xfloat)v.z); }
+
+// Loads of per-path memory: lane k reads element i[k].
+static inline XI_INLINE xfloat xi_gather_float(__global const float* p, xuint i) {
+  uint idx[8];
+  float v[8];
+  vstore8(i, 0, idx);
+  XI_FOR_LANES(k) v[k] = p[idx[k]];
+  return vload8(0, v);
+}
+static inline XI_INLINE xuint xi_gather_uint(__global const uint* p, xuint i) {
+  uint idx[8], v[8];
+  vstore8(i, 0, idx);
+  XI_FOR_LANES(k) v[k] = p[idx[k]];
+  return vload8(0, v);
+}
+// xyz of float4 elements, and their w.
+static inline XI_INLINE xfloat3 xi_gather_xyz(__global const float4* p, xuint i, xfloat* w) {
+  uint idx[8];
+  float x[8], y[8], z[8], ww[8];
+  vstore8(i, 0, idx);
+  XI_FOR_LANES(k) {
+    float4 e = p[idx[k]];
+    x[k] = e.x;
+    y[k] = e.y;
+    z[k] = e.z;
+    ww[k] = e.w;
+  }
+  if (w) *w = vload8(0, ww);
+  return make_xfloat3(vload8(0, x), vload8(0, y), vload8(0, z));
+}
+// Stores (xyz, w) to element i[k] of the lanes where m is true.
+static inline XI_INLINE void xi_scatter4(__global float4* p, xuint i, xfloat3 v, xfloat w, xmask m) {
+  uint idx[8];
+  int on[8];
+  float x[8], y[8], z[8], ww[8];
+  vstore8(i, 0, idx);
+  vstore8(m, 0, on);
+  vstore8(v.x, 0, x);
+  vstore8(v.y, 0, y);
+  vstore8(v.z, 0, z);
+  vstore8(w, 0, ww);
+  XI_FOR_LANES(k) if (on[k]) p[idx[k]] = (float4)(x[k], y[k], z[k], ww[k]);
+}
+// The number of lanes where m is true.
+static inline XI_INLINE uint xi_count(xmask m) {
+  int8 ones = m & 1;
+  int4 s4 = ones.lo + ones.hi;
+  int2 s2 = s4.lo + s4.hi;
+  return (uint)(s2.x + s2.y);
+}
+// Stores the lanes where m is true, in lane order, to consecutive elements from `at`.
+static inline XI_INLINE void xi_compact_uint(__global uint* p, uint at, xmask m, xuint v) {
+  int on[8];
+  uint vv[8];
+  vstore8(m, 0, on);
+  vstore8(v, 0, vv);
+  XI_FOR_LANES(k) if (on[k]) p[at++] = vv[k];
+}
+static inline XI_INLINE void xi_compact4(__global float4* p, uint at, xmask m, xfloat3 v, xfloat w) {
+  int on[8];
+  float x[8], y[8], z[8], ww[8];
+  vstore8(m, 0, on);
+  vstore8(v.x, 0, x);
+  vstore8(v.y, 0, y);
+  vstore8(v.z, 0, z);
+  vstore8(w, 0, ww);
+  XI_FOR_LANES(k) if (on[k]) p[at++] = (float4)(x[k], y[k], z[k], ww[k]);
+}
+
+#elif XI_LANES == 1
+
+typedef float xfloat;
+typedef uint xuint;
+typedef int xint;
+typedef bool xmask;
+typedef float2 xfloat2;
+typedef float3 xfloat3;
+
+#define xi_to_float(v) ((float)(v))
+#define xi_as_uint(v) as_uint(v)
+#define xi_as_int(v) as_int(v)
+#define xi_as_float(v) as_float_i(v)
+#define XI_ANY(m) (m)
+#define XI_TRUE true
+#define XI_FALSE false
+#define XI_LANE_INDEX 0u
+#define make_xfloat2 make_float2
+#define make_xfloat3 make_float3
+
+static inline xfloat3 xi_add3(xfloat3 a, xfloat3 b) { return a + b; }
+static inline xfloat3 xi_sub3(xfloat3 a, xfloat3 b) { return a - b; }
+static inline xfloat3 xi_mul3(xfloat3 a, xfloat3 b) { return a * b; }
+static inline xfloat3 xi_scale3(xfloat3 a, xfloat s) { return a * s; }
+static inline xfloat3 xi_neg3(xfloat3 a) { return -a; }
+static inline xfloat3 xi_abs3(xfloat3 a) { return fabs(a); }
+static inline xfloat xi_dot3(xfloat3 a, xfloat3 b) { return dot(a, b); }
+static inline xfloat3 xi_cross3(xfloat3 a, xfloat3 b) { return cross(a, b); }
+static inline xfloat3 xi_div3(xfloat3 a, xfloat s) { return a / s; }
+static inline xfloat xi_length3(xfloat3 a) { return length(a); }
+static inline xfloat3 xi_normalize3(xfloat3 a) { return normalize(a); }
+static inline xfloat3 xi_select3(xmask m, xfloat3 a, xfloat3 b) { return m ? a : b; }
+static inline xfloat3 xi_splat3(float3 v) { return v; }
+
+static inline xfloat xi_gather_float(__global const float* p, xuint i) { return p[i]; }
+static inline xuint xi_gather_uint(__global const uint* p, xuint i) { return p[i]; }
+static inline xfloat3 xi_gather_xyz(__global const float4* p, xuint i, xfloat* w) {
+  float4 e = p[i];
+  if (w) *w = e.w;
+  return xyz(e);
+}
+#ifdef XI_DEVICE
+static inline void xi_scatter4(__global float4* p, xuint i, xfloat3 v, xfloat w, xmask m) {
+  if (m) p[i] = (float4)(v, w);
+}
+static inline uint xi_count(xmask m) { return m ? 1u : 0u; }
+static inline void xi_compact_uint(__global uint* p, uint at, xmask m, xuint v) {
+  if (m) p[at] = v;
+}
+static inline void xi_compact4(__global float4* p, uint at, xmask m, xfloat3 v, xfloat w) {
+  if (m) p[at] = (float4)(v, w);
+}
+#endif
+
+#else
+#error "XI_LANES must be 1 or 8"
+#endif
+
+static inline xfloat xi_max3(xfloat3 v) { return fmax(v.x, fmax(v.y, v.z)); }
+// sqrt of a value that rounding may have pushed slightly below zero.
+static inline xfloat xi_safe_sqrt(xfloat x) { return sqrt(fmax(x, (xfloat)0.0f)); }
+
+#endif
