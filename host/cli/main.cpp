@@ -112,7 +112,7 @@ static const char* kUsage =
     "      --shade-lanes N       paths per shade work item, 1 or 8 (default: 8 on a CPU, 1 on\n"
     "                            a GPU)\n"
     "      --paths-in-flight N   most (pixel, sample) paths in one wave (default: sized for the\n"
-    "                            device, 2^18 on a CPU, 2^25 on a GPU, within 1/4 of its memory)\n"
+    "                            device, 2^20 on a CPU, 2^25 on a GPU, within 1/4 of its memory)\n"
     "      --samples-per-pass N  most spp one pass adds (default: what the paths in flight hold;\n"
     "                            1 with --convergence)\n"
     "      --all-features        compile every kernel feature, not just what the scene uses\n"

@@ -96,12 +96,13 @@ size_t path_bytes() {
 }
 
 size_t default_paths_in_flight(Device& device) {
-  // A CPU runs a few work items per core at a time: a wave that fits its caches is the faster one.
+  // A CPU: 2^20 paths, so a 512×512 frame takes 4 spp per pass, in a quarter of the launches of 2^18
+  // (the Cornell box at 64 spp 7% faster on 2 PoCL cores; 2^21 and 2^22 no faster again).
   // A GPU needs hundreds of thousands of paths to hide its memory latency, and tens of millions so
   // that the gaps between launches (tens of microseconds each on NVIDIA's driver) are a small part of
   // a pass: on an H200 at 1080p, 2^25 paths ran 8–9% faster than 2^23 (README, "On a GPU").
   const bool gpu = device.device().getInfo<CL_DEVICE_TYPE>() & CL_DEVICE_TYPE_GPU;
-  size_t paths = gpu ? (size_t)1 << 25 : (size_t)1 << 18;
+  size_t paths = gpu ? (size_t)1 << 25 : (size_t)1 << 20;
   // At most a quarter of the device memory, and no buffer over the device's largest allocation.
   const size_t bytes = path_bytes();
   const size_t mem = device.device().getInfo<CL_DEVICE_GLOBAL_MEM_SIZE>();
