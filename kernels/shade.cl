@@ -191,7 +191,7 @@ __kernel void shade(XI_PATH_PARAMS __global const uint* restrict queue_in, __glo
   xuint entry = (uint)get_global_id(0) * XI_LANES + XI_LANE_INDEX;
   xmask active = entry < counters[XI_COUNTER_RAYS(bounce)];  // launched over an upper bound
   xuint slot = xi_gather_uint(queue_in, active ? entry : (xuint)0u);
-  slot = active ? slot : (xuint)0u;
+  slot = active ? slot : (xuint)0u;  // queue_in[0] may be unwritten when the queue is empty
   ShadeResult r = xi_shade_paths(XI_PATH_ARGS slot, active, bounce, materials, tri_verts, tri_material, tri_normals,
                                  light_cdf, light_tri, tri_light_pdf, light_count, sampler,
                                  xi_gather_uint(item_pixel, slot), xi_gather_uint(item_sample, slot), max_depth,
@@ -209,10 +209,10 @@ __kernel void shade(XI_PATH_PARAMS __global const uint* restrict queue_in, __glo
     group_base[1] = atomic_add(&counters[XI_COUNTER_SHADOW(bounce)], group_count[1]);
   }
   barrier(CLK_LOCAL_MEM_FENCE);
-  ray_index += group_base[0];
-  shadow_index += group_base[1];
-  xi_compact_uint(queue_out, ray_index, r.next_ray, slot);
-  xi_compact4(shadow_org, shadow_index, r.shadow, r.shadow_org, r.shadow_tmax);
-  xi_compact4(shadow_dir, shadow_index, r.shadow, r.shadow_dir, (xfloat)0.0f);
-  xi_compact4(shadow_contrib, shadow_index, r.shadow, r.shadow_contrib, xi_as_float(slot));
+  xuint ray_at = xi_compact_index(group_base[0] + ray_index, r.next_ray);
+  xuint shadow_at = xi_compact_index(group_base[1] + shadow_index, r.shadow);
+  xi_scatter_uint(queue_out, ray_at, slot, r.next_ray);
+  xi_scatter4(shadow_org, shadow_at, r.shadow_org, r.shadow_tmax, r.shadow);
+  xi_scatter4(shadow_dir, shadow_at, r.shadow_dir, (xfloat)0.0f, r.shadow);
+  xi_scatter4(shadow_contrib, shadow_at, r.shadow_contrib, xi_as_float(slot), r.shadow);
 }

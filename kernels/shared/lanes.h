@@ -123,23 +123,24 @@ static inline XI_INLINE uint xi_count(xmask m) {
   int2 s2 = s4.lo + s4.hi;
   return (uint)(s2.x + s2.y);
 }
-// Stores the lanes where m is true, in lane order, to consecutive elements from `at`.
-static inline XI_INLINE void xi_compact_uint(__global uint* p, uint at, xmask m, xuint v) {
+static inline XI_INLINE void xi_scatter_uint(__global uint* p, xuint i, xuint v, xmask m) {
+  uint idx[8], vv[8];
   int on[8];
-  uint vv[8];
-  vstore8(m, 0, on);
+  vstore8(i, 0, idx);
   vstore8(v, 0, vv);
-  XI_FOR_LANES(k) if (on[k]) p[at++] = vv[k];
-}
-static inline XI_INLINE void xi_compact4(__global float4* p, uint at, xmask m, xfloat3 v, xfloat w) {
-  int on[8];
-  float x[8], y[8], z[8], ww[8];
   vstore8(m, 0, on);
-  vstore8(v.x, 0, x);
-  vstore8(v.y, 0, y);
-  vstore8(v.z, 0, z);
-  vstore8(w, 0, ww);
-  XI_FOR_LANES(k) if (on[k]) p[at++] = (float4)(x[k], y[k], z[k], ww[k]);
+  XI_FOR_LANES(k) if (on[k]) p[idx[k]] = vv[k];
+}
+// Where the lanes with m true go when appended, in lane order, to consecutive elements from `at`.
+static inline XI_INLINE xuint xi_compact_index(uint at, xmask m) {
+  int on[8];
+  uint idx[8];
+  vstore8(m, 0, on);
+  XI_FOR_LANES(k) {
+    idx[k] = at;
+    at += on[k] & 1;
+  }
+  return vload8(0, idx);
 }
 
 #elif XI_LANES == 1
@@ -187,13 +188,11 @@ static inline xfloat3 xi_gather_xyz(__global const float4* p, xuint i, xfloat* w
 static inline void xi_scatter4(__global float4* p, xuint i, xfloat3 v, xfloat w, xmask m) {
   if (m) p[i] = (float4)(v, w);
 }
+static inline void xi_scatter_uint(__global uint* p, xuint i, xuint v, xmask m) {
+  if (m) p[i] = v;
+}
 static inline uint xi_count(xmask m) { return m ? 1u : 0u; }
-static inline void xi_compact_uint(__global uint* p, uint at, xmask m, xuint v) {
-  if (m) p[at] = v;
-}
-static inline void xi_compact4(__global float4* p, uint at, xmask m, xfloat3 v, xfloat w) {
-  if (m) p[at] = (float4)(v, w);
-}
+static inline xuint xi_compact_index(uint at, xmask m) { return at; }
 #endif
 
 #else
