@@ -3,7 +3,7 @@
 #include "layout.h"
 
 __kernel void extend(XI_PATH_PARAMS __global const uint* restrict queue, __global const uint* restrict counters,
-                     uint bounce, __global const BvhNode* restrict nodes, __global const TriBlock* restrict tri_blocks) {
+                     uint bounce, __global const TraceNode* restrict nodes, __global const TriBlock* restrict tri_blocks) {
   uint i = get_global_id(0);
   if (i >= counters[XI_COUNTER_RAYS(bounce)]) return;  // launched over an upper bound
   uint slot = queue[i];

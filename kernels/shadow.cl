@@ -4,7 +4,7 @@
 #include "layout.h"
 
 __kernel void shadow(XI_PATH_PARAMS XI_SHADOW_PARAMS __global const uint* restrict counters, uint bounce,
-                     __global const BvhNode* restrict nodes, __global const TriBlock* restrict tri_blocks) {
+                     __global const TraceNode* restrict nodes, __global const TriBlock* restrict tri_blocks) {
   uint i = get_global_id(0);
   if (i >= counters[XI_COUNTER_SHADOW(bounce)]) return;  // launched over an upper bound
   float4 o = shadow_org[i];

@@ -1,7 +1,8 @@
-// BVH build and host-side traversal: the tree's invariants on three kinds of input, then closest-
-// and any-hit queries of xi_trace (intersect.h, run on the host over the arrays compile_scene lays
-// out for the kernels) against a brute-force loop over every triangle; and the one-float step that
-// spawned ray origins take past their error bound (spawn.h's xi_round_away).
+// BVH build and host-side traversal: the tree's invariants (4- and 8-wide) on three kinds of input,
+// then closest- and any-hit queries of xi_trace (intersect.h, run on the host over the arrays
+// compile_scene lays out for the kernels, 4 wide) against a brute-force loop over every triangle;
+// and the one-float step that spawned ray origins take past their error bound (spawn.h's
+// xi_round_away).
 #include <gtest/gtest.h>
 
 #include <algorithm>
@@ -73,13 +74,29 @@ struct Bounds {
   void grow(vec3 p) { lo = glm::min(lo, p), hi = glm::max(hi, p); }
   bool operator==(const Bounds&) const = default;
 };
-Bounds lane_bounds(const BvhNode& n, int k) {
-  return {vec3(n.bounds[0][k], n.bounds[2][k], n.bounds[4][k]), vec3(n.bounds[1][k], n.bounds[3][k], n.bounds[5][k])};
+// A node's lanes, whichever its width: child k and its box.
+struct NodeLanes {
+  int width;
+  const uint32_t* child;
+  std::function<float(int plane, int k)> bound;  // plane: lo x, hi x, lo y, hi y, lo z, hi z
+};
+NodeLanes node_lanes(const xi::Bvh& bvh, size_t i) {
+  if (bvh.width == 8) {
+    const BvhNode8& n = bvh.nodes8[i];
+    return {8, n.child, [&n](int plane, int k) { return n.bounds[plane].s[k]; }};
+  }
+  const BvhNode& n = bvh.nodes[i];
+  return {4, n.child, [&n](int plane, int k) { return n.bounds[plane][k]; }};
+}
+size_t node_count(const xi::Bvh& bvh) { return bvh.width == 8 ? bvh.nodes8.size() : bvh.nodes.size(); }
+Bounds lane_bounds(const NodeLanes& n, int k) {
+  return {vec3(n.bound(0, k), n.bound(2, k), n.bound(4, k)), vec3(n.bound(1, k), n.bound(3, k), n.bound(5, k))};
 }
 Bounds root_bounds(const xi::Bvh& bvh) {
   Bounds b;
-  for (int k = 0; k < XI_BVH_WIDTH; ++k)
-    if (bvh.nodes[0].child[k] != XI_BVH_EMPTY) b.grow(lane_bounds(bvh.nodes[0], k).lo), b.grow(lane_bounds(bvh.nodes[0], k).hi);
+  NodeLanes root = node_lanes(bvh, 0);
+  for (int k = 0; k < root.width; ++k)
+    if (root.child[k] != XI_BVH_EMPTY) b.grow(lane_bounds(root, k).lo), b.grow(lane_bounds(root, k).hi);
   return b;
 }
 Bounds scene_bounds(const xi::Scene& s) {
@@ -94,14 +111,14 @@ struct Walk {
   int depth = 0;
 };
 
-// Walks the 4-wide tree from the root, checking the layout (children after their parent, empty
+// Walks the wide tree (4 or 8 lanes) from the root, checking the layout (children after their parent, empty
 // lanes with empty boxes and only after used ones, leaves own disjoint ranges of triangle blocks
 // whose lanes cover every position of `order` once, every node reached once) and that every lane's box is exactly the bounds of what it holds
 // (so it contains it), and returns what the walk counted, including the traversal stack bound.
 Walk check_tree(const xi::Bvh& bvh, const std::vector<xi::Triangle>& tris) {
   const size_t n = tris.size();
   EXPECT_EQ(bvh.order.size(), n);
-  std::vector<int> seen_tri(n), seen_pos(n), seen_node(bvh.nodes.size()), seen_block(bvh.blocks.size());
+  std::vector<int> seen_tri(n), seen_pos(n), seen_node(node_count(bvh)), seen_block(bvh.blocks.size());
   for (uint32_t t : bvh.order)
     if (t < n) seen_tri[t]++;
   EXPECT_EQ((size_t)std::count(seen_tri.begin(), seen_tri.end(), 1), n) << "order is not a permutation";
@@ -111,15 +128,15 @@ Walk check_tree(const xi::Bvh& bvh, const std::vector<xi::Triangle>& tris) {
   // Returns the bounds of the node's content and the stack entries its traversal may need.
   std::function<std::pair<Bounds, size_t>(uint32_t, int)> walk = [&](uint32_t i, int depth) -> std::pair<Bounds, size_t> {
     Bounds all;
-    if (i >= bvh.nodes.size() || seen_node[i]++) {
+    if (i >= node_count(bvh) || seen_node[i]++) {
       ADD_FAILURE() << "node " << i << " is out of range or reached twice";
       bad++;
       return {all, 0};
     }
-    const BvhNode& node = bvh.nodes[i];
+    const NodeLanes node = node_lanes(bvh, i);
     w.nodes++;
     size_t lanes = 0, below = 0;
-    for (int k = 0; k < XI_BVH_WIDTH; ++k) {
+    for (int k = 0; k < node.width; ++k) {
       uint32_t c = node.child[k];
       Bounds box = lane_bounds(node, k), content;
       if (c == XI_BVH_EMPTY) {
@@ -183,7 +200,7 @@ Walk check_tree(const xi::Bvh& bvh, const std::vector<xi::Triangle>& tris) {
   EXPECT_EQ(bad, 0u);
   EXPECT_EQ(loose_boxes, 0u) << "boxes that are not exactly the bounds of their content";
   EXPECT_EQ((size_t)std::count(seen_pos.begin(), seen_pos.end(), 1), n) << "positions not in exactly one leaf";
-  EXPECT_EQ((size_t)std::count(seen_node.begin(), seen_node.end(), 1), bvh.nodes.size()) << "unreachable nodes";
+  EXPECT_EQ((size_t)std::count(seen_node.begin(), seen_node.end(), 1), node_count(bvh)) << "unreachable nodes";
   EXPECT_EQ((size_t)std::count(seen_block.begin(), seen_block.end(), 1), bvh.blocks.size())
       << "blocks not in exactly one leaf";
   return w;
@@ -191,7 +208,7 @@ Walk check_tree(const xi::Bvh& bvh, const std::vector<xi::Triangle>& tris) {
 
 void check_stats(const xi::Bvh& bvh, const Walk& w, bool degenerate) {
   EXPECT_EQ(bvh.stats.nodes, w.nodes);
-  EXPECT_EQ(bvh.stats.nodes, bvh.nodes.size());
+  EXPECT_EQ(bvh.stats.nodes, node_count(bvh));
   EXPECT_EQ(bvh.stats.leaves, w.leaves);
   EXPECT_EQ(bvh.stats.depth, w.depth);
   EXPECT_EQ(bvh.stats.max_leaf, w.max_leaf);
@@ -294,6 +311,18 @@ void check_scene(const xi::Scene& scene, uint32_t seed) {
   check_stats(cs.bvh, w, false);
   EXPECT_TRUE(root_bounds(cs.bvh) == scene_bounds(scene));  // the root box is the scene's bounds
   check_queries(scene, cs, seed);
+
+  // The 8-wide tree of CPU devices (traversed by the kernels only: Kernel.ExtendMatchesBruteForce)
+  // collapses the same binary tree: same triangle order and leaves, no deeper, fewer nodes.
+  SCOPED_TRACE("8-wide");
+  xi::CompiledScene cs8 = xi::compile_scene(scene, 8);
+  EXPECT_EQ(cs8.bvh.order, cs.bvh.order);
+  Walk w8 = check_tree(cs8.bvh, scene.triangles);
+  check_stats(cs8.bvh, w8, false);
+  EXPECT_TRUE(root_bounds(cs8.bvh) == scene_bounds(scene));
+  EXPECT_EQ(w8.leaves, w.leaves);
+  EXPECT_LE(w8.depth, w.depth);
+  if (w.nodes > 1) EXPECT_LT(w8.nodes, w.nodes);
 }
 
 TEST(BvhBuild, CornellBox) {
@@ -320,6 +349,9 @@ TEST(BvhBuild, IsDeterministic) {
   EXPECT_EQ(a.order, b.order);
   ASSERT_EQ(a.nodes.size(), b.nodes.size());
   EXPECT_EQ(std::memcmp(a.nodes.data(), b.nodes.data(), sizeof(BvhNode) * a.nodes.size()), 0);
+  xi::Bvh a8 = xi::build_bvh(s.triangles, 8), b8 = xi::build_bvh(s.triangles, 8);
+  ASSERT_EQ(a8.nodes8.size(), b8.nodes8.size());
+  EXPECT_EQ(std::memcmp(a8.nodes8.data(), b8.nodes8.data(), sizeof(BvhNode8) * a8.nodes8.size()), 0);
   ASSERT_EQ(a.blocks.size(), b.blocks.size());
   EXPECT_EQ(std::memcmp(a.blocks.data(), b.blocks.data(), sizeof(TriBlock) * a.blocks.size()), 0);
 }

@@ -335,6 +335,16 @@ TEST_F(CliBadInput, BadShadeLanes) {
   }
 }
 
+TEST_F(CliBadInput, BadBvhWidth) {
+  const auto before = files();
+  for (const std::string width : {"5", "16", "-4", "wide"}) {
+    SCOPED_TRACE(width);
+    expect_user_error(run_xi({"render", "-o", "out.exr", "--quiet", "--resolution", "32x32", "--spp", "1",
+                              "--bvh-width", width}),
+                      {"--bvh-width", width}, before);
+  }
+}
+
 TEST_F(CliBadInput, BadResolution) {
   const auto before = files();
   for (const std::string res : {"64", "0x10", "10x0", "-5x5", "10x", "x10", "10x10x", "10*10", "abc", "20000x10"}) {

@@ -111,6 +111,8 @@ static const char* kUsage =
     "      --local-size N        work-group size (default 64; 0: the driver chooses)\n"
     "      --shade-lanes N       paths per shade work item, 1 or 8 (default: 8 on a CPU, 1 on\n"
     "                            a GPU)\n"
+    "      --bvh-width N         children per BVH node, 4 or 8 (default: 8 on a CPU, 4 on a\n"
+    "                            GPU)\n"
     "      --paths-in-flight N   most (pixel, sample) paths in one wave (default: sized for the\n"
     "                            device, 2^20 on a CPU, 2^25 on a GPU, within 1/4 of its memory)\n"
     "      --samples-per-pass N  most spp one pass adds (default: what the paths in flight hold;\n"

@@ -140,7 +140,8 @@ std::string device_selector(const Args& args, const Team& team) {
 void prepare(Job& job, const std::vector<std::string>& argv, const Team& team) {
   Args args(argv,
             {"-o", "--spp", "--seed", "--device", "--max-depth", "--resolution", "--sampler", "--strategy",
-             "--local-size", "--shade-lanes", "--reference", "--convergence", "--trace", "--paths-in-flight", "--samples-per-pass",
+             "--local-size", "--shade-lanes", "--bvh-width", "--reference", "--convergence", "--trace",
+             "--paths-in-flight", "--samples-per-pass",
              "--time", "--snapshot-every", "--checkpoint", "--checkpoint-every", "--resume", "--camera"},
             {"--profile", "--quiet", "--all-features"});
   if (args.positional().size() > 1) throw Error("expected at most one scene file", args.positional()[1]);
@@ -170,6 +171,7 @@ void prepare(Job& job, const std::vector<std::string>& argv, const Team& team) {
   opt.strategy = parse_strategy(args.get("--strategy", "mis"));
   opt.local_size = (size_t)args.get_int("--local-size", (int)opt.local_size, 0, 1024);
   opt.shade_lanes = args.get_int("--shade-lanes", 0, 0, 8);
+  opt.bvh_width = args.get_int("--bvh-width", 0, 0, 8);
   opt.all_features = args.has("--all-features");
   opt.paths_in_flight = (size_t)args.get_int("--paths-in-flight", 0, 0, 1 << 30);
   // A convergence log has one row per pass: one spp per pass unless asked otherwise.
@@ -255,8 +257,9 @@ void print_setup(const Job& job, const Team& team, const std::vector<std::string
   if (job.asset)
     std::printf("film: %dx%d (%s)\n", job.scene.width, job.scene.height,
                 job.resolution_given ? "--resolution" : "height 512, width from the camera's aspect ratio");
-  std::printf("bvh: %zu 4-wide nodes, %zu leaves, depth %d, stack %zu, built in %.2f ms\n", cs.bvh.stats.nodes,
-              cs.bvh.stats.leaves, cs.bvh.stats.depth, cs.bvh.stats.stack, cs.bvh.stats.build_seconds * 1e3);
+  std::printf("bvh: %zu %d-wide nodes, %zu leaves, depth %d, stack %zu, built in %.2f ms\n", cs.bvh.stats.nodes,
+              cs.bvh.width, cs.bvh.stats.leaves, cs.bvh.stats.depth, cs.bvh.stats.stack,
+              cs.bvh.stats.build_seconds * 1e3);
   std::printf("kernels: %s in %.3f s\n", renderer.program().from_cache ? "loaded from cache" : "compiled",
               renderer.program().build_seconds);
   std::printf("paths in flight: %zu, %d spp per pass%s\n", renderer.paths_in_flight(), renderer.samples_per_pass(),

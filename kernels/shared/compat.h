@@ -15,10 +15,12 @@
 // Lane-wise comparisons: −1 where true, 0 where false.
 #define xi_less4(a, b) ((a) < (b))
 #define xi_greater4(a, b) ((a) > (b))
-// Lane-wise min and max as one instruction each: OpenCL's fmin/fmax must return the number when
-// the other operand is NaN, a compare and blend more on x86. (For operands that are never NaN.)
-#define xi_min4(a, b) select((b), (a), (a) < (b))
-#define xi_max4(a, b) select((b), (a), (a) > (b))
+#define xi_less_equal(a, b) ((a) <= (b))
+// Lane-wise min and max of vectors (any width) as one instruction each: OpenCL's fmin/fmax must
+// return the number when the other operand is NaN, a compare and blend more on x86. (For operands
+// that are never NaN.)
+#define xi_min(a, b) select((b), (a), (a) < (b))
+#define xi_max(a, b) select((b), (a), (a) > (b))
 
 #else  // host C++
 
@@ -38,6 +40,10 @@ typedef glm::vec3 float3;
 typedef glm::vec4 float4;
 typedef glm::ivec3 int3;
 typedef glm::ivec4 int4;
+// Only for laying out buffers that kernels read as float8 (OpenCL aligns it to 32 bytes).
+struct alignas(32) float8 {
+  float s[8];
+};
 
 using glm::cross;
 using glm::dot;
@@ -64,8 +70,9 @@ static inline float3 fmin(const float3& a, const float3& b) { return glm::min(a,
 static inline float3 fmax(const float3& a, const float3& b) { return glm::max(a, b); }
 static inline int4 xi_less4(const float4& a, const float4& b) { return -int4(glm::lessThan(a, b)); }
 static inline int4 xi_greater4(const float4& a, const float4& b) { return -int4(glm::greaterThan(a, b)); }
-static inline float4 xi_min4(const float4& a, const float4& b) { return glm::min(a, b); }
-static inline float4 xi_max4(const float4& a, const float4& b) { return glm::max(a, b); }
+static inline int4 xi_less_equal(const float4& a, const float4& b) { return -int4(glm::lessThanEqual(a, b)); }
+static inline float4 xi_min(const float4& a, const float4& b) { return glm::min(a, b); }
+static inline float4 xi_max(const float4& a, const float4& b) { return glm::max(a, b); }
 static inline float4 fmin(const float4& a, const float4& b) { return glm::min(a, b); }
 static inline float4 fmax(const float4& a, const float4& b) { return glm::max(a, b); }
 static inline float3 fabs(const float3& a) { return glm::abs(a); }

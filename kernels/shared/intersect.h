@@ -17,6 +17,23 @@
 
 #define XI_BVH_STACK 128  // entries; the BVH builder checks that its tree never needs more
 
+// The width of the BVH nodes the kernels traverse (layout.h), set by the host (RenderOptions::
+// bvh_width): 8 on CPU devices, 4 elsewhere and on the host (its tests' xi_trace).
+#ifndef XI_BVH_WIDTH
+#define XI_BVH_WIDTH 4
+#endif
+#if XI_BVH_WIDTH == 8
+typedef BvhNode8 TraceNode;
+typedef float8 NodeFloat;
+#define xi_node_lane_bits(m) (xi_lane_bits((m).lo) | xi_lane_bits((m).hi) << 4)
+#elif XI_BVH_WIDTH == 4
+typedef BvhNode TraceNode;
+typedef float4 NodeFloat;
+#define xi_node_lane_bits(m) xi_lane_bits(m)
+#else
+#error "XI_BVH_WIDTH must be 4 or 8"
+#endif
+
 // Per-ray constants of the watertight test: the axis of largest |d| becomes z (a cyclic
 // permutation of the axes, the same for every triangle the ray meets), then a shear makes the ray
 // the +z axis so the edge functions are evaluated exactly as 2D cross products. (Woop et al. also
@@ -135,9 +152,9 @@ static inline uint xi_intersect_block(RayShear s, __global const TriBlock* b, fl
   if (xi_lane_bits(candidate) == 0u) return 0u;
 #endif
   // (An unused lane's NaNs make its bound NaN, or not: its t is NaN, which fails either way.)
-  float4 max_x = xi_max4(xi_max4(fabs(ax), fabs(bx)), fabs(cx)), max_y = xi_max4(xi_max4(fabs(ay), fabs(by)), fabs(cy));
-  float4 max_z = xi_max4(xi_max4(fabs(s.sz * az), fabs(s.sz * bz)), fabs(s.sz * cz));
-  float4 max_e = xi_max4(xi_max4(fabs(e->e0), fabs(e->e1)), fabs(e->e2));
+  float4 max_x = xi_max(xi_max(fabs(ax), fabs(bx)), fabs(cx)), max_y = xi_max(xi_max(fabs(ay), fabs(by)), fabs(cy));
+  float4 max_z = xi_max(xi_max(fabs(s.sz * az), fabs(s.sz * bz)), fabs(s.sz * cz));
+  float4 max_e = xi_max(xi_max(fabs(e->e0), fabs(e->e1)), fabs(e->e2));
   e->t_err_det = XI_T_ERROR_DET(max_x, max_y, max_z, max_e);
   return xi_lane_bits(candidate & xi_greater4(t, e->t_err_det / fabs(det)));
 }
@@ -185,7 +202,7 @@ static inline float3 xi_safe_inverse(float3 d) {
 // node or leaf entries with the distance at which the ray enters them, so entries behind the best
 // hit are skipped when popped; the host checks that no tree needs more than XI_BVH_STACK entries
 // (xi::Bvh::stats.stack).
-static inline uint xi_trace(__global const BvhNode* nodes, __global const TriBlock* blocks, float3 o,
+static inline uint xi_trace(__global const TraceNode* nodes, __global const TriBlock* blocks, float3 o,
                             float3 d, float tmax, bool any_hit, float* t, float* u, float* v) {
   RayShear s = xi_ray_shear(o, d);
   float3 inv_d = xi_safe_inverse(d);
@@ -213,29 +230,38 @@ static inline uint xi_trace(__global const BvhNode* nodes, __global const TriBlo
         XI_BLOCK_LANE(w, 3)
       }
     } else {
-      // Slab test of all four child boxes at once, each axis's near plane chosen by the sign of
-      // the direction (an unused lane's inverted box is then always missed). No NaN can arise
-      // (inv_d is finite, a plane infinite only in an unused lane), so xi_min4/xi_max4 will do.
-      __global const BvhNode* n = nodes + entry;
-      float4 nx = n->bounds[near_x], fx = n->bounds[near_x ^ 1];
-      float4 ny = n->bounds[near_y], fy = n->bounds[near_y ^ 1];
-      float4 nz = n->bounds[near_z], fz = n->bounds[near_z ^ 1];
-      float4 tn = xi_max4(xi_max4((nx - o.x) * inv_d.x, (ny - o.y) * inv_d.y),
-                          xi_max4((nz - o.z) * inv_d.z, make_float4(0.0f, 0.0f, 0.0f, 0.0f)));
-      float4 tf = xi_min4(xi_min4((fx - o.x) * inv_d.x, (fy - o.y) * inv_d.y),
-                          xi_min4((fz - o.z) * inv_d.z, make_float4(best, best, best, best)));
-      tf = tf * XI_BOX_SLACK;
-      uint hits = (tn.x <= tf.x ? 1u : 0u) | (tn.y <= tf.y ? 2u : 0u) | (tn.z <= tf.z ? 4u : 0u) |
-                  (tn.w <= tf.w ? 8u : 0u);
+      // Slab test of all the child boxes at once, each axis's near plane chosen by the sign of the
+      // direction (an unused lane's inverted box is then always missed). No NaN can arise (inv_d
+      // is finite, a plane infinite only in an unused lane), so xi_min/xi_max will do.
+      __global const TraceNode* n = nodes + entry;
+      NodeFloat nx = n->bounds[near_x], fx = n->bounds[near_x ^ 1];
+      NodeFloat ny = n->bounds[near_y], fy = n->bounds[near_y ^ 1];
+      NodeFloat nz = n->bounds[near_z], fz = n->bounds[near_z ^ 1];
+      NodeFloat tn = xi_max(xi_max((nx - o.x) * inv_d.x, (ny - o.y) * inv_d.y),
+                            xi_max((nz - o.z) * inv_d.z, (NodeFloat)0.0f));
+      NodeFloat tf = xi_min(xi_min((fx - o.x) * inv_d.x, (fy - o.y) * inv_d.y),
+                            xi_min((fz - o.z) * inv_d.z, (NodeFloat)best));
+      uint hits = xi_node_lane_bits(xi_less_equal(tn, tf * XI_BOX_SLACK));
       if (hits != 0u && (hits & (hits - 1u)) == 0u) {  // one child: go there, the stack untouched
         entry = n->child[31 - clz(hits)];
         continue;
       }
       uint base = sp;
+#if XI_BVH_WIDTH == 8
+      XI_PUSH_CHILD(n, 0, tn.s0)
+      XI_PUSH_CHILD(n, 1, tn.s1)
+      XI_PUSH_CHILD(n, 2, tn.s2)
+      XI_PUSH_CHILD(n, 3, tn.s3)
+      XI_PUSH_CHILD(n, 4, tn.s4)
+      XI_PUSH_CHILD(n, 5, tn.s5)
+      XI_PUSH_CHILD(n, 6, tn.s6)
+      XI_PUSH_CHILD(n, 7, tn.s7)
+#else
       XI_PUSH_CHILD(n, 0, tn.x)
       XI_PUSH_CHILD(n, 1, tn.y)
       XI_PUSH_CHILD(n, 2, tn.z)
       XI_PUSH_CHILD(n, 3, tn.w)
+#endif
     }
     // Pop the nearest entry the ray enters before its best hit so far.
     for (;;) {

@@ -16,19 +16,25 @@ typedef struct {
   uint pad0, pad1, pad2;
 } MaterialData;
 
-// A 4-wide BVH node: the boxes of its (up to) four children side by side, one lane each, so one
-// float4 operation tests a ray against all four. An unused lane has an inverted box (lo = +inf,
-// hi = −inf, which no ray enters) and child XI_BVH_EMPTY.
-#define XI_BVH_WIDTH 4
+// A BVH node: the boxes of its children side by side, one lane each, so one vector operation
+// tests a ray against all of them. 4 wide (float4) for GPUs; 8 wide (float8, one AVX register) on
+// CPU devices, where a node of eight costs what one of four does and the tree is shallower (extend
+// 5–8% faster, shadow 5–12%, on PoCL). An unused lane has an inverted box (lo = +inf, hi = −inf,
+// which no ray enters) and child XI_BVH_EMPTY.
 #define XI_BVH_LEAF 0x80000000u   // child: leaf flag | (block count - 1) << 27 | first block
 #define XI_BVH_LEAF_MAX 16u       // triangle blocks in one leaf, at most
 #define XI_BVH_FIRST_MASK 0x07ffffffu
 #define XI_BVH_EMPTY 0xffffffffu
 typedef struct {
-  float4 bounds[6];          // child boxes, lane k = child k: lo x, hi x, lo y, hi y, lo z, hi z
-  uint child[XI_BVH_WIDTH];  // interior child: its node index; leaf: see above
-  uint pad[4];               // 128 bytes: two whole cache lines
+  float4 bounds[6];  // child boxes, lane k = child k: lo x, hi x, lo y, hi y, lo z, hi z
+  uint child[4];     // interior child: its node index; leaf: see above
+  uint pad[4];       // 128 bytes: two whole cache lines
 } BvhNode;
+typedef struct {
+  float8 bounds[6];  // as BvhNode's, eight lanes
+  uint child[8];
+  uint pad[8];       // 256 bytes: four whole cache lines
+} BvhNode8;
 
 #define XI_NO_HIT 0xffffffffu
 

@@ -1,5 +1,5 @@
 // Bounding volume hierarchy over triangles: a binary binned-SAH build on the host, collapsed into
-// 4-wide nodes, siblings side by side, the array the kernels traverse (kernels/shared/intersect.h).
+// 4- or 8-wide nodes, siblings side by side, the array the kernels traverse (kernels/shared/intersect.h).
 #pragma once
 #include <cstdint>
 #include <vector>
@@ -11,20 +11,22 @@ namespace xi {
 
 struct BvhStats {
   double build_seconds = 0.0;
-  size_t nodes = 0;       // 4-wide nodes
+  size_t nodes = 0;       // wide nodes
   size_t leaves = 0;
-  int depth = 0;          // longest root-to-leaf path, in edges of the 4-wide tree
+  int depth = 0;          // longest root-to-leaf path, in edges of the wide tree
   size_t max_leaf = 0;    // most triangles in one leaf
   size_t stack = 0;       // most traversal stack entries any ray can need (≤ XI_BVH_STACK)
 };
 
 struct Bvh {
+  int width = 4;                 // lanes per node: 4 (nodes) or 8 (nodes8; the other vector is empty)
   std::vector<BvhNode> nodes;
+  std::vector<BvhNode8> nodes8;
   std::vector<TriBlock> blocks; // the leaves' triangles, in blocks of four
   std::vector<uint32_t> order;  // order[i]: the scene triangle stored at position i
   BvhStats stats;
 };
 
-Bvh build_bvh(const std::vector<Triangle>& triangles);
+Bvh build_bvh(const std::vector<Triangle>& triangles, int width = 4);
 
 }  // namespace xi

@@ -53,6 +53,7 @@ struct CompiledScene {
   Features features;
 };
 
-CompiledScene compile_scene(const Scene& scene);
+// bvh_width: the lanes of the BVH's nodes, 4 or 8 (the kernels' XI_BVH_WIDTH).
+CompiledScene compile_scene(const Scene& scene, int bvh_width = 4);
 
 }  // namespace xi

@@ -49,6 +49,9 @@ struct RenderOptions {
   // Paths each shade work item takes, 1 or 8 (kernels/shared/lanes.h); 0: 8 on a CPU device, where
   // float8 arithmetic across paths is what fills its vector units, 1 elsewhere.
   int shade_lanes = 0;
+  // Lanes of the BVH's nodes, 4 or 8 (kernels/shared/layout.h); 0: 8 on a CPU device, whose AVX
+  // registers test eight child boxes as cheaply as four, 4 elsewhere.
+  int bvh_width = 0;
   // Most paths in flight at once, (pixel, sample) items of one wave; 0 sizes it for the device
   // (default_paths_in_flight). The image does not depend on it.
   size_t paths_in_flight = 0;

@@ -123,13 +123,31 @@ struct Builder {
   }
 };
 
-// Collapses the binary tree into 4-wide nodes: each wide node starts from a binary node's two
-// children and repeatedly opens the interior child of largest surface area (the one a ray is most
-// likely to enter, by the SAH's own measure) until it has four.
+static_assert(sizeof(BvhNode) == 128 && sizeof(BvhNode8) == 256, "node layouts as the kernels read them");
+
+void set_lanes(glm::vec4& v, const float* lanes) { v = glm::make_vec4(lanes); }
+void set_lanes(float8& v, const float* lanes) { std::copy(lanes, lanes + 8, v.s); }
+
+// A node's lanes into the layout the kernels read (BvhNode or BvhNode8).
+template <class Node, size_t Width>
+void store_node(Node& n, const float (*lo)[8], const float (*hi)[8], const uint32_t* child) {
+  for (int a = 0; a < 3; ++a) set_lanes(n.bounds[2 * a], lo[a]), set_lanes(n.bounds[2 * a + 1], hi[a]);
+  std::copy(child, child + Width, n.child);
+}
+
+// Collapses the binary tree into wide nodes (4 or 8 lanes): each wide node starts from a binary
+// node's two children and repeatedly opens the interior child of largest surface area (the one a
+// ray is most likely to enter, by the SAH's own measure) until it has `width`.
 struct Collapser {
   const std::vector<BinaryNode>& bin;
   const std::vector<Triangle>& tris;
   Bvh& bvh;
+
+  uint32_t new_node() {
+    if (bvh.width == 8) bvh.nodes8.push_back(BvhNode8{});
+    else bvh.nodes.push_back(BvhNode{});
+    return (uint32_t)(bvh.width == 8 ? bvh.nodes8.size() : bvh.nodes.size()) - 1;
+  }
 
   // Appends the blocks of the leaf's triangles (positions first..first+count of bvh.order) and
   // returns its child entry.
@@ -158,7 +176,8 @@ struct Collapser {
   size_t collapse(uint32_t b, size_t wide, int depth) {
     std::vector<uint32_t> kids{bin[b].left, bin[b].right};
     if (bin[b].count > 0) kids = {b};  // a root that is a leaf: one leaf lane
-    while (kids.size() < XI_BVH_WIDTH) {
+    const size_t width = (size_t)bvh.width;
+    while (kids.size() < width) {
       int open = -1;
       for (int k = 0; k < (int)kids.size(); ++k)
         if (bin[kids[k]].count == 0 && (open < 0 || bin[kids[k]].box.area() > bin[kids[open]].box.area())) open = k;
@@ -169,11 +188,11 @@ struct Collapser {
     }
     bvh.stats.depth = std::max(bvh.stats.depth, depth + 1);
     const float inf = INFINITY;
-    float lo[3][XI_BVH_WIDTH], hi[3][XI_BVH_WIDTH];
-    uint32_t child[XI_BVH_WIDTH];
+    float lo[3][8], hi[3][8];
+    uint32_t child[8];
     // A node's interior children are laid out side by side and its leaves' blocks likewise,
     // before any grandchild: a ray that enters one child is likely to enter its siblings.
-    for (size_t k = 0; k < XI_BVH_WIDTH; ++k) {
+    for (size_t k = 0; k < width; ++k) {
       for (int a = 0; a < 3; ++a) lo[a][k] = inf, hi[a][k] = -inf;
       child[k] = XI_BVH_EMPTY;
       if (k >= kids.size()) continue;
@@ -182,16 +201,14 @@ struct Collapser {
       if (c.count > 0) {
         child[k] = leaf(c.first, c.count);
       } else {
-        child[k] = (uint32_t)bvh.nodes.size();
-        bvh.nodes.push_back(BvhNode{});
+        child[k] = new_node();
       }
     }
     size_t below = 0;
     for (size_t k = 0; k < kids.size(); ++k)
       if (!(child[k] & XI_BVH_LEAF)) below = std::max(below, collapse(kids[k], child[k], depth + 1));
-    BvhNode& n = bvh.nodes[wide];
-    for (int a = 0; a < 3; ++a) n.bounds[2 * a] = glm::make_vec4(lo[a]), n.bounds[2 * a + 1] = glm::make_vec4(hi[a]);
-    std::copy(child, child + XI_BVH_WIDTH, n.child);
+    if (width == 8) store_node<BvhNode8, 8>(bvh.nodes8[wide], lo, hi, child);
+    else store_node<BvhNode, 4>(bvh.nodes[wide], lo, hi, child);
     // Traversal pushes up to one entry per lane and pops one to descend into an interior child.
     return std::max(kids.size(), kids.size() - 1 + below);
   }
@@ -199,13 +216,15 @@ struct Collapser {
 
 }  // namespace
 
-Bvh build_bvh(const std::vector<Triangle>& triangles) {
+Bvh build_bvh(const std::vector<Triangle>& triangles, int width) {
   auto start = std::chrono::steady_clock::now();
+  if (width != 4 && width != 8) throw Error("BVH width must be 4 or 8, not " + std::to_string(width), "--bvh-width");
   if (triangles.empty()) throw Error("cannot build a BVH over an empty scene");
   if (triangles.size() >= (1ull << 31)) throw Error("too many triangles for 32-bit indices");
   // Leaf entries address triangles with 27 bits (XI_BVH_FIRST_MASK).
   if (triangles.size() > XI_BVH_FIRST_MASK) throw Error("too many triangles for the BVH (at most 134217727)");
   Bvh bvh;
+  bvh.width = width;
   Builder b{{}, {}, bvh.order, {}};
   b.bounds.resize(triangles.size());
   b.centroids.resize(triangles.size());
@@ -218,12 +237,13 @@ Bvh build_bvh(const std::vector<Triangle>& triangles) {
   b.nodes.reserve(2 * triangles.size());
   b.nodes.push_back(BinaryNode{});
   b.build(0, 0, triangles.size(), 0);
-  bvh.nodes.push_back(BvhNode{});
-  bvh.stats.stack = Collapser{b.nodes, triangles, bvh}.collapse(0, 0, 0);
+  Collapser collapser{b.nodes, triangles, bvh};
+  collapser.new_node();  // the root
+  bvh.stats.stack = collapser.collapse(0, 0, 0);
   if (bvh.stats.stack > XI_BVH_STACK)
     throw Error("the scene's BVH is too deep for the kernels' traversal stack",
                 "needs " + std::to_string(bvh.stats.stack) + " entries, XI_BVH_STACK is " + std::to_string(XI_BVH_STACK));
-  bvh.stats.nodes = bvh.nodes.size();
+  bvh.stats.nodes = width == 8 ? bvh.nodes8.size() : bvh.nodes.size();
   bvh.stats.build_seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   return bvh;
 }

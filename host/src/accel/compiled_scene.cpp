@@ -65,9 +65,9 @@ std::vector<std::string> kernel_defines(const Features& f, int sampler, Strategy
   return d;
 }
 
-CompiledScene compile_scene(const Scene& scene) {
+CompiledScene compile_scene(const Scene& scene, int bvh_width) {
   CompiledScene cs;
-  cs.bvh = build_bvh(scene.triangles);
+  cs.bvh = build_bvh(scene.triangles, bvh_width);
   const size_t n = scene.triangles.size();
 
   for (auto& m : scene.materials) {

@@ -111,8 +111,13 @@ size_t default_paths_in_flight(Device& device) {
   return std::max<size_t>(paths, 1024);
 }
 
+// The BVH width the kernels will traverse: the option, or the device's default.
+static int bvh_width(Device& device, const RenderOptions& options) {
+  return options.bvh_width ? options.bvh_width : (device.info().type == "CPU" ? 8 : 4);
+}
+
 Renderer::Renderer(Device& device, const Scene& scene, const RenderOptions& options)
-    : device_(device), options_(options), scene_(compile_scene(scene)) {
+    : device_(device), options_(options), scene_(compile_scene(scene, bvh_width(device, options))) {
   if (options.spp < 1) throw Error("spp must be at least 1", "--spp");
   if (options.max_depth < 1 || options.max_depth > 64) throw Error("max depth must be in 1..64", "--max-depth");
   if (options.samples_per_pass < 0) throw Error("samples per pass must be at least 1 (0: automatic)");
@@ -121,9 +126,10 @@ Renderer::Renderer(Device& device, const Scene& scene, const RenderOptions& opti
   if (shade_lanes_ != 1 && shade_lanes_ != 8)
     throw Error("shade lanes must be 1 or 8, not " + std::to_string(shade_lanes_), "--shade-lanes");
   const std::vector<std::string> defines = kernel_defines(f, options.sampler, options.strategy);
-  std::vector<std::string> shade_defines = defines;
+  std::vector<std::string> shade_defines = defines, stage_defines = defines;
   shade_defines.push_back("XI_LANES=" + std::to_string(shade_lanes_));
-  program_ = build_program(device, kStageFiles, defines);
+  stage_defines.push_back("XI_BVH_WIDTH=" + std::to_string(scene_.bvh.width));
+  program_ = build_program(device, kStageFiles, stage_defines);
   Program shade_program = build_program(device, {kShadeFile}, shade_defines);
   // One key, build time and cache state for all the kernels (checkpoints and `xi render` use them).
   program_.key += shade_program.key;
@@ -146,7 +152,8 @@ Renderer::Renderer(Device& device, const Scene& scene, const RenderOptions& opti
   paths_ = std::min(budget, pixels_ * samples_per_pass_);
   if (paths_ > UINT32_MAX / 2) throw Error("too many paths in flight", std::to_string(paths_));
   size_t scene_bytes = 0, largest_scene_buffer = 0;
-  for (size_t b : {sizeof(BvhNode) * scene_.bvh.nodes.size(), sizeof(TriBlock) * scene_.bvh.blocks.size(),
+  for (size_t b : {sizeof(BvhNode) * scene_.bvh.nodes.size() + sizeof(BvhNode8) * scene_.bvh.nodes8.size(),
+                   sizeof(TriBlock) * scene_.bvh.blocks.size(),
                    sizeof(glm::vec4) * scene_.tri_verts.size(), sizeof(glm::vec4) * scene_.tri_normals.size(),
                    sizeof(uint32_t) * scene_.tri_material.size(), sizeof(MaterialData) * scene_.materials.size(),
                    sizeof(float) * scene_.light_cdf.size(), sizeof(uint32_t) * scene_.light_tri.size(),
@@ -166,7 +173,7 @@ Renderer::Renderer(Device& device, const Scene& scene, const RenderOptions& opti
   counter_count_ = XI_COUNTER_COUNT(options.max_depth);
   counters_ = cl::Buffer(ctx, CL_MEM_READ_WRITE, sizeof(uint32_t) * counter_count_);
   ray_counts_.assign(options.max_depth + 2, 0);
-  nodes_ = upload(ctx, scene_.bvh.nodes);
+  nodes_ = scene_.bvh.width == 8 ? upload(ctx, scene_.bvh.nodes8) : upload(ctx, scene_.bvh.nodes);
   tri_blocks_ = upload(ctx, scene_.bvh.blocks);
   tri_verts_ = upload(ctx, scene_.tri_verts);
   tri_normals_ = upload(ctx, scene_.tri_normals);
