@@ -101,8 +101,7 @@ size_t default_paths_in_flight(Device& device) {
   // A GPU needs hundreds of thousands of paths to hide its memory latency, and tens of millions so
   // that the gaps between launches (tens of microseconds each on NVIDIA's driver) are a small part of
   // a pass: on an H200 at 1080p, 2^25 paths ran 8–9% faster than 2^23 (README, "On a GPU").
-  const bool gpu = device.device().getInfo<CL_DEVICE_TYPE>() & CL_DEVICE_TYPE_GPU;
-  size_t paths = gpu ? (size_t)1 << 25 : (size_t)1 << 20;
+  size_t paths = device.info().type == "GPU" ? (size_t)1 << 25 : (size_t)1 << 20;
   // At most a quarter of the device memory, and no buffer over the device's largest allocation.
   const size_t bytes = path_bytes();
   const size_t mem = device.device().getInfo<CL_DEVICE_GLOBAL_MEM_SIZE>();
