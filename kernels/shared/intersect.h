@@ -45,11 +45,15 @@ typedef struct {
   float sx, sy, sz;
 } RayShear;
 
+// The axes that become x and y when axis kz becomes z.
+static inline int xi_axis_to_x(int kz) { return kz == 2 ? 0 : kz + 1; }
+static inline int xi_axis_to_y(int kz) { return kz == 0 ? 2 : kz - 1; }
+
 // By index, not by a choice between three vectors: the axis is random from ray to ray, so a
 // branch on it is mispredicted.
 static inline float3 xi_permute_axes(float3 v, int kz) {
   float a[3] = {v.x, v.y, v.z};
-  return make_float3(a[kz == 2 ? 0 : kz + 1], a[kz == 0 ? 2 : kz - 1], a[kz]);
+  return make_float3(a[xi_axis_to_x(kz)], a[xi_axis_to_y(kz)], a[kz]);
 }
 
 static inline RayShear xi_ray_shear(float3 o, float3 d) {
@@ -115,11 +119,11 @@ typedef struct {
 } BlockEdges;
 
 // Vertex j of the block's triangles, axes permuted as the ray's and relative to its origin. The
-// permutation is an index per axis, computed once per ray, not a choice per coordinate.
+// permutation is an index per axis (the same for every block the ray meets), not a choice per
+// coordinate.
 static inline void xi_block_vertex(__global const TriBlock* b, int j, RayShear s, float4* x, float4* y, float4* z) {
-  int kx = s.kz == 2 ? 0 : s.kz + 1, ky = s.kz == 0 ? 2 : s.kz - 1;
-  *x = b->coord[kx][j] - s.o.x;
-  *y = b->coord[ky][j] - s.o.y;
+  *x = b->coord[xi_axis_to_x(s.kz)][j] - s.o.x;
+  *y = b->coord[xi_axis_to_y(s.kz)][j] - s.o.y;
   *z = b->coord[s.kz][j] - s.o.z;
 }
 
