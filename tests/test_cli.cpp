@@ -14,6 +14,7 @@
 #include <filesystem>
 #include <fstream>
 #include <functional>
+#include <initializer_list>
 #include <regex>
 #include <set>
 #include <sstream>
@@ -176,7 +177,20 @@ TEST_F(CliDevices, IndexOutOfRangeFails) {
 // ---------------------------------------------------------------------------------------------
 // Bad input: exit 1, one line naming the file and the field, no output.
 
-class CliBadInput : public CliTest {};
+class CliBadInput : public CliTest {
+ protected:
+  // Each value of `flag` on an otherwise good small render: one error naming the flag and the value,
+  // a non-zero exit, and no file written.
+  void expect_each_refused(const std::string& flag, std::initializer_list<std::string> values) {
+    const auto before = files();
+    for (const std::string& value : values) {
+      SCOPED_TRACE(flag + " " + value);
+      expect_user_error(run_xi({"render", "-o", "out.exr", "--quiet", "--resolution", "32x32", "--spp", "1", flag,
+                                value}),
+                        {flag, value}, before);
+    }
+  }
+};
 
 TEST_F(CliBadInput, MissingSceneFile) {
   const auto before = files();
@@ -325,25 +339,9 @@ TEST_F(CliBadInput, BadSpp) {
   }
 }
 
-TEST_F(CliBadInput, BadShadeLanes) {
-  const auto before = files();
-  for (const std::string lanes : {"3", "9", "-1", "abc"}) {
-    SCOPED_TRACE(lanes);
-    expect_user_error(run_xi({"render", "-o", "out.exr", "--quiet", "--resolution", "32x32", "--spp", "1",
-                              "--shade-lanes", lanes}),
-                      {"--shade-lanes", lanes}, before);
-  }
-}
+TEST_F(CliBadInput, BadShadeLanes) { expect_each_refused("--shade-lanes", {"3", "9", "-1", "abc"}); }
 
-TEST_F(CliBadInput, BadBvhWidth) {
-  const auto before = files();
-  for (const std::string width : {"5", "16", "-4", "wide"}) {
-    SCOPED_TRACE(width);
-    expect_user_error(run_xi({"render", "-o", "out.exr", "--quiet", "--resolution", "32x32", "--spp", "1",
-                              "--bvh-width", width}),
-                      {"--bvh-width", width}, before);
-  }
-}
+TEST_F(CliBadInput, BadBvhWidth) { expect_each_refused("--bvh-width", {"5", "16", "-4", "wide"}); }
 
 TEST_F(CliBadInput, BadResolution) {
   const auto before = files();

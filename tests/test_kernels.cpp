@@ -197,13 +197,12 @@ TEST_F(Kernel, ExtendMatchesBruteForce) {
   counters[XI_COUNTER_RAYS(bounce)] = n;
   // The hits of the extend kernel over a BVH of either width. Both hold triangles in the same order
   // (the binary build's), so a hit's position means the same triangle in both.
-  xi::CompiledScene cs = xi::compile_scene(scene, 4);
-  auto trace = [&](int width) {
-    xi::CompiledScene wide = xi::compile_scene(scene, width);
-    EXPECT_EQ(wide.bvh.order, cs.bvh.order);
+  const xi::CompiledScene cs = xi::compile_scene(scene, 4), cs8 = xi::compile_scene(scene, 8);
+  EXPECT_EQ(cs8.bvh.order, cs.bvh.order);
+  auto trace = [&](const xi::CompiledScene& wide) {
     PathBuffers b = upload(state);
     cl::Buffer qb = buffer(q), cb = buffer(counters), nodes = bvh_nodes(wide.bvh), blocks = buffer(wide.bvh.blocks);
-    cl::Kernel k = kernel("extend", width);
+    cl::Kernel k = kernel("extend", wide.bvh.width);
     int arg = bind(k, b);
     k.setArg(arg++, qb);
     k.setArg(arg++, cb);
@@ -213,7 +212,7 @@ TEST_F(Kernel, ExtendMatchesBruteForce) {
     launch(k, slots);
     return read<vec4>(b.hit, slots);
   };
-  const std::vector<vec4> hit_by_width[2] = {trace(4), trace(8)};
+  const std::vector<vec4> hit_by_width[2] = {trace(cs), trace(cs8)};
 
   BruteForce brute(scene.triangles);
   int hits[2] = {}, ties = 0, bad[2] = {};
