@@ -1,5 +1,6 @@
 // Tool kernels, not wavefront stages: they run the renderer's own sampling routines on sample sets
-// so `xi warp` can draw them and the tests can check them against their pdfs (χ²).
+// so `xi warp` can draw them and the tests can check them against their pdfs (χ²), and expose a
+// device-specific helper to a test.
 #include "bsdf.h"
 #include "layout.h"
 #include "lights.h"
@@ -49,4 +50,15 @@ __kernel void sample_bsdf(__global float4* restrict out, uint material, float4 n
     float3 wi = xi_lambert_sample(n.xyz, u, &pdf);
     out[i] = (float4)(wi, pdf);
   }
+}
+
+// xi_lane_bits8 and xi_lane_bits (the BVH traversal branches on them) on the comparison whose true
+// lanes are the set bits of i: out[i] = the 8-lane form, out[256 + i] = the 4-lane form on lanes 0–3.
+__kernel void lane_bits(__global uint* restrict out) {
+  uint i = get_global_id(0);
+  if (i >= 256u) return;
+  uint8 bit = ((uint8)(i) >> (uint8)(0u, 1u, 2u, 3u, 4u, 5u, 6u, 7u)) & (uint8)(1u);
+  int8 m = convert_float8(bit) > (float8)(0.5f);
+  out[i] = xi_lane_bits8(m);
+  out[256u + i] = xi_lane_bits(m.lo);
 }

@@ -103,8 +103,21 @@ static inline float as_float_i(int i) { float f; std::memcpy(&f, &i, 4); return 
 #define XI_INV_PI 0.31830988618379067154f
 #define XI_ONE_MINUS_EPSILON 0x1.fffffep-1f  // the largest float below 1
 
-// Bit k set where lane k of a comparison is true.
+// Bit k set where lane k of a comparison (−1 true, 0 false) is true; xi_lane_bits8 for 8 lanes.
+// Compiled for x86 with AVX (PoCL on a CPU), one movmskps reads the lanes' sign bits: LLVM does
+// not find it in the portable form, which became some twenty shuffles, ands, ors and extracts per
+// node test. extend 6–13% faster on PoCL (bench/xi_kernel_ab), every hit the same.
+#if defined(__OPENCL_VERSION__) && defined(__clang__) && defined(__AVX__)
+typedef float xi_m128 __attribute__((vector_size(16)));
+typedef float xi_m256 __attribute__((vector_size(32)));
+static inline uint xi_lane_bits(int4 m) { return (uint)__builtin_ia32_movmskps((xi_m128)as_float4(m)); }
+static inline uint xi_lane_bits8(int8 m) { return (uint)__builtin_ia32_movmskps256((xi_m256)as_float8(m)); }
+#else
 static inline uint xi_lane_bits(int4 m) { return (uint)((m.x & 1) | (m.y & 2) | (m.z & 4) | (m.w & 8)); }
+#ifdef __OPENCL_VERSION__
+static inline uint xi_lane_bits8(int8 m) { return xi_lane_bits(m.lo) | xi_lane_bits(m.hi) << 4; }
+#endif
+#endif
 
 // gamma(n) = n eps / (1 - n eps), eps = 2^-24: the relative error bound of n rounded operations.
 #define XI_GAMMA(n) ((n) * 0x1p-24f / (1.0f - (n) * 0x1p-24f))

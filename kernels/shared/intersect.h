@@ -25,7 +25,7 @@
 #if XI_BVH_WIDTH == 8
 typedef BvhNode8 TraceNode;
 typedef float8 NodeFloat;
-#define xi_node_lane_bits(m) (xi_lane_bits((m).lo) | xi_lane_bits((m).hi) << 4)
+#define xi_node_lane_bits(m) xi_lane_bits8(m)
 #elif XI_BVH_WIDTH == 4
 typedef BvhNode TraceNode;
 typedef float4 NodeFloat;
