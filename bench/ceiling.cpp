@@ -24,7 +24,7 @@ struct Embree {
   RTCDevice device = rtcNewDevice(nullptr);
   RTCScene scene = rtcNewScene(device);
 
-  explicit Embree(const std::vector<glm::vec4>& tri_verts) {
+  Embree(const std::vector<glm::vec4>& tri_verts, RTCBuildQuality quality) {
     const size_t n = tri_verts.size() / 3;
     RTCGeometry geom = rtcNewGeometry(device, RTC_GEOMETRY_TYPE_TRIANGLE);
     auto* v = (float*)rtcSetNewGeometryBuffer(geom, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3, 3 * sizeof(float),
@@ -40,7 +40,7 @@ struct Embree {
     rtcCommitGeometry(geom);
     rtcAttachGeometry(scene, geom);
     rtcReleaseGeometry(geom);
-    rtcSetSceneBuildQuality(scene, RTC_BUILD_QUALITY_HIGH);
+    rtcSetSceneBuildQuality(scene, quality);
     rtcCommitScene(scene);
   }
   ~Embree() {
@@ -82,9 +82,17 @@ struct Embree {
 
 }  // namespace
 
+// Embree's build quality: high (its default here) adds spatial splits to the binned SAH of medium.
+RTCBuildQuality parse_quality(const std::string& s) {
+  if (s == "high") return RTC_BUILD_QUALITY_HIGH;
+  if (s == "medium") return RTC_BUILD_QUALITY_MEDIUM;
+  if (s == "low") return RTC_BUILD_QUALITY_LOW;
+  throw xi::Error("expected an Embree build quality: high, medium or low", s);
+}
+
 int main(int argc, char** argv) {
   if (argc < 2) {
-    std::fprintf(stderr, "usage: xi_ceiling SCENE.json [RUNS] [WIDTHxHEIGHT]\n");
+    std::fprintf(stderr, "usage: xi_ceiling SCENE.json [RUNS] [WIDTHxHEIGHT] [high|medium|low]\n");
     return 2;
   }
   try {
@@ -92,10 +100,12 @@ int main(int argc, char** argv) {
     xi::Scene scene = xi::load_scene(argv[1]);
     if (argc > 3 && std::sscanf(argv[3], "%dx%d", &scene.width, &scene.height) != 2)
       throw xi::Error("expected WIDTHxHEIGHT", argv[3]);
+    const std::string quality = argc > 4 ? argv[4] : "high";
+    const RTCBuildQuality embree_quality = parse_quality(quality);
     xi::Device device = xi::Device::open("");
-    std::printf("scene %s: %zu triangles, %dx%d; device %s; %u host threads for Embree\n", argv[1],
-                scene.triangles.size(), scene.width, scene.height, device.info().name.c_str(),
-                std::thread::hardware_concurrency());
+    std::printf("scene %s: %zu triangles, %dx%d; device %s; %u host threads for Embree, build quality %s\n",
+                argv[1], scene.triangles.size(), scene.width, scene.height, device.info().name.c_str(),
+                std::thread::hardware_concurrency(), quality.c_str());
     for (int bounce : {0, 1}) {
       xi::RenderOptions opt;
       opt.spp = 1;
@@ -104,7 +114,7 @@ int main(int argc, char** argv) {
       xi::Renderer recorder(device, scene, opt);
       recorder.run_pass();
       const xi::RayBatch& rays = recorder.recorded_rays();
-      Embree embree(recorder.compiled().tri_verts);
+      Embree embree(recorder.compiled().tri_verts, embree_quality);
       std::vector<double> xi_s, em_s;
       std::vector<glm::vec4> hits;
       std::vector<int> prim;
