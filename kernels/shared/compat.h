@@ -1,7 +1,8 @@
 // Lets the shared headers compile both as OpenCL C 1.2 (kernels) and as C++ (host and tests).
 // On the host the OpenCL vector types map to GLM, so a test can call the very function a kernel
 // calls. Shared headers stick to the common subset: no swizzles (use xyz()), constructors only
-// through make_float2/3/4, `static inline` functions, address-space qualifiers that vanish on host.
+// through make_float2/3/4 and make_uint2, `static inline` functions, address-space qualifiers that
+// vanish on host.
 #ifndef XI_COMPAT_H
 #define XI_COMPAT_H
 
@@ -9,6 +10,7 @@
 
 #define XI_DEVICE 1
 #define make_float2(x, y) ((float2)((x), (y)))
+#define make_uint2(x, y) ((uint2)((x), (y)))
 #define make_float3(x, y, z) ((float3)((x), (y), (z)))
 #define make_float4(x, y, z, w) ((float4)((x), (y), (z), (w)))
 #define xyz(v) ((v).xyz)
@@ -38,6 +40,7 @@ typedef uint32_t uint;
 typedef glm::vec2 float2;
 typedef glm::vec3 float3;
 typedef glm::vec4 float4;
+typedef glm::uvec2 uint2;
 typedef glm::ivec3 int3;
 typedef glm::ivec4 int4;
 // Only for laying out buffers that kernels read as float8 (OpenCL aligns it to 32 bytes).
@@ -63,6 +66,7 @@ using std::acos;
 using std::atan2;
 
 static inline float2 make_float2(float x, float y) { return float2(x, y); }
+static inline uint2 make_uint2(uint x, uint y) { return uint2(x, y); }
 static inline float3 make_float3(float x, float y, float z) { return float3(x, y, z); }
 static inline float4 make_float4(float x, float y, float z, float w) { return float4(x, y, z, w); }
 static inline float3 xyz(const float4& v) { return float3(v.x, v.y, v.z); }

@@ -177,15 +177,12 @@ static inline float3 xi_safe_inverse(float3 d) {
 // any-hit query (shadow rays) stops at whichever hit it finds, so it skips the sort (shadow stage
 // on PoCL: the engine 5% faster, the Cornell box the same). (Branch-free placement, each lane's
 // rank among the entered lanes by vector compares, was 3–10% slower on PoCL.)
-#define XI_PUSH_CHILD(n, k, tn_k)                                        \
-  if (hits & (1u << (k))) {                                              \
-    uint j = sp++;                                                       \
-    for (; !any_hit && j > base && stack_tn[j - 1u] < (tn_k); --j) {     \
-      stack[j] = stack[j - 1u];                                          \
-      stack_tn[j] = stack_tn[j - 1u];                                    \
-    }                                                                    \
-    stack[j] = (n)->child[k];                                            \
-    stack_tn[j] = (tn_k);                                                \
+#define XI_PUSH_CHILD(n, k, tn_k)                                                    \
+  if (hits & (1u << (k))) {                                                          \
+    uint j = sp++;                                                                   \
+    for (; !any_hit && j > base && as_float(stack[j - 1u].y) < (tn_k); --j)          \
+      stack[j] = stack[j - 1u];                                                      \
+    stack[j] = make_uint2((n)->child[k], as_uint(tn_k));                             \
   }
 
 // Takes lane `c` (x, y, z or w; index l) of a block's test, in lane order, as xi_intersect_triangle
@@ -213,8 +210,7 @@ static inline uint xi_trace(__global const TraceNode* nodes, __global const TriB
   // Which of a node's bounds (lo x, hi x, lo y, ...) is each axis's near plane: an index, so a
   // node's slab test loads its planes without a choice per plane.
   int near_x = inv_d.x < 0.0f ? 1 : 0, near_y = inv_d.y < 0.0f ? 3 : 2, near_z = inv_d.z < 0.0f ? 5 : 4;
-  uint stack[XI_BVH_STACK];
-  float stack_tn[XI_BVH_STACK];
+  uint2 stack[XI_BVH_STACK];  // (entry, the distance at which the ray enters it as bits): one move each
   uint sp = 0u;
   uint entry = 0u;  // the root, always an interior node
   uint found = XI_NO_HIT;
@@ -271,9 +267,9 @@ static inline uint xi_trace(__global const TraceNode* nodes, __global const TriB
     for (;;) {
       if (sp == 0u) return found;
       --sp;
-      if (stack_tn[sp] <= best * XI_BOX_SLACK) break;
+      if (as_float(stack[sp].y) <= best * XI_BOX_SLACK) break;
     }
-    entry = stack[sp];
+    entry = stack[sp].x;
   }
 }
 
