@@ -287,18 +287,22 @@ TEST_F(Kernel, ExtendMatchesBruteForce) {
 
 // --- generate ------------------------------------------------------------------------------------
 
-// The lane masks the traversal branches on (one movmskps on PoCL with AVX, a portable form
-// elsewhere) name exactly the true lanes of every 8-lane comparison, and of its low four lanes.
+// The lane masks the traversal branches on (one movmskps on PoCL with AVX, a portable form on
+// other devices, built here too) name exactly the true lanes of every 8-lane comparison, and of its
+// low four lanes.
 TEST_F(Kernel, LaneBitsNameTheTrueLanes) {
-  xi::Program tools = xi::build_program(*device_, {"tools.cl"}, {});
-  cl::Kernel k(tools.program, "lane_bits");
-  cl::Buffer out = buffer(garbage<uint32_t>(512));
-  k.setArg(0, out);
-  launch(k, 256);
-  std::vector<uint32_t> bits = read<uint32_t>(out, 512);
-  for (uint32_t i = 0; i < 256; ++i) {
-    EXPECT_EQ(bits[i], i) << "8 lanes";
-    EXPECT_EQ(bits[256 + i], i & 15u) << "4 lanes, mask " << i;
+  for (std::vector<std::string> defines : {std::vector<std::string>{}, {"XI_PORTABLE_LANE_BITS"}}) {
+    SCOPED_TRACE(defines.empty() ? "the device's own form" : "the portable form");
+    xi::Program tools = xi::build_program(*device_, {"tools.cl"}, defines);
+    cl::Kernel k(tools.program, "lane_bits");
+    cl::Buffer out = buffer(garbage<uint32_t>(512));
+    k.setArg(0, out);
+    launch(k, 256);
+    std::vector<uint32_t> bits = read<uint32_t>(out, 512);
+    for (uint32_t i = 0; i < 256; ++i) {
+      EXPECT_EQ(bits[i], i) << "8 lanes";
+      EXPECT_EQ(bits[256 + i], i & 15u) << "4 lanes, mask " << i;
+    }
   }
 }
 
