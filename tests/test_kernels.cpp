@@ -285,8 +285,6 @@ TEST_F(Kernel, ExtendMatchesBruteForce) {
   EXPECT_LT(ties, (int)n / 1000);  // edge ties are rare for random rays: < 0.1%
 }
 
-// --- generate ------------------------------------------------------------------------------------
-
 // The lane masks the traversal branches on (one movmskps on PoCL with AVX, a portable form on
 // other devices, built here too) name exactly the true lanes of every 8-lane comparison, and of its
 // low four lanes.
@@ -305,6 +303,8 @@ TEST_F(Kernel, LaneBitsNameTheTrueLanes) {
     }
   }
 }
+
+// --- generate ------------------------------------------------------------------------------------
 
 TEST_F(Kernel, GenerateCameraRays) {
   const int W = 37, H = 23;  // odd and non-square: catches swapped axes and off-by-one centring
