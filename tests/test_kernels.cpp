@@ -116,12 +116,15 @@ class Kernel : public ::testing::Test {
 #undef XI_UPLOAD
     return b;
   }
-  static int bind(cl::Kernel& k, const PathBuffers& b) {
+  // Sets a stage kernel's arguments: the path state first, then `rest` in the order the kernel
+  // declares them.
+  template <class... Rest>
+  static void bind(cl::Kernel& k, const PathBuffers& b, const Rest&... rest) {
     int arg = 0;
 #define XI_BIND(type, name) k.setArg(arg++, b.name);
     XI_PATH_STATE(XI_BIND)
 #undef XI_BIND
-    return arg;
+    (k.setArg(arg++, rest), ...);
   }
   PathState download(const PathBuffers& b, size_t slots) {
     PathState s(slots);
@@ -203,12 +206,7 @@ TEST_F(Kernel, ExtendMatchesBruteForce) {
     PathBuffers b = upload(state);
     cl::Buffer qb = buffer(q), cb = buffer(counters), nodes = bvh_nodes(wide.bvh), blocks = buffer(wide.bvh.blocks);
     cl::Kernel k = kernel("extend", wide.bvh.width);
-    int arg = bind(k, b);
-    k.setArg(arg++, qb);
-    k.setArg(arg++, cb);
-    k.setArg(arg++, bounce);
-    k.setArg(arg++, nodes);
-    k.setArg(arg++, blocks);
+    bind(k, b, qb, cb, bounce, nodes, blocks);
     launch(k, slots);
     return read<vec4>(b.hit, slots);
   };
@@ -334,12 +332,7 @@ TEST_F(Kernel, GenerateCameraRays) {
     cl::Buffer qb = buffer(garbage<uint32_t>(slots));
     cl::Buffer cb = buffer(std::vector<uint32_t>(XI_COUNTER_COUNT(8), 7u));
     cl::Kernel k = kernel("generate");
-    int arg = bind(k, b);
-    k.setArg(arg++, qb);
-    k.setArg(arg++, cb);
-    k.setArg(arg++, cam);
-    k.setArg(arg++, sp);
-    k.setArg(arg++, wave);
+    bind(k, b, qb, cb, cam, sp, wave);
     launch(k, count);
     PathState out = download(b, slots);
     std::vector<uint32_t> q = read<uint32_t>(qb, slots);
@@ -447,10 +440,7 @@ TEST_F(Kernel, AccumulateSumsAndDropsNonFinite) {
     }
     PathBuffers b = upload(state);
     cl::Kernel k = kernel("accumulate");
-    int arg = bind(k, b);
-    for (cl::Buffer* f : {&sum_b, &sum_sq_b, &albedo_b, &normal_b}) k.setArg(arg++, *f);
-    k.setArg(arg++, counters_b);
-    k.setArg(arg++, wave);
+    bind(k, b, sum_b, sum_sq_b, albedo_b, normal_b, counters_b, wave);
     launch(k, wave.pixels);
 
     for (uint32_t i = 0; i < count; ++i) {  // slot i: sample i / pixels of pixel i % pixels
@@ -538,14 +528,7 @@ TEST_F(Kernel, ShadowAddsOnlyUnoccluded) {
     counters[XI_COUNTER_SHADOW(bounce)] = n;  // the entries past n must be ignored
     cl::Buffer cb = buffer(counters);
     cl::Kernel k = kernel("shadow", width);
-    int arg = bind(k, b);
-    k.setArg(arg++, org_b);
-    k.setArg(arg++, dir_b);
-    k.setArg(arg++, contrib_b);
-    k.setArg(arg++, cb);
-    k.setArg(arg++, bounce);
-    k.setArg(arg++, nodes);
-    k.setArg(arg++, blocks);
+    bind(k, b, org_b, dir_b, contrib_b, cb, bounce, nodes, blocks);
     launch(k, n + extra);  // over an upper bound, as the renderer launches
     std::vector<vec4> got = read<vec4>(b.radiance, slots);
 
