@@ -426,6 +426,49 @@ TEST(EndToEndDeterminism, LocalSizeDoesNotChangePixels) {
   }
 }
 
+// Each bounce's launches are sized by its own queue length (the host waiting for it) or by the
+// previous bounce's (the host never waiting); the kernels read the exact length on the device, so
+// the image is the same bit for bit. The launches show which was used: exact ones cover their queue
+// and no more; lagged ones cover it, and more wherever paths ended in the bounce before.
+TEST(EndToEndDeterminism, LaunchBoundsDoNotChangePixels) {
+  using Bound = xi::RenderOptions::LaunchBound;
+  xi::Scene scene = xi::load_scene(kCornell);
+  scene.width = kDetW;
+  scene.height = kDetH;
+  struct Run {
+    xi::Film film;
+    size_t loose = 0;  // extend and shade launches over more than their queue
+  };
+  auto run = [&](Bound bound) {
+    xi::RenderOptions o = options(4, 42);
+    o.launch_bound = bound;
+    o.profile = true;
+    xi::Renderer r(device(), scene, o);
+    r.render();
+    Run out;
+    for (const xi::Launch& l : r.launches()) {
+      if (l.bounce < 0) continue;  // generate and accumulate cover the wave
+      EXPECT_GE(l.global, l.items) << l.stage << " at bounce " << l.bounce;
+      if (std::string(l.stage) != "shadow") out.loose += l.global > l.items;  // shadow: over the ray bound
+    }
+    out.film = r.film();
+    return out;
+  };
+  const Run exact = run(Bound::Exact), lagged = run(Bound::Lagged), automatic = run(Bound::Auto);
+  EXPECT_EQ(exact.loose, 0u);
+  EXPECT_GT(lagged.loose, 0u);
+  // Auto waits on a CPU device (PoCL), where a loose bound leaves cores idle, and nowhere else.
+  if (device().info().type == "CPU")
+    EXPECT_EQ(automatic.loose, 0u);
+  else
+    EXPECT_GT(automatic.loose, 0u);
+  for (const Run* r : {&lagged, &automatic}) {
+    EXPECT_TRUE(bitwise_equal(exact.film.mean, r->film.mean)) << differing_pixels(exact.film.mean, r->film.mean)
+                                                              << " pixels differ";
+    EXPECT_TRUE(bitwise_equal(exact.film.variance, r->film.variance));
+  }
+}
+
 // Shade's lane count (kernels/shared/lanes.h: 8 paths per work item on CPUs, 1 on GPUs) runs the
 // same code on other types, so the images agree but for rounding: with one lane normalize and length
 // are the OpenCL built-ins, with eight 1/sqrt of a dot product. The cases cover every material,

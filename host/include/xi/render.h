@@ -59,6 +59,12 @@ struct RenderOptions {
   // on a GPU needs several to fill it). 1 gives one pass per spp (a convergence log per spp).
   int samples_per_pass = 0;
   FilmRows rows;                // the rows of the frame this renderer's film holds (default: all)
+  // What each bounce's launches are sized by; the kernels read their exact queue length on the
+  // device either way, so the image does not depend on it. Lagged: the previous bounce's length,
+  // read back without stalling the queue. Exact: this bounce's, the host waiting for the shade that
+  // counted it. Auto: exact on a CPU device, lagged elsewhere (Renderer::run_wave says why).
+  enum class LaunchBound { Auto, Exact, Lagged };
+  LaunchBound launch_bound = LaunchBound::Auto;
   bool profile = false;         // time every launch with OpenCL events (launches())
   int record_bounce = -1;       // if >= 0, keep the rays entering extend at this bounce (bench/)
 };
@@ -170,6 +176,7 @@ class Renderer {
   CompiledScene scene_;
   Program program_;  // every stage's kernels (shade's are built apart, for their lane count)
   int shade_lanes_ = 1;
+  bool exact_bounds_ = false;  // RenderOptions::launch_bound, resolved for the device
   size_t pixels_ = 0;
   size_t paths_ = 0;           // path state slots: the most (pixel, sample) items of one wave
   int samples_per_pass_ = 1;

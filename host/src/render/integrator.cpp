@@ -124,6 +124,9 @@ Renderer::Renderer(Device& device, const Scene& scene, const RenderOptions& opti
   shade_lanes_ = options.shade_lanes ? options.shade_lanes : (device.info().type == "CPU" ? 8 : 1);
   if (shade_lanes_ != 1 && shade_lanes_ != 8)
     throw Error("shade lanes must be 1 or 8, not " + std::to_string(shade_lanes_), "--shade-lanes");
+  exact_bounds_ = options.launch_bound == RenderOptions::LaunchBound::Auto
+                      ? device.info().type == "CPU"
+                      : options.launch_bound == RenderOptions::LaunchBound::Exact;
   const std::vector<std::string> defines = kernel_defines(f, options.sampler, options.strategy);
   std::vector<std::string> shade_defines = defines, stage_defines = defines;
   shade_defines.push_back("XI_LANES=" + std::to_string(shade_lanes_));
@@ -293,9 +296,14 @@ SamplerParams Renderer::sampler_params() const {
 }
 
 // One wave: generate; extend, shade and shadow until no path is left; accumulate. The kernels read
-// their queue lengths on the device, so the host never waits for a bounce to finish: it launches
+// their queue lengths on the device, so the host need not wait for a bounce to finish: it may launch
 // bounce b + 1 over the length of bounce b's queue (a bound, since paths only end), which it reads
-// back without stalling, the copy being queued right after the shade that counted it.
+// back without stalling, the copy being queued right after the shade that counted it. A GPU does
+// that. A CPU device waits for bounce b + 1's own length instead: PoCL hands a launch's work groups
+// to its threads in large contiguous chunks, so over a loose bound the live groups, all at the
+// front, fall in one thread's chunk while the others draw groups that exit at once (on 2 cores the
+// engine's third-bounce shade took 2.2× as long). Host and device share the cores there, so the
+// wait costs only a launch's latency.
 void Renderer::run_wave(const WaveParams& wave) {
   cl::CommandQueue& q = device_.queue();
   q.enqueueFillBuffer(counters_, 0u, sizeof(uint32_t), sizeof(uint32_t) * (counter_count_ - 1));  // keeps NONFINITE
@@ -312,9 +320,10 @@ void Renderer::run_wave(const WaveParams& wave) {
     shadow(bounce, bound);  // at most one shadow ray per path
     q.enqueueReadBuffer(counters_, CL_FALSE, sizeof(uint32_t) * XI_COUNTER_RAYS(bounce + 1), sizeof(uint32_t),
                         &ray_counts_[bounce + 1], nullptr, &counted[bounce + 1]);
-    if (bounce > 0) {  // this bounce's queue length, known once the previous shade is done
-      counted[bounce].wait();
-      bound = ray_counts_[bounce];
+    const int known = exact_bounds_ ? bounce + 1 : bounce;  // the newest queue length to wait for
+    if (known > 0) {
+      counted[known].wait();
+      bound = ray_counts_[known];
     }
     std::swap(in, out);
   }
