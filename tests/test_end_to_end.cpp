@@ -426,10 +426,11 @@ TEST(EndToEndDeterminism, LocalSizeDoesNotChangePixels) {
   }
 }
 
-// Each bounce's launches are sized by its own queue length (the host waiting for it) or by the
-// previous bounce's (the host never waiting); the kernels read the exact length on the device, so
-// the image is the same bit for bit. The launches show which was used: exact ones cover their queue
-// and no more; lagged ones cover it, and more wherever paths ended in the bounce before.
+// Each bounce's launches are sized by their own queue lengths (the host waiting for them) or by the
+// previous bounce's ray queue (the host never waiting); the kernels read the exact lengths on the
+// device, so the image is the same bit for bit. The launches show which was used: exact ones cover
+// their queue and no more; lagged ones cover it, and more wherever paths ended in the bounce before
+// or queued no shadow ray.
 TEST(EndToEndDeterminism, LaunchBoundsDoNotChangePixels) {
   using Bound = xi::RenderOptions::LaunchBound;
   xi::Scene scene = xi::load_scene(kCornell);
@@ -437,7 +438,7 @@ TEST(EndToEndDeterminism, LaunchBoundsDoNotChangePixels) {
   scene.height = kDetH;
   struct Run {
     xi::Film film;
-    size_t loose = 0;  // extend and shade launches over more than their queue
+    size_t loose = 0;  // launches over more than their queue
   };
   auto run = [&](Bound bound) {
     xi::RenderOptions o = options(4, 42);
@@ -449,7 +450,7 @@ TEST(EndToEndDeterminism, LaunchBoundsDoNotChangePixels) {
     for (const xi::Launch& l : r.launches()) {
       if (l.bounce < 0) continue;  // generate and accumulate cover the wave
       EXPECT_GE(l.global, l.items) << l.stage << " at bounce " << l.bounce;
-      if (std::string(l.stage) != "shadow") out.loose += l.global > l.items;  // shadow: over the ray bound
+      out.loose += l.global > l.items;
     }
     out.film = r.film();
     return out;

@@ -185,7 +185,7 @@ class Renderer {
   std::vector<Launch> launches_;
   std::vector<cl::Event> launch_events_;  // with profiling: the events of launches_ not yet read
   size_t counter_count_ = 0;
-  std::vector<uint32_t> ray_counts_;  // [b]: rays entering bounce b of the wave in flight, read back
+  std::vector<uint32_t> queue_counts_;  // the wave in flight's counters as read back mid-wave, same indices
   // Per wave of the pass in flight: the device counters copied back when the wave is done (queue
   // lengths for statistics and the profile), read when the pass finishes.
   std::vector<std::vector<uint32_t>> wave_counters_;

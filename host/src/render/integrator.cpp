@@ -174,7 +174,7 @@ Renderer::Renderer(Device& device, const Scene& scene, const RenderOptions& opti
   queue_b_ = cl::Buffer(ctx, CL_MEM_READ_WRITE, sizeof(uint32_t) * paths_);
   counter_count_ = XI_COUNTER_COUNT(options.max_depth);
   counters_ = cl::Buffer(ctx, CL_MEM_READ_WRITE, sizeof(uint32_t) * counter_count_);
-  ray_counts_.assign(options.max_depth + 2, 0);
+  queue_counts_.assign(counter_count_, 0);
   nodes_ = scene_.bvh.width == 8 ? upload(ctx, scene_.bvh.nodes8) : upload(ctx, scene_.bvh.nodes);
   tri_blocks_ = upload(ctx, scene_.bvh.blocks);
   tri_verts_ = upload(ctx, scene_.tri_verts);
@@ -296,20 +296,21 @@ SamplerParams Renderer::sampler_params() const {
 }
 
 // One wave: generate; extend, shade and shadow until no path is left; accumulate. The kernels read
-// their queue lengths on the device, so the host need not wait for a bounce to finish: it may launch
-// bounce b + 1 over the length of bounce b's queue (a bound, since paths only end), which it reads
-// back without stalling, the copy being queued right after the shade that counted it. A GPU does
-// that. A CPU device waits for bounce b + 1's own length instead: PoCL hands a launch's work groups
-// to its threads in large contiguous chunks, so over a loose bound the live groups, all at the
-// front, fall in one thread's chunk while the others draw groups that exit at once (on 2 cores the
-// engine's third-bounce shade took 2.2× as long). Host and device share the cores there, so the
-// wait costs only a launch's latency.
+// their queue lengths on the device, so the host need not wait for a bounce to finish. A GPU does
+// not: it launches bounce b + 1 over the length of bounce b's queue (a bound, since paths only end)
+// and bounce b's shadow rays over it too (at most one per path), each length read back without
+// stalling, the copy being queued right after the shade that counted it. A CPU device waits for the
+// lengths shade b counts, and launches shadow b and bounce b + 1 over exactly those: PoCL hands a
+// launch's work groups to its threads in large contiguous chunks, so over a loose bound the live
+// groups, all at the front, fall in one thread's chunk while the others draw groups that exit at
+// once (on 2 cores the engine's third-bounce shade took 2.2× as long). Host and device share the
+// cores there, so the wait costs only a launch's latency.
 void Renderer::run_wave(const WaveParams& wave) {
   cl::CommandQueue& q = device_.queue();
   q.enqueueFillBuffer(counters_, 0u, sizeof(uint32_t), sizeof(uint32_t) * (counter_count_ - 1));  // keeps NONFINITE
   wave_first_launch_.push_back(launches_.size());
   generate(wave);
-  std::vector<cl::Event> counted(options_.max_depth + 2);  // counted[b]: ray_counts_[b] arrived
+  std::vector<cl::Event> counted(options_.max_depth + 1);  // counted[b]: what shade b counted arrived
   const cl::Buffer* in = &queue_a_;
   const cl::Buffer* out = &queue_b_;
   size_t bound = (size_t)wave.pixels * wave.samples;
@@ -317,13 +318,19 @@ void Renderer::run_wave(const WaveParams& wave) {
     if (bounce == options_.record_bounce) record(*in, bounce);
     extend(*in, bounce, bound);
     shade(*in, *out, bounce, bound);
-    shadow(bounce, bound);  // at most one shadow ray per path
-    q.enqueueReadBuffer(counters_, CL_FALSE, sizeof(uint32_t) * XI_COUNTER_RAYS(bounce + 1), sizeof(uint32_t),
-                        &ray_counts_[bounce + 1], nullptr, &counted[bounce + 1]);
-    const int known = exact_bounds_ ? bounce + 1 : bounce;  // the newest queue length to wait for
-    if (known > 0) {
-      counted[known].wait();
-      bound = ray_counts_[known];
+    static_assert(XI_COUNTER_RAYS(1) == XI_COUNTER_SHADOW(0) + 1, "shade's two counts are adjacent");
+    q.enqueueReadBuffer(counters_, CL_FALSE, sizeof(uint32_t) * XI_COUNTER_SHADOW(bounce), 2 * sizeof(uint32_t),
+                        &queue_counts_[XI_COUNTER_SHADOW(bounce)], nullptr, &counted[bounce]);
+    if (exact_bounds_) {
+      counted[bounce].wait();
+      shadow(bounce, queue_counts_[XI_COUNTER_SHADOW(bounce)]);
+      bound = queue_counts_[XI_COUNTER_RAYS(bounce + 1)];
+    } else {
+      shadow(bounce, bound);
+      if (bounce > 0) {  // this bounce's queue length, known once the previous shade is done
+        counted[bounce - 1].wait();
+        bound = queue_counts_[XI_COUNTER_RAYS(bounce)];
+      }
     }
     std::swap(in, out);
   }
