@@ -124,6 +124,18 @@ static inline uint xi_lane_bits8(int8 m) { return xi_lane_bits(m.lo) | xi_lane_b
 #endif
 #endif
 
+// XI_PREFETCH(p, rw): a hint to bring p's cache line in ahead of its use (rw 1: it will be
+// written). Only where clang compiles for a CPU (PoCL), whose work items run one after another and
+// wait for each miss in turn; a GPU hides the latency by switching warps. XI_HAS_PREFETCH says
+// whether it does anything, so the address need not be computed where it does not.
+#if defined(__OPENCL_VERSION__) && defined(__clang__) && defined(XI_CPU_DEVICE)
+#define XI_HAS_PREFETCH 1
+#define XI_PREFETCH(p, rw) __builtin_prefetch((p), (rw))
+#else
+#define XI_HAS_PREFETCH 0
+#define XI_PREFETCH(p, rw) ((void)0)
+#endif
+
 // gamma(n) = n eps / (1 - n eps), eps = 2^-24: the relative error bound of n rounded operations.
 #define XI_GAMMA(n) ((n) * 0x1p-24f / (1.0f - (n) * 0x1p-24f))
 
