@@ -88,7 +88,7 @@ def render(xi, scene, out, spp, seed=1, resolution=None, sampler=None, strategy=
     pass (xi's zero-item warm-up launch does not cover it), which adds up to seconds to that render's time
     until PoCL's cache holds it. So each (scene, resolution, sampler, strategy, kernel set) is first rendered
     once at 1 spp, untimed, unless warm_up is False."""
-    key = (str(scene), resolution, sampler, strategy, all_features, device, max_depth)
+    key = (str(xi), str(scene), resolution, sampler, strategy, all_features, device, max_depth)
     if warm_up and key not in _warm:
         _warm.add(key)
         render(xi, scene, Path(out).with_name(Path(out).stem + "-warm-up.exr"), 1, seed, resolution, sampler,

@@ -10,7 +10,7 @@ __kernel void extend(XI_PATH_PARAMS __global const uint* restrict queue, __globa
   uint slot = queue[i];
 #if XI_HAS_PREFETCH
   // The rays at the queue's slots 4 entries on, fetched while this one traverses: their loads and
-  // the write of their hit no longer wait on memory (renders' extend 6–9% faster on PoCL).
+  // the write of their hit no longer wait on memory (renders' extend up to 9% faster on PoCL).
   if (i + 4u < count) {
     uint ahead = queue[i + 4u];
     XI_PREFETCH(&ray_org[ahead], 0);

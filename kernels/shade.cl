@@ -189,10 +189,12 @@ __kernel void shade(XI_PATH_PARAMS __global const uint* restrict queue_in, __glo
                     SamplerParams sampler, uint max_depth, float4 background) {
   volatile __local uint group_count[2], group_base[2];  // for the queue appends below
   xuint entry = (uint)get_global_id(0) * XI_LANES + XI_LANE_INDEX;
+  uint count = counters[XI_COUNTER_RAYS(bounce)];
+  xmask active = entry < count;  // launched over an upper bound
 #if XI_HAS_PREFETCH
-  // The next work item's paths, fetched while this one shades (as extend does): shade 4–7% faster
-  // on PoCL.
-  uint next = (uint)get_global_id(0) * XI_LANES + XI_LANES, count = counters[XI_COUNTER_RAYS(bounce)];
+  // The next work item's paths, fetched while this one shades (as extend does): shade up to 7%
+  // faster on PoCL.
+  uint next = (uint)get_global_id(0) * XI_LANES + XI_LANES;
   for (uint k = 0u; k < XI_LANES && next + k < count; ++k) {
     uint ahead = queue_in[next + k];
     XI_PREFETCH(&hit[ahead], 0);
@@ -201,7 +203,6 @@ __kernel void shade(XI_PATH_PARAMS __global const uint* restrict queue_in, __glo
     XI_PREFETCH(&ray_dir[ahead], 1);
   }
 #endif
-  xmask active = entry < counters[XI_COUNTER_RAYS(bounce)];  // launched over an upper bound
   xuint slot = xi_gather_uint(queue_in, active ? entry : (xuint)0u);
   slot = active ? slot : (xuint)0u;  // queue_in[0] may be unwritten when the queue is empty
   ShadeResult r = xi_shade_paths(XI_PATH_ARGS slot, active, bounce, materials, tri_verts, tri_material, tri_normals,

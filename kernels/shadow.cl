@@ -10,7 +10,7 @@ __kernel void shadow(XI_PATH_PARAMS XI_SHADOW_PARAMS __global const uint* restri
   if (i >= count) return;  // launched over an upper bound
 #if XI_HAS_PREFETCH
   // The radiance of the path 4 entries on, which its ray adds to if unoccluded (as extend does):
-  // shadow 7–8% faster on PoCL.
+  // shadow up to 8% faster on PoCL.
   if (i + 4u < count) XI_PREFETCH(&radiance[as_uint(shadow_contrib[i + 4u].w)], 1);
 #endif
   float4 o = shadow_org[i];
