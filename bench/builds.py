@@ -47,14 +47,10 @@ def main():
                 secs = [r["seconds"] for r in results[b]]
                 summary.append([name, b, c.fmt(med[b]["seconds"], ".3f"), f"{min(secs):.3f}-{max(secs):.3f}",
                                 c.fmt(med[b]["msamples"], ".3f"), c.fmt(ratio, ".3f") if b == "new" else ""])
-            same = c.diff(builds["new"], images["old"], images["new"], "relmse")
-            other = Path(tmp) / f"{name}-other-seed.exr"
-            c.render(builds["new"], scene, other, a.spp, seed=a.seed + 1, resolution=a.resolution)
-            noise = c.diff(builds["new"], other, images["new"], "relmse")
+            same, noise, warning = c.same_work(builds["new"], scene, images["new"], images["old"], a.spp, a.seed,
+                                               a.resolution)
             notes.append(f"{name}: relMSE of the old build's image against the new one's: {same:.3g} (same seed), "
-                         f"{noise:.3g} between two seeds of the new build"
-                         + ("" if same < 0.01 * noise else
-                            "\n  <-- the images differ: not the same work, so the ratio is not like for like"))
+                         f"{noise:.3g} between two seeds of the new build{warning}")
 
     print(f"\nold: {builds['old']}\nnew: {builds['new']}\n{a.resolution}, {a.spp} spp, seed {a.seed}, {a.runs} "
           f"runs each (alternated, after a warm-up), scene's sampler, {c.machine(builds['new'])}; seconds: render "

@@ -115,6 +115,17 @@ def render(xi, scene, out, spp, seed=1, resolution=None, sampler=None, strategy=
     return r
 
 
+def same_work(xi, scene, image, other, spp, seed, resolution):
+    """Whether two renders of one seed (IMAGE, OTHER) did the same work: the relMSE of OTHER against IMAGE, and
+    that of a render of the next seed against IMAGE (the noise between seeds), with a note when the first is not
+    far below the second. Returns (same, noise, warning)."""
+    next_seed = Path(image).with_name(Path(image).stem + "-next-seed.exr")
+    render(xi, scene, next_seed, spp, seed=seed + 1, resolution=resolution)
+    same, noise = diff(xi, other, image, "relmse"), diff(xi, next_seed, image, "relmse")
+    warning = "" if same < 0.01 * noise else "\n  <-- the images differ: not the same work, so the ratio is not like for like"
+    return same, noise, warning
+
+
 def diff(xi, image, ref, metric="rmse", crop=None):
     """`xi diff`: one metric of IMAGE against REF, over the crop (x0, y0, x1, y1) if given."""
     cmd = [xi, "diff", image, ref, "--metric", metric]
