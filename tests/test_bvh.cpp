@@ -6,6 +6,8 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <cfloat>
+#include <cstdio>
 #include <functional>
 #include <cmath>
 #include <cstring>
@@ -107,14 +109,22 @@ Bounds scene_bounds(const xi::Scene& s) {
 }
 
 struct Walk {
-  size_t nodes = 0, leaves = 0, max_leaf = 0, stack = 0;
+  size_t nodes = 0, leaves = 0, max_leaf = 0, stack = 0, references = 0;
   int depth = 0;
+  std::vector<std::vector<Bounds>> leaf_boxes;  // per position: the boxes of the leaf lanes holding it
 };
+bool contains(const Bounds& outer, const Bounds& inner) {
+  return glm::all(glm::lessThanEqual(outer.lo, inner.lo)) && glm::all(glm::lessThanEqual(inner.hi, outer.hi));
+}
 
 // Walks the wide tree (4 or 8 lanes) from the root, checking the layout (children after their parent, empty
 // lanes with empty boxes and only after used ones, leaves own disjoint ranges of triangle blocks
-// whose lanes cover every position of `order` once, every node reached once) and that every lane's box is exactly the bounds of what it holds
-// (so it contains it), and returns what the walk counted, including the traversal stack bound.
+// whose lanes cover every position of `order`, every node reached once) and that every interior
+// lane's box is exactly the bounds of what it holds. Without spatial splits (stats.references ==
+// the triangles) every position is in exactly one leaf and a leaf's box is exactly its triangles'
+// bounds; with them a position may be in several leaves (never twice in one) and a leaf's box may
+// be within its triangles' bounds, the part it holds (check_coverage tests that the parts cover
+// each triangle). Returns what the walk counted, including the traversal stack bound.
 Walk check_tree(const xi::Bvh& bvh, const std::vector<xi::Triangle>& tris) {
   const size_t n = tris.size();
   EXPECT_EQ(bvh.order.size(), n);
@@ -123,7 +133,9 @@ Walk check_tree(const xi::Bvh& bvh, const std::vector<xi::Triangle>& tris) {
     if (t < n) seen_tri[t]++;
   EXPECT_EQ((size_t)std::count(seen_tri.begin(), seen_tri.end(), 1), n) << "order is not a permutation";
 
+  const bool split = bvh.stats.references != n;
   Walk w;
+  w.leaf_boxes.resize(n);
   size_t loose_boxes = 0, bad = 0;
   // Returns the bounds of the node's content and the stack entries its traversal may need.
   std::function<std::pair<Bounds, size_t>(uint32_t, int)> walk = [&](uint32_t i, int depth) -> std::pair<Bounds, size_t> {
@@ -157,6 +169,7 @@ Walk check_tree(const xi::Bvh& bvh, const std::vector<xi::Triangle>& tris) {
         }
         // Blocks: used lanes first, each holding its triangle's vertices exactly; unused lanes NaN.
         size_t in_leaf = 0;
+        std::vector<uint32_t> positions;
         for (uint32_t b = first; b < first + count; ++b) {
           const TriBlock& blk = bvh.blocks[b];
           seen_block[b]++;
@@ -174,6 +187,8 @@ Walk check_tree(const xi::Bvh& bvh, const std::vector<xi::Triangle>& tris) {
             }
             in_leaf++;
             seen_pos[p]++;
+            positions.push_back(p);
+            w.leaf_boxes[p].push_back(box);
             for (int j = 0; j < 3; ++j) {
               const vec3 v = tris[bvh.order[p]].v[j];
               content.grow(v);
@@ -182,14 +197,22 @@ Walk check_tree(const xi::Bvh& bvh, const std::vector<xi::Triangle>& tris) {
           }
         }
         EXPECT_EQ((in_leaf + 3) / 4, count) << "a leaf with a block it does not need";
+        std::sort(positions.begin(), positions.end());
+        EXPECT_TRUE(std::adjacent_find(positions.begin(), positions.end()) == positions.end())
+            << "a triangle twice in one leaf of node " << i;
         w.max_leaf = std::max(w.max_leaf, in_leaf);
+        w.references += in_leaf;
+        // A leaf's box: the bounds of the parts of its triangles that it holds.
+        if (split ? !contains(content, box) : !(box == content)) loose_boxes++;
+        all.grow(box.lo), all.grow(box.hi);
+        continue;
       } else {
         EXPECT_GT(c, i) << "child before its parent";
         auto [b, need] = walk(c, depth + 1);
         content = b;
         below = std::max(below, need);
       }
-      // Box = exact min/max of its triangles' vertices or its children's boxes (min/max do not round).
+      // Box = exact min/max of its children's boxes (min/max do not round).
       if (!(box == content)) loose_boxes++;
       all.grow(content.lo), all.grow(content.hi);
     }
@@ -199,7 +222,9 @@ Walk check_tree(const xi::Bvh& bvh, const std::vector<xi::Triangle>& tris) {
   w.stack = walk(0, 0).second;
   EXPECT_EQ(bad, 0u);
   EXPECT_EQ(loose_boxes, 0u) << "boxes that are not exactly the bounds of their content";
-  EXPECT_EQ((size_t)std::count(seen_pos.begin(), seen_pos.end(), 1), n) << "positions not in exactly one leaf";
+  EXPECT_EQ(w.references, bvh.stats.references);
+  if (split) EXPECT_EQ((size_t)std::count(seen_pos.begin(), seen_pos.end(), 0), 0u) << "positions in no leaf";
+  else EXPECT_EQ((size_t)std::count(seen_pos.begin(), seen_pos.end(), 1), n) << "positions not in exactly one leaf";
   EXPECT_EQ((size_t)std::count(seen_node.begin(), seen_node.end(), 1), node_count(bvh)) << "unreachable nodes";
   EXPECT_EQ((size_t)std::count(seen_block.begin(), seen_block.end(), 1), bvh.blocks.size())
       << "blocks not in exactly one leaf";
@@ -220,6 +245,52 @@ void check_stats(const xi::Bvh& bvh, const Walk& w, bool degenerate) {
   if (!degenerate) EXPECT_LE(w.max_leaf, 8u);
 }
 
+// Every point of every triangle lies in the box of a leaf lane that holds it (and so in every box
+// above, interior boxes being exact unions): sampled at its vertices, edge midpoints and 16 random
+// points, each allowed its own rounding. A spatial split that clipped a triangle's part wrongly
+// would leave part of it where no ray finds it.
+void check_coverage(const xi::Bvh& bvh, const std::vector<xi::Triangle>& tris, const Walk& w) {
+  std::mt19937 rng(7);
+  std::uniform_real_distribution<float> u01;
+  size_t uncovered = 0;
+  for (uint32_t p = 0; p < tris.size(); ++p) {
+    const xi::Triangle& t = tris[bvh.order[p]];
+    std::vector<vec3> points(t.v, t.v + 3);
+    for (int j = 0; j < 3; ++j) points.push_back(0.5f * (t.v[j] + t.v[(j + 1) % 3]));
+    for (int k = 0; k < 16; ++k) {
+      float a = u01(rng), b = u01(rng);
+      if (a + b > 1.0f) a = 1.0f - a, b = 1.0f - b;
+      points.push_back(t.v[0] + a * (t.v[1] - t.v[0]) + b * (t.v[2] - t.v[0]));
+    }
+    for (const vec3& x : points) {
+      const vec3 slack = 4.0f * FLT_EPSILON * glm::abs(x);
+      uncovered += std::none_of(w.leaf_boxes[p].begin(), w.leaf_boxes[p].end(), [&](const Bounds& b) {
+        return glm::all(glm::lessThanEqual(b.lo - slack, x)) && glm::all(glm::lessThanEqual(x, b.hi + slack));
+      });
+    }
+  }
+  EXPECT_EQ(uncovered, 0u) << "points of triangles outside every leaf box that holds them";
+}
+
+// The SAH cost of a wide tree as the build counts it: every lane's box area, times 1 for an
+// interior child and its blocks for a leaf, over the root's area (the expected box and block
+// tests of a ray through the scene's bounds).
+double sah_cost(const xi::Bvh& bvh) {
+  auto area = [](const Bounds& b) {
+    vec3 d = b.hi - b.lo;
+    return 2.0 * ((double)d.x * d.y + (double)d.y * d.z + (double)d.z * d.x);
+  };
+  double cost = 0.0;
+  for (size_t i = 0; i < node_count(bvh); ++i) {
+    NodeLanes node = node_lanes(bvh, i);
+    for (int k = 0; k < node.width; ++k) {
+      uint32_t c = node.child[k];
+      if (c == XI_BVH_EMPTY) continue;
+      cost += area(lane_bounds(node, k)) * ((c & XI_BVH_LEAF) ? 1.0 + ((c >> 27) & 15u) : 1.0);
+    }
+  }
+  return cost / area(root_bounds(bvh));
+}
 
 // Directions uniform on the sphere, except that one ray in ten lies along an axis or in an axis
 // plane (zero components exercise xi_safe_inverse).
@@ -309,6 +380,7 @@ void check_scene(const xi::Scene& scene, uint32_t seed) {
       ASSERT_EQ(vec3(cs.tri_verts[3 * i + k]), scene.triangles[cs.bvh.order[i]].v[k]) << "position " << i;
   Walk w = check_tree(cs.bvh, scene.triangles);
   check_stats(cs.bvh, w, false);
+  check_coverage(cs.bvh, scene.triangles, w);
   EXPECT_TRUE(root_bounds(cs.bvh) == scene_bounds(scene));  // the root box is the scene's bounds
   check_queries(scene, cs, seed);
 
@@ -319,10 +391,20 @@ void check_scene(const xi::Scene& scene, uint32_t seed) {
   EXPECT_EQ(cs8.bvh.order, cs.bvh.order);
   Walk w8 = check_tree(cs8.bvh, scene.triangles);
   check_stats(cs8.bvh, w8, false);
+  check_coverage(cs8.bvh, scene.triangles, w8);
   EXPECT_TRUE(root_bounds(cs8.bvh) == scene_bounds(scene));
   EXPECT_EQ(w8.leaves, w.leaves);
   EXPECT_LE(w8.depth, w.depth);
   if (w.nodes > 1) EXPECT_LT(w8.nodes, w.nodes);
+
+  // Without spatial splits: every triangle in one leaf, every box exact, the same queries.
+  SCOPED_TRACE("no spatial splits");
+  xi::CompiledScene plain = xi::compile_scene(scene, 4, false);
+  EXPECT_EQ(plain.bvh.stats.references, scene.triangles.size());
+  Walk wp = check_tree(plain.bvh, scene.triangles);
+  check_stats(plain.bvh, wp, false);
+  EXPECT_TRUE(root_bounds(plain.bvh) == scene_bounds(scene));
+  check_queries(scene, plain, seed + 1000);
 }
 
 TEST(BvhBuild, CornellBox) {
@@ -341,6 +423,40 @@ TEST(BvhBuild, RandomSoup) {
   xi::Scene s = soup(20000, 3);
   check_scene(s, 4);
   EXPECT_GT(xi::build_bvh(s.triangles).stats.depth, 5);  // a real hierarchy (log4 of 20000 / 8 ≈ 5.6), not one flat leaf list
+}
+
+// Pipes: 120 cylinders 12 long and 1.2 thick, at random places and slants, each side one strip of
+// 16 long thin triangles from end to end, as tessellated CAD parts are (the engine): the case
+// spatial splits are for, where every triangle's box spans a slab of space it barely touches. They
+// must split many (within the budget of 2 references per triangle), give a tree of much lower SAH
+// cost than the build without them, and keep every query exact.
+TEST(BvhBuild, SpatialSplitsTightenLongTriangles) {
+  std::mt19937 rng(11);
+  std::uniform_real_distribution<float> pos(-10.0f, 10.0f);
+  std::normal_distribution<float> g;
+  std::vector<xi::Triangle> tris;
+  for (int pipe = 0; pipe < 120; ++pipe) {
+    const vec3 a(pos(rng), pos(rng), pos(rng)), axis = glm::normalize(vec3(g(rng), g(rng), g(rng)));
+    const vec3 u = glm::normalize(glm::cross(axis, vec3(g(rng), g(rng), g(rng)))), v = glm::cross(axis, u);
+    auto rim = [&](int k) {
+      float phi = 2.0f * 3.14159265f * (float)k / 16.0f;
+      return 0.6f * (std::cos(phi) * u + std::sin(phi) * v);
+    };
+    for (int k = 0; k < 16; ++k) {
+      const vec3 p0 = a + rim(k), p1 = a + rim(k + 1), q0 = p0 + 12.0f * axis, q1 = p1 + 12.0f * axis;
+      tris.push_back(triangle(p0, p1, q1));
+      tris.push_back(triangle(p0, q1, q0));
+    }
+  }
+  xi::Scene scene = with_triangles(tris);
+  const xi::Bvh split = xi::build_bvh(tris, 4, true), plain = xi::build_bvh(tris, 4, false);
+  EXPECT_GT(split.stats.references, tris.size() + tris.size() / 10);
+  EXPECT_LE(split.stats.references, 2 * tris.size());
+  const double split_cost = sah_cost(split), plain_cost = sah_cost(plain);
+  std::printf("SAH cost: %.1f with spatial splits (%zu references), %.1f without\n", split_cost,
+              split.stats.references, plain_cost);
+  EXPECT_LT(split_cost, 0.8 * plain_cost);
+  check_scene(scene, 12);
 }
 
 TEST(BvhBuild, IsDeterministic) {

@@ -113,6 +113,8 @@ static const char* kUsage =
     "                            a GPU)\n"
     "      --bvh-width N         children per BVH node, 4 or 8 (default: 8 on a CPU, 4 on a\n"
     "                            GPU)\n"
+    "      --no-spatial-splits   a BVH whose triangles are never split between subtrees: a\n"
+    "                            faster build, slower rays where long triangles overlap\n"
     "      --paths-in-flight N   most (pixel, sample) paths in one wave (default: sized for the\n"
     "                            device, 2^20 on a CPU, 2^25 on a GPU, within 1/4 of its memory)\n"
     "      --samples-per-pass N  most spp one pass adds (default: what the paths in flight hold;\n"

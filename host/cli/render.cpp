@@ -143,7 +143,7 @@ void prepare(Job& job, const std::vector<std::string>& argv, const Team& team) {
              "--local-size", "--shade-lanes", "--bvh-width", "--reference", "--convergence", "--trace",
              "--paths-in-flight", "--samples-per-pass",
              "--time", "--snapshot-every", "--checkpoint", "--checkpoint-every", "--resume", "--camera"},
-            {"--profile", "--quiet", "--all-features"});
+            {"--profile", "--quiet", "--all-features", "--no-spatial-splits"});
   if (args.positional().size() > 1) throw Error("expected at most one scene file", args.positional()[1]);
   job.scene_path = args.positional().empty() ? default_scene() : std::filesystem::path(args.positional()[0]);
 
@@ -173,6 +173,7 @@ void prepare(Job& job, const std::vector<std::string>& argv, const Team& team) {
   opt.shade_lanes = args.get_int("--shade-lanes", 0, 0, 8);
   opt.bvh_width = args.get_int("--bvh-width", 0, 0, 8);
   opt.all_features = args.has("--all-features");
+  opt.spatial_splits = !args.has("--no-spatial-splits");
   opt.paths_in_flight = (size_t)args.get_int("--paths-in-flight", 0, 0, 1 << 30);
   // A convergence log has one row per pass: one spp per pass unless asked otherwise.
   opt.samples_per_pass = args.get_int("--samples-per-pass", args.has("--convergence") ? 1 : 0, 0, 1 << 20);
@@ -257,8 +258,8 @@ void print_setup(const Job& job, const Team& team, const std::vector<std::string
   if (job.asset)
     std::printf("film: %dx%d (%s)\n", job.scene.width, job.scene.height,
                 job.resolution_given ? "--resolution" : "height 512, width from the camera's aspect ratio");
-  std::printf("bvh: %zu %d-wide nodes, %zu leaves, depth %d, stack %zu, built in %.2f ms\n", cs.bvh.stats.nodes,
-              cs.bvh.width, cs.bvh.stats.leaves, cs.bvh.stats.depth, cs.bvh.stats.stack,
+  std::printf("bvh: %zu %d-wide nodes, %zu leaves, %zu triangle references, depth %d, stack %zu, built in %.2f ms\n", cs.bvh.stats.nodes,
+              cs.bvh.width, cs.bvh.stats.leaves, cs.bvh.stats.references, cs.bvh.stats.depth, cs.bvh.stats.stack,
               cs.bvh.stats.build_seconds * 1e3);
   std::printf("kernels: %s in %.3f s\n", renderer.program().from_cache ? "loaded from cache" : "compiled",
               renderer.program().build_seconds);

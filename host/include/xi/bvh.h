@@ -1,5 +1,5 @@
-// Bounding volume hierarchy over triangles: a binary binned-SAH build on the host, collapsed into
-// 4- or 8-wide nodes, siblings side by side, the array the kernels traverse (kernels/shared/intersect.h).
+// Bounding volume hierarchy over triangles: a binary binned-SAH build with spatial splits on the
+// host, collapsed into 4- or 8-wide nodes, siblings side by side, the array the kernels traverse (kernels/shared/intersect.h).
 #pragma once
 #include <cstdint>
 #include <vector>
@@ -15,6 +15,7 @@ struct BvhStats {
   size_t leaves = 0;
   int depth = 0;          // longest root-to-leaf path, in edges of the wide tree
   size_t max_leaf = 0;    // most triangles in one leaf
+  size_t references = 0;  // triangles in leaves: more than the scene's where spatial splits put one in several
   size_t stack = 0;       // most traversal stack entries any ray can need (≤ XI_BVH_STACK)
 };
 
@@ -23,10 +24,13 @@ struct Bvh {
   std::vector<BvhNode> nodes;
   std::vector<BvhNode8> nodes8;
   std::vector<TriBlock> blocks; // the leaves' triangles, in blocks of four
-  std::vector<uint32_t> order;  // order[i]: the scene triangle stored at position i
+  std::vector<uint32_t> order;  // order[i]: the scene triangle at position i (blocks name triangles by position)
   BvhStats stats;
 };
 
-Bvh build_bvh(const std::vector<Triangle>& triangles, int width = 4);
+// spatial_splits: let a triangle be split between subtrees where that tightens their boxes (the
+// default); without them every triangle is in exactly one leaf and every box is exactly the
+// bounds of what it holds.
+Bvh build_bvh(const std::vector<Triangle>& triangles, int width = 4, bool spatial_splits = true);
 
 }  // namespace xi

@@ -45,7 +45,7 @@ struct CompiledScene {
   std::vector<uint32_t> tri_material;
   std::vector<MaterialData> materials;
   std::vector<float> light_cdf;        // over emissive triangles, by power; last entry 1
-  std::vector<uint32_t> light_tri;     // their triangle indices (BVH order)
+  std::vector<uint32_t> light_tri;     // their positions in BVH order, listed in the scene's order
   std::vector<float> tri_light_pdf;    // per triangle: P(pick it) / its area, 0 if not emissive
   float light_power = 0.0f;            // total emitted power (luminance), for reports
   CameraData camera{};
@@ -53,7 +53,8 @@ struct CompiledScene {
   Features features;
 };
 
-// bvh_width: the lanes of the BVH's nodes, 4 or 8 (the kernels' XI_BVH_WIDTH).
-CompiledScene compile_scene(const Scene& scene, int bvh_width = 4);
+// bvh_width: the lanes of the BVH's nodes, 4 or 8 (the kernels' XI_BVH_WIDTH); spatial_splits: as
+// build_bvh's.
+CompiledScene compile_scene(const Scene& scene, int bvh_width = 4, bool spatial_splits = true);
 
 }  // namespace xi

@@ -52,6 +52,9 @@ struct RenderOptions {
   // Lanes of the BVH's nodes, 4 or 8 (kernels/shared/layout.h); 0: 8 on a CPU device, whose AVX
   // registers test eight child boxes as cheaply as four, 4 elsewhere.
   int bvh_width = 0;
+  // Spatial splits in the BVH build (xi::build_bvh): faster rays where long triangles overlap,
+  // a slower build. Off: every triangle in one leaf, the build as fast as plain binned SAH.
+  bool spatial_splits = true;
   // Most paths in flight at once, (pixel, sample) items of one wave; 0 sizes it for the device
   // (default_paths_in_flight). The image does not depend on it.
   size_t paths_in_flight = 0;

@@ -1,8 +1,13 @@
+
+
 #include "xi/bvh.h"
 
 #include <algorithm>
+#include <cfloat>
 #include <chrono>
 #include <cstring>
+#include <future>
+#include <thread>
 #include <glm/gtc/type_ptr.hpp>
 #include <string>
 
@@ -20,65 +25,116 @@ constexpr int kMaxSahDepth = 48;    // below it, ranges are halved by index: no 
 // the same): triangles are tested four at a time, so a leaf costs its number of blocks.
 constexpr float kTraversalCost = 1.0f;
 float blocks_cost(size_t triangles) { return (float)((triangles + 3) / 4); }
+// Spatial splits (Stich, Friedrich and Dietrich 2009, "Spatial Splits in Bounding Volume
+// Hierarchies") are tried only where the best object split's two boxes overlap by more than this
+// fraction of the root's area, and only while the references stay within kMaxReferences per
+// triangle: long thin triangles stop stretching boxes over empty space, at a bounded memory cost.
+constexpr float kSpatialOverlap = 1e-5f;
+constexpr double kMaxReferences = 2.0;
+// Subtrees over at least this many references may be built on a thread of their own.
+constexpr size_t kParallelMin = 1u << 14;
 
 struct Box {
   glm::vec3 lo{INFINITY}, hi{-INFINITY};
   void grow(const glm::vec3& p) { lo = glm::min(lo, p); hi = glm::max(hi, p); }
   void grow(const Box& b) { lo = glm::min(lo, b.lo); hi = glm::max(hi, b.hi); }
+  bool empty() const { return !(lo.x <= hi.x && lo.y <= hi.y && lo.z <= hi.z); }
+  Box intersect(const Box& b) const { return Box{glm::max(lo, b.lo), glm::min(hi, b.hi)}; }
+  glm::vec3 centre() const { return 0.5f * (lo + hi); }
   float area() const {
     glm::vec3 d = hi - lo;
-    return d.x < 0.0f ? 0.0f : 2.0f * (d.x * d.y + d.y * d.z + d.z * d.x);
+    return empty() ? 0.0f : 2.0f * (d.x * d.y + d.y * d.z + d.z * d.x);
   }
 };
+
+// A triangle, or the part of it on one side of the spatial splits above it: `box` bounds that part.
+struct Ref {
+  uint32_t tri;
+  Box box;
+};
+
+// The bounds of the part of triangle `t` with `lo` ≤ p[axis] ≤ `hi`, within `within` (the part a
+// reference already stands for). An edge's crossing of a plane is rounded; the box is widened by
+// a bound on that rounding so that it never cuts off a sliver of the triangle (the intersection
+// with `within` keeps it tight). Empty when the triangle does not reach the slab.
+Box clip(const Triangle& t, int axis, float lo, float hi, const Box& within) {
+  Box part;
+  for (int i = 0; i < 3; ++i) {
+    const glm::vec3 &p = t.v[i], &q = t.v[(i + 1) % 3];
+    if (p[axis] >= lo && p[axis] <= hi) part.grow(p);
+    for (float plane : {lo, hi}) {
+      if (!((p[axis] < plane && q[axis] > plane) || (p[axis] > plane && q[axis] < plane))) continue;
+      glm::vec3 x = p + (plane - p[axis]) / (q[axis] - p[axis]) * (q - p);
+      // s = (plane − p)/(q − p) and s·(q − p) round a few times over magnitudes up to |p| + |q|:
+      // 16 ε of the larger endpoint bounds the error with room to spare.
+      glm::vec3 err = 16.0f * FLT_EPSILON * glm::max(glm::abs(p), glm::abs(q));
+      x[axis] = plane, err[axis] = 0.0f;
+      part.grow(x - err);
+      part.grow(x + err);
+    }
+  }
+  return part.intersect(within);
+}
 
 // The binary tree the SAH builds; collapsed into 4-wide nodes afterwards.
 struct BinaryNode {
   Box box;
   uint32_t left = 0, right = 0;  // children, when count == 0
-  uint32_t first = 0, count = 0; // a leaf's range of `order`
+  uint32_t first = 0, count = 0; // a leaf's range of `leaf_tris`
 };
 
 struct Builder {
-  std::vector<Box> bounds;
-  std::vector<glm::vec3> centroids;
-  std::vector<uint32_t>& order;
+  const std::vector<Triangle>& tris;
+  bool spatial_splits;
   std::vector<BinaryNode> nodes;
+  std::vector<uint32_t> leaf_tris;  // the leaves' triangles (scene indices), leaf after leaf
+  float root_area = 0.0f;
+  int parallel_depth = 0;           // subtrees above it are built on threads of their own
 
-  void leaf(size_t node, size_t first, size_t count) {
-    nodes[node].first = (uint32_t)first;
-    nodes[node].count = (uint32_t)count;
+  struct Split {
+    float cost = INFINITY;  // SAH area × blocks of the two sides
+    int axis = -1;
+    int bin = 0;            // the first bin of the right side
+    bool spatial = false;
+  };
+
+  void leaf(size_t node, const std::vector<Ref>& refs) {
+    nodes[node].first = (uint32_t)leaf_tris.size();
+    nodes[node].count = (uint32_t)refs.size();
+    for (const Ref& r : refs) leaf_tris.push_back(r.tri);
   }
 
-  void build(size_t node, size_t first, size_t count, int depth) {
-    Box box, cbox;
-    for (size_t i = first; i < first + count; ++i) {
-      box.grow(bounds[order[i]]);
-      cbox.grow(centroids[order[i]]);
-    }
-    nodes[node].box = box;
-    if (count == 1) return leaf(node, first, count);
+  static int centroid_bin(const Ref& r, int axis, float lo, float extent) {
+    return std::min(kBins - 1, (int)(kBins * (r.box.centre()[axis] - lo) / extent));
+  }
+  // The plane between spatial bins b − 1 and b of the node's box.
+  static float plane(const Box& box, int axis, int b) {
+    return box.lo[axis] + (box.hi[axis] - box.lo[axis]) * (float)b / kBins;
+  }
 
-    // Binned SAH over all three axes of the centroid bounds.
-    float best_cost = INFINITY;
-    int best_axis = -1, best_split = 0;
-    for (int axis = 0; axis < 3 && depth < kMaxSahDepth; ++axis) {
+  // Binned SAH over the centroids of the references' boxes; *overlap gets the area where the
+  // best split's two boxes overlap.
+  Split object_split(const std::vector<Ref>& refs, const Box& cbox, float* overlap) {
+    Split best;
+    for (int axis = 0; axis < 3; ++axis) {
       float lo = cbox.lo[axis], extent = cbox.hi[axis] - lo;
       if (!(extent > 0.0f)) continue;
       Box bin_box[kBins];
       size_t bin_count[kBins] = {};
-      for (size_t i = first; i < first + count; ++i) {
-        uint32_t t = order[i];
-        int b = std::min(kBins - 1, (int)(kBins * (centroids[t][axis] - lo) / extent));
-        bin_box[b].grow(bounds[t]);
+      for (const Ref& r : refs) {
+        int b = centroid_bin(r, axis, lo, extent);
+        bin_box[b].grow(r.box);
         bin_count[b]++;
       }
       // Sweep from the right to get the area × count of every right part, then from the left.
+      Box right_box[kBins];
       float right_cost[kBins];
       Box acc;
       size_t n = 0;
       for (int b = kBins - 1; b > 0; --b) {
         acc.grow(bin_box[b]);
         n += bin_count[b];
+        right_box[b] = acc;
         right_cost[b] = acc.area() * blocks_cost(n);
       }
       acc = Box();
@@ -87,39 +143,190 @@ struct Builder {
         acc.grow(bin_box[b]);
         n += bin_count[b];
         float cost = acc.area() * blocks_cost(n) + right_cost[b + 1];
-        if (n > 0 && n < count && cost < best_cost) {
-          best_cost = cost;
-          best_axis = axis;
-          best_split = b + 1;
+        if (n > 0 && n < refs.size() && cost < best.cost) {
+          best = Split{cost, axis, b + 1, false};
+          *overlap = acc.intersect(right_box[b + 1]).area();
         }
       }
     }
-    float leaf_cost = blocks_cost(count);
-    float split_cost = kTraversalCost + best_cost / std::max(box.area(), 1e-30f);
-    if (best_axis < 0) {  // every centroid in one point (or too deep): no split separates them
-      if (count <= kMaxLeaf) return leaf(node, first, count);
-    } else if (count <= kMaxLeaf && leaf_cost <= split_cost) {
-      return leaf(node, first, count);
+    return best;
+  }
+
+  // Binned SAH over planes through the node's box, each reference clipped into the bins it spans.
+  Split spatial_split(const std::vector<Ref>& refs, const Box& box, size_t budget) {
+    Split best;
+    for (int axis = 0; axis < 3; ++axis) {
+      if (!(box.hi[axis] > box.lo[axis])) continue;
+      Box bin_box[kBins];
+      size_t enter[kBins] = {}, exit[kBins] = {};
+      for (const Ref& r : refs) {
+        int first = bin_of(box, axis, r.box.lo[axis]), last = bin_of(box, axis, r.box.hi[axis]);
+        enter[first]++;
+        exit[last]++;
+        if (first == last) {
+          bin_box[first].grow(r.box);
+          continue;
+        }
+        // Only the costs need these boxes (partition_spatial clips the references it splits), so
+        // each bin gets the vertices and edge crossings of its planes, clamped to the reference's
+        // box and unwidened: each crossing computed once, for the two bins it bounds.
+        const Triangle& t = tris[r.tri];
+        for (const glm::vec3& p : t.v) {
+          int b = bin_of(box, axis, p[axis]);
+          if (b >= first && b <= last) bin_box[b].grow(glm::clamp(p, r.box.lo, r.box.hi));
+        }
+        for (int b = first + 1; b <= last; ++b) {
+          const float at = plane(box, axis, b);
+          for (int i = 0; i < 3; ++i) {
+            const glm::vec3 &p = t.v[i], &q = t.v[(i + 1) % 3];
+            if (!((p[axis] < at && q[axis] > at) || (p[axis] > at && q[axis] < at))) continue;
+            glm::vec3 x = glm::clamp(p + (at - p[axis]) / (q[axis] - p[axis]) * (q - p), r.box.lo, r.box.hi);
+            x[axis] = at;
+            bin_box[b - 1].grow(x), bin_box[b].grow(x);
+          }
+        }
+      }
+      float right_cost[kBins];
+      size_t exits_right[kBins];
+      Box acc;
+      size_t n = 0;
+      for (int b = kBins - 1; b > 0; --b) {
+        acc.grow(bin_box[b]);
+        n += exit[b];
+        exits_right[b] = n;
+        right_cost[b] = n > 0 ? acc.area() * blocks_cost(n) : INFINITY;
+      }
+      acc = Box();
+      n = 0;
+      for (int b = 0; b < kBins - 1; ++b) {
+        acc.grow(bin_box[b]);
+        n += enter[b];
+        float cost = acc.area() * blocks_cost(n) + right_cost[b + 1];
+        size_t straddling = n + exits_right[b + 1] - refs.size();
+        // (Both sides may hold every reference: each gets its clipped part of all of them.)
+        if (n > 0 && straddling <= budget && cost < best.cost) best = Split{cost, axis, b + 1, true};
+      }
+    }
+    return best;
+  }
+
+  // The spatial bin of coordinate x: the b with plane(b) ≤ x < plane(b + 1), by the same planes
+  // the references are clipped to.
+  static int bin_of(const Box& box, int axis, float x) {
+    float extent = box.hi[axis] - box.lo[axis];
+    int b = std::clamp((int)(kBins * (x - box.lo[axis]) / extent), 0, kBins - 1);
+    while (b > 0 && x < plane(box, axis, b)) --b;
+    while (b < kBins - 1 && x >= plane(box, axis, b + 1)) ++b;
+    return b;
+  }
+
+  // Splits the references at a spatial plane. A reference that straddles it goes to both sides,
+  // clipped, unless putting it whole into one side costs less (Stich et al.'s unsplitting).
+  void partition_spatial(std::vector<Ref>& refs, const Box& box, const Split& s, std::vector<Ref>& left,
+                         std::vector<Ref>& right) {
+    const float at = plane(box, s.axis, s.bin);
+    Box lbox, rbox;
+    for (const Ref& r : refs) {
+      if (r.box.hi[s.axis] <= at) left.push_back(r), lbox.grow(r.box);
+      else if (r.box.lo[s.axis] >= at) right.push_back(r), rbox.grow(r.box);
+    }
+    std::vector<Ref> straddling;
+    for (const Ref& r : refs)
+      if (r.box.lo[s.axis] < at && r.box.hi[s.axis] > at) straddling.push_back(r);
+    // Both sides' clipped parts first, so that the unsplitting test sees the sides' full extent.
+    std::vector<std::pair<Box, Box>> parts;
+    for (const Ref& r : straddling) {
+      parts.emplace_back(clip(tris[r.tri], s.axis, -INFINITY, at, r.box), clip(tris[r.tri], s.axis, at, INFINITY, r.box));
+      lbox.grow(parts.back().first), rbox.grow(parts.back().second);
+    }
+    size_t nl = left.size() + straddling.size(), nr = right.size() + straddling.size();
+    for (size_t k = 0; k < straddling.size(); ++k) {
+      const Ref& r = straddling[k];
+      const auto& [lpart, rpart] = parts[k];
+      Box lwhole = lbox, rwhole = rbox;
+      lwhole.grow(r.box), rwhole.grow(r.box);
+      float both = lbox.area() * nl + rbox.area() * nr;
+      float only_left = lwhole.area() * nl + rbox.area() * (nr - 1);
+      float only_right = lbox.area() * (nl - 1) + rwhole.area() * nr;
+      if (rpart.empty() || (!lpart.empty() && only_left <= std::min(both, only_right))) {
+        left.push_back(r), lbox = lwhole, nr--;
+      } else if (lpart.empty() || only_right <= both) {
+        right.push_back(r), rbox = rwhole, nl--;
+      } else {
+        left.push_back(Ref{r.tri, lpart}), right.push_back(Ref{r.tri, rpart});
+      }
+    }
+  }
+
+  // Builds the subtree of `node` over `refs`; its spatial splits may add at most `budget`
+  // references. The budget is shared out between the children by their sizes, so the tree does
+  // not depend on the order the subtrees are built in, or on the threads.
+  void build(size_t node, std::vector<Ref> refs, int depth, size_t budget) {
+    Box box, cbox;
+    for (const Ref& r : refs) box.grow(r.box), cbox.grow(r.box.centre());
+    nodes[node].box = box;
+    if (refs.size() == 1) return leaf(node, refs);
+
+    Split best;
+    if (depth < kMaxSahDepth) {
+      float overlap = 0.0f;
+      best = object_split(refs, cbox, &overlap);
+      if (spatial_splits && budget > 0 && overlap > kSpatialOverlap * root_area) {
+        Split spatial = spatial_split(refs, box, budget);
+        if (spatial.cost < best.cost) best = spatial;
+      }
+    }
+    float leaf_cost = blocks_cost(refs.size());
+    float split_cost = kTraversalCost + best.cost / std::max(box.area(), 1e-30f);
+    if (best.axis < 0) {  // every centroid in one point (or too deep): no split separates them
+      if (refs.size() <= kMaxLeaf) return leaf(node, refs);
+    } else if (refs.size() <= kMaxLeaf && leaf_cost <= split_cost) {
+      return leaf(node, refs);
     }
 
-    size_t mid;
-    if (best_axis >= 0) {
-      float lo = cbox.lo[best_axis], extent = cbox.hi[best_axis] - lo;
-      auto* begin = order.data() + first;
-      auto* m = std::partition(begin, begin + count, [&](uint32_t t) {
-        int b = std::min(kBins - 1, (int)(kBins * (centroids[t][best_axis] - lo) / extent));
-        return b < best_split;
-      });
-      mid = (size_t)(m - order.data());
-    } else {
-      mid = first + count / 2;  // coincident centroids: halve by index
+    std::vector<Ref> left, right;
+    if (best.spatial) partition_spatial(refs, box, best, left, right);
+    if (best.axis >= 0 && !best.spatial) {
+      float lo = cbox.lo[best.axis], extent = cbox.hi[best.axis] - lo;
+      for (const Ref& r : refs) (centroid_bin(r, best.axis, lo, extent) < best.bin ? left : right).push_back(r);
     }
-    uint32_t left = (uint32_t)nodes.size(), right = left + 1;
+    if (left.empty() || right.empty()) {  // coincident centroids (or a split unsplit to one side): halve
+      left.assign(refs.begin(), refs.begin() + refs.size() / 2);
+      right.assign(refs.begin() + refs.size() / 2, refs.end());
+    }
+    const size_t children = left.size() + right.size();
+    budget -= children - refs.size();
+    const size_t left_budget = (size_t)((double)budget * (double)left.size() / (double)children);
+    const size_t right_budget = budget - left_budget;
+    refs = {};  // free before recursing
+    uint32_t l = (uint32_t)nodes.size(), r = l + 1;
     nodes.resize(nodes.size() + 2);
-    nodes[node].left = left;
-    nodes[node].right = right;
-    build(left, first, mid - first, depth + 1);
-    build(right, mid, first + count - mid, depth + 1);
+    nodes[node].left = l;
+    nodes[node].right = r;
+    if (depth >= parallel_depth || children < kParallelMin) {
+      build(l, std::move(left), depth + 1, left_budget);
+      build(r, std::move(right), depth + 1, right_budget);
+      return;
+    }
+    // The left subtree into a builder of its own on another thread, then grafted in.
+    Builder sub{tris, spatial_splits, {BinaryNode{}}, {}, root_area, parallel_depth};
+    auto done = std::async(std::launch::async, [&] { sub.build(0, std::move(left), depth + 1, left_budget); });
+    build(r, std::move(right), depth + 1, right_budget);
+    done.get();
+    graft(l, sub);
+  }
+
+  // Moves a subtree built by `sub` (its root at 0) into this tree, its root at `at`.
+  void graft(uint32_t at, const Builder& sub) {
+    const uint32_t offset = (uint32_t)nodes.size() - 1u, leaf_offset = (uint32_t)leaf_tris.size();
+    for (size_t i = 0; i < sub.nodes.size(); ++i) {
+      BinaryNode n = sub.nodes[i];
+      if (n.count > 0) n.first += leaf_offset;
+      else n.left = n.left + offset, n.right = n.right + offset;  // sub's node k > 0 goes to offset + k
+      if (i == 0) nodes[at] = n;
+      else nodes.push_back(n);
+    }
+    leaf_tris.insert(leaf_tris.end(), sub.leaf_tris.begin(), sub.leaf_tris.end());
   }
 };
 
@@ -140,6 +347,8 @@ void store_node(Node& n, const float (*lo)[8], const float (*hi)[8], const uint3
 // ray is most likely to enter, by the SAH's own measure) until it has `width`.
 struct Collapser {
   const std::vector<BinaryNode>& bin;
+  const std::vector<uint32_t>& leaf_tris;
+  const std::vector<uint32_t>& position;  // a scene triangle's position in bvh.order
   const std::vector<Triangle>& tris;
   Bvh& bvh;
 
@@ -149,21 +358,20 @@ struct Collapser {
     return (uint32_t)(bvh.width == 8 ? bvh.nodes8.size() : bvh.nodes.size()) - 1;
   }
 
-  // Appends the blocks of the leaf's triangles (positions first..first+count of bvh.order) and
-  // returns its child entry.
+  // Appends the blocks of the leaf's triangles (leaf_tris[first..first+count), scene indices) and
+  // returns its child entry. Blocks name a triangle by its position in bvh.order.
   uint32_t leaf(uint32_t first, uint32_t count) {
     const uint32_t first_block = (uint32_t)bvh.blocks.size(), blocks = (count + 3) / 4;
     for (uint32_t b = 0; b < blocks; ++b) {
       TriBlock blk;
       for (auto& axis : blk.coord) std::fill(axis, axis + 3, glm::vec4(NAN));
       for (uint32_t k = 0; k < 4; ++k) {
-        const uint32_t p = first + 4 * b + k;
-        blk.tri[k] = 4 * b + k < count ? p : XI_NO_HIT;
-        if (blk.tri[k] == XI_NO_HIT) continue;
-        for (int j = 0; j < 3; ++j) {
-          const glm::vec3& v = tris[bvh.order[p]].v[j];
-          for (int a = 0; a < 3; ++a) blk.coord[a][j][k] = v[a];
-        }
+        blk.tri[k] = XI_NO_HIT;
+        if (4 * b + k >= count) continue;
+        const uint32_t tri = leaf_tris[first + 4 * b + k];
+        blk.tri[k] = position[tri];
+        for (int j = 0; j < 3; ++j)
+          for (int a = 0; a < 3; ++a) blk.coord[a][j][k] = tris[tri].v[j][a];
       }
       bvh.blocks.push_back(blk);
     }
@@ -216,7 +424,7 @@ struct Collapser {
 
 }  // namespace
 
-Bvh build_bvh(const std::vector<Triangle>& triangles, int width) {
+Bvh build_bvh(const std::vector<Triangle>& triangles, int width, bool spatial_splits) {
   auto start = std::chrono::steady_clock::now();
   if (width != 4 && width != 8) throw Error("BVH width must be 4 or 8, not " + std::to_string(width), "--bvh-width");
   if (triangles.empty()) throw Error("cannot build a BVH over an empty scene");
@@ -225,19 +433,39 @@ Bvh build_bvh(const std::vector<Triangle>& triangles, int width) {
   if (triangles.size() > XI_BVH_FIRST_MASK) throw Error("too many triangles for the BVH (at most 134217727)");
   Bvh bvh;
   bvh.width = width;
-  Builder b{{}, {}, bvh.order, {}};
-  b.bounds.resize(triangles.size());
-  b.centroids.resize(triangles.size());
+  Builder b{triangles, spatial_splits, {BinaryNode{}}, {}, 0.0f, 0};
+  std::vector<Ref> refs(triangles.size());
+  Box root;
   for (size_t i = 0; i < triangles.size(); ++i) {
-    for (auto& v : triangles[i].v) b.bounds[i].grow(v);
-    b.centroids[i] = (triangles[i].v[0] + triangles[i].v[1] + triangles[i].v[2]) / 3.0f;
+    refs[i].tri = (uint32_t)i;
+    for (auto& v : triangles[i].v) refs[i].box.grow(v);
+    root.grow(refs[i].box);
   }
-  bvh.order.resize(triangles.size());
-  for (size_t i = 0; i < triangles.size(); ++i) bvh.order[i] = (uint32_t)i;
+  b.root_area = root.area();
+  // Threads for the subtrees of the top levels: about two per core.
+  for (unsigned t = std::max(1u, std::thread::hardware_concurrency()); t > 0; t >>= 1) b.parallel_depth++;
   b.nodes.reserve(2 * triangles.size());
-  b.nodes.push_back(BinaryNode{});
-  b.build(0, 0, triangles.size(), 0);
-  Collapser collapser{b.nodes, triangles, bvh};
+  b.build(0, std::move(refs), 0, (size_t)((kMaxReferences - 1.0) * (double)triangles.size()));
+  bvh.stats.references = b.leaf_tris.size();
+  // BVH order: the triangles by their first place in a leaf, leaves left to right, so that the
+  // arrays in this order (CompiledScene) follow the tree whichever thread built which subtree.
+  constexpr uint32_t kUnplaced = ~0u;
+  std::vector<uint32_t> position(triangles.size(), kUnplaced);
+  std::vector<uint32_t> pending{0};
+  while (!pending.empty()) {
+    const BinaryNode& n = b.nodes[pending.back()];
+    pending.pop_back();
+    if (n.count == 0) {
+      pending.push_back(n.right), pending.push_back(n.left);
+      continue;
+    }
+    for (uint32_t k = n.first; k < n.first + n.count; ++k) {
+      const uint32_t t = b.leaf_tris[k];
+      if (position[t] == kUnplaced) position[t] = (uint32_t)bvh.order.size(), bvh.order.push_back(t);
+    }
+  }
+  if (bvh.order.size() != triangles.size()) throw Error("internal: the BVH lost a triangle");
+  Collapser collapser{b.nodes, b.leaf_tris, position, triangles, bvh};
   collapser.new_node();  // the root
   bvh.stats.stack = collapser.collapse(0, 0, 0);
   if (bvh.stats.stack > XI_BVH_STACK)

@@ -65,9 +65,9 @@ std::vector<std::string> kernel_defines(const Features& f, int sampler, Strategy
   return d;
 }
 
-CompiledScene compile_scene(const Scene& scene, int bvh_width) {
+CompiledScene compile_scene(const Scene& scene, int bvh_width, bool spatial_splits) {
   CompiledScene cs;
-  cs.bvh = build_bvh(scene.triangles, bvh_width);
+  cs.bvh = build_bvh(scene.triangles, bvh_width, spatial_splits);
   const size_t n = scene.triangles.size();
 
   for (auto& m : scene.materials) {
@@ -86,23 +86,29 @@ CompiledScene compile_scene(const Scene& scene, int bvh_width) {
   for (auto& t : scene.triangles) cs.features.normals |= t.has_normals;
   // Always 3 per triangle: an --all-features build reads them even when no triangle has normals.
   cs.tri_normals.assign(3 * n, glm::vec4(0.0f));
-  std::vector<double> power;
+  std::vector<uint32_t> position(n);  // a scene triangle's position in BVH order
   for (size_t i = 0; i < n; ++i) {
     const Triangle& t = scene.triangles[cs.bvh.order[i]];
+    position[cs.bvh.order[i]] = (uint32_t)i;
     for (int k = 0; k < 3; ++k) {
       cs.tri_verts[3 * i + k] = glm::vec4(t.v[k], 0.0f);
       if (t.has_normals) cs.tri_normals[3 * i + k] = glm::vec4(t.n[k], 1.0f);
     }
     cs.tri_material[i] = t.material;
+  }
+  // The lights in the scene's order, not the BVH's, so that a light sample does not depend on
+  // how the BVH was built (spatial splits or not): only a tie between two hits can.
+  std::vector<double> power;
+  for (size_t j = 0; j < n; ++j) {
+    const Triangle& t = scene.triangles[j];
     const Material& m = scene.materials[t.material];
-    if (m.is_emitter()) {
-      double area = 0.5 * glm::length(glm::cross(t.v[1] - t.v[0], t.v[2] - t.v[0]));
-      double lum = 0.2126 * m.emission.x + 0.7152 * m.emission.y + 0.0722 * m.emission.z;
-      double p = lum * area * M_PI * (m.two_sided ? 2.0 : 1.0);
-      if (p > 0.0 && area > 0.0) {
-        cs.light_tri.push_back((uint32_t)i);
-        power.push_back(p);
-      }
+    if (!m.is_emitter()) continue;
+    double area = 0.5 * glm::length(glm::cross(t.v[1] - t.v[0], t.v[2] - t.v[0]));
+    double lum = 0.2126 * m.emission.x + 0.7152 * m.emission.y + 0.0722 * m.emission.z;
+    double p = lum * area * M_PI * (m.two_sided ? 2.0 : 1.0);
+    if (p > 0.0 && area > 0.0) {
+      cs.light_tri.push_back(position[j]);
+      power.push_back(p);
     }
   }
 
