@@ -293,6 +293,39 @@ TEST_F(CliRender, PathsInFlightDoNotChangeTheImage) {
   expect_user_error(run_xi(concat(base, {"-o", "c.exr", "--samples-per-pass", "x"})), {"--samples-per-pass"}, before);
 }
 
+// --no-spatial-splits reaches the BVH build: a scene of slanted long triangles (a fan of blades
+// through a box) is split by default (more references than triangles in the `bvh:` line) and not
+// with the flag, and the two images are the same.
+TEST_F(CliRender, NoSpatialSplitsBuildsOneReferencePerTriangle) {
+  std::string shapes;
+  for (int i = 0; i < 40; ++i) {
+    const float x = -1.0f + 0.05f * (float)i;
+    shapes += ", {\"type\": \"triangle\", \"material\": \"white\", \"vertices\": [[" + std::to_string(x) +
+              ", -1, -1], [" + std::to_string(-x) + ", 1, 1], [" + std::to_string(x + 0.02f) + ", -1, -0.9]]}";
+  }
+  std::ofstream(work_ / "blades.json")
+      << R"({"camera": {"position": [0, 0, -4], "look_at": [0, 0, 0], "up": [0, 1, 0], "fov": 40},
+  "materials": {"white": {"type": "diffuse", "albedo": [0.5, 0.5, 0.5]},
+                "light": {"type": "emitter", "radiance": [4, 4, 4]}},
+  "shapes": [{"type": "quad", "material": "light", "vertices": [[-1, 2, -1], [1, 2, -1], [1, 2, 1], [-1, 2, 1]]})"
+      << shapes << "]}";
+  auto references = [](const std::string& out) {
+    const size_t at = out.find(" triangle references");
+    if (at == std::string::npos) return -1L;
+    return std::stol(out.substr(out.rfind(' ', at - 1) + 1, at));
+  };
+  const std::vector<std::string> base = {"render", "blades.json", "--spp", "2", "--resolution", "24x16"};
+  const Outcome split = run_xi(concat(base, {"-o", "a.exr"})), plain = run_xi(concat(base, {"-o", "b.exr", "--no-spatial-splits"}));
+  ASSERT_EQ(split.code, 0) << split.err;
+  ASSERT_EQ(plain.code, 0) << plain.err;
+  EXPECT_NE(split.out.find("scene: blades.json, 42 triangles"), std::string::npos) << split.out;
+  EXPECT_GT(references(split.out), 42) << split.out;
+  EXPECT_EQ(references(plain.out), 42) << plain.out;
+  const xi::Image a = xi::read_exr(work_ / "a.exr"), b = xi::read_exr(work_ / "b.exr");
+  ASSERT_EQ(a.pixels.size(), b.pixels.size());
+  EXPECT_EQ(std::memcmp(a.pixels.data(), b.pixels.data(), a.pixels.size() * sizeof(glm::vec3)), 0);
+}
+
 // A frame too large for the memory there is: one error naming what it needs and what there is,
 // before anything is allocated (PoCL used to abort on an assertion), and no file.
 // (Both cases hold on PoCL, the suite's default device; on a device with more memory, or one whose
