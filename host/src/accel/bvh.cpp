@@ -362,6 +362,9 @@ struct Collapser {
   // returns its child entry. Blocks name a triangle by its position in bvh.order.
   uint32_t leaf(uint32_t first, uint32_t count) {
     const uint32_t first_block = (uint32_t)bvh.blocks.size(), blocks = (count + 3) / 4;
+    // Spatial splits can make up to twice as many blocks as the triangles' count checked up front.
+    if (first_block + blocks > XI_BVH_FIRST_MASK)
+      throw Error("too many triangle blocks for the BVH's 27-bit leaf entries", "try --no-spatial-splits");
     for (uint32_t b = 0; b < blocks; ++b) {
       TriBlock blk;
       for (auto& axis : blk.coord) std::fill(axis, axis + 3, glm::vec4(NAN));
