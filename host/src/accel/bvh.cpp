@@ -6,8 +6,6 @@
 #include <cfloat>
 #include <chrono>
 #include <cstring>
-#include <future>
-#include <thread>
 #include <glm/gtc/type_ptr.hpp>
 #include <string>
 
@@ -31,8 +29,6 @@ float blocks_cost(size_t triangles) { return (float)((triangles + 3) / 4); }
 // triangle: long thin triangles stop stretching boxes over empty space, at a bounded memory cost.
 constexpr float kSpatialOverlap = 1e-5f;
 constexpr double kMaxReferences = 2.0;
-// Subtrees over at least this many references may be built on a thread of their own.
-constexpr size_t kParallelMin = 1u << 14;
 
 struct Box {
   glm::vec3 lo{INFINITY}, hi{-INFINITY};
@@ -89,7 +85,6 @@ struct Builder {
   std::vector<BinaryNode> nodes;
   std::vector<uint32_t> leaf_tris;  // the leaves' triangles (scene indices), leaf after leaf
   float root_area = 0.0f;
-  int parallel_depth = 0;           // subtrees above it are built on threads of their own
 
   struct Split {
     float cost = INFINITY;  // SAH area × blocks of the two sides
@@ -259,8 +254,8 @@ struct Builder {
   }
 
   // Builds the subtree of `node` over `refs`; its spatial splits may add at most `budget`
-  // references. The budget is shared out between the children by their sizes, so the tree does
-  // not depend on the order the subtrees are built in, or on the threads.
+  // references. The budget is shared out between the children by their sizes, not spent first
+  // come first served, so that the left subtree cannot starve the right.
   void build(size_t node, std::vector<Ref> refs, int depth, size_t budget) {
     Box box, cbox;
     for (const Ref& r : refs) box.grow(r.box), cbox.grow(r.box.centre());
@@ -303,30 +298,8 @@ struct Builder {
     nodes.resize(nodes.size() + 2);
     nodes[node].left = l;
     nodes[node].right = r;
-    if (depth >= parallel_depth || children < kParallelMin) {
-      build(l, std::move(left), depth + 1, left_budget);
-      build(r, std::move(right), depth + 1, right_budget);
-      return;
-    }
-    // The left subtree into a builder of its own on another thread, then grafted in.
-    Builder sub{tris, spatial_splits, {BinaryNode{}}, {}, root_area, parallel_depth};
-    auto done = std::async(std::launch::async, [&] { sub.build(0, std::move(left), depth + 1, left_budget); });
+    build(l, std::move(left), depth + 1, left_budget);
     build(r, std::move(right), depth + 1, right_budget);
-    done.get();
-    graft(l, sub);
-  }
-
-  // Moves a subtree built by `sub` (its root at 0) into this tree, its root at `at`.
-  void graft(uint32_t at, const Builder& sub) {
-    const uint32_t offset = (uint32_t)nodes.size() - 1u, leaf_offset = (uint32_t)leaf_tris.size();
-    for (size_t i = 0; i < sub.nodes.size(); ++i) {
-      BinaryNode n = sub.nodes[i];
-      if (n.count > 0) n.first += leaf_offset;
-      else n.left = n.left + offset, n.right = n.right + offset;  // sub's node k > 0 goes to offset + k
-      if (i == 0) nodes[at] = n;
-      else nodes.push_back(n);
-    }
-    leaf_tris.insert(leaf_tris.end(), sub.leaf_tris.begin(), sub.leaf_tris.end());
   }
 };
 
@@ -436,7 +409,7 @@ Bvh build_bvh(const std::vector<Triangle>& triangles, int width, bool spatial_sp
   if (triangles.size() > XI_BVH_FIRST_MASK) throw Error("too many triangles for the BVH (at most 134217727)");
   Bvh bvh;
   bvh.width = width;
-  Builder b{triangles, spatial_splits, {BinaryNode{}}, {}, 0.0f, 0};
+  Builder b{triangles, spatial_splits, {BinaryNode{}}, {}, 0.0f};
   std::vector<Ref> refs(triangles.size());
   Box root;
   for (size_t i = 0; i < triangles.size(); ++i) {
@@ -445,28 +418,15 @@ Bvh build_bvh(const std::vector<Triangle>& triangles, int width, bool spatial_sp
     root.grow(refs[i].box);
   }
   b.root_area = root.area();
-  // Threads for the subtrees of the top levels: about two per core.
-  for (unsigned t = std::max(1u, std::thread::hardware_concurrency()); t > 0; t >>= 1) b.parallel_depth++;
   b.nodes.reserve(2 * triangles.size());
   b.build(0, std::move(refs), 0, (size_t)((kMaxReferences - 1.0) * (double)triangles.size()));
   bvh.stats.references = b.leaf_tris.size();
   // BVH order: the triangles by their first place in a leaf, leaves left to right, so that the
-  // arrays in this order (CompiledScene) follow the tree whichever thread built which subtree.
+  // arrays in this order (CompiledScene) follow the tree.
   constexpr uint32_t kUnplaced = ~0u;
   std::vector<uint32_t> position(triangles.size(), kUnplaced);
-  std::vector<uint32_t> pending{0};
-  while (!pending.empty()) {
-    const BinaryNode& n = b.nodes[pending.back()];
-    pending.pop_back();
-    if (n.count == 0) {
-      pending.push_back(n.right), pending.push_back(n.left);
-      continue;
-    }
-    for (uint32_t k = n.first; k < n.first + n.count; ++k) {
-      const uint32_t t = b.leaf_tris[k];
-      if (position[t] == kUnplaced) position[t] = (uint32_t)bvh.order.size(), bvh.order.push_back(t);
-    }
-  }
+  for (uint32_t t : b.leaf_tris)
+    if (position[t] == kUnplaced) position[t] = (uint32_t)bvh.order.size(), bvh.order.push_back(t);
   if (bvh.order.size() != triangles.size()) throw Error("internal: the BVH lost a triangle");
   Collapser collapser{b.nodes, b.leaf_tris, position, triangles, bvh};
   collapser.new_node();  // the root
