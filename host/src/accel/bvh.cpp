@@ -4,6 +4,7 @@
 
 #include <algorithm>
 #include <cfloat>
+#include <cmath>
 #include <chrono>
 #include <cstring>
 #include <glm/gtc/type_ptr.hpp>
@@ -99,8 +100,19 @@ struct Builder {
     for (const Ref& r : refs) leaf_tris.push_back(r.tri);
   }
 
-  static int centroid_bin(const Ref& r, int axis, float lo, float extent) {
-    return std::min(kBins - 1, (int)(kBins * (r.box.centre()[axis] - lo) / extent));
+  // The centroid bin of reference r on `axis` of centroid bounds `cbox`, given scale = kBins /
+  // the bounds' extent (0 on an axis of no extent, or one too thin for kBins / extent to be
+  // finite: bin 0, and no split on that axis).
+  static int centroid_bin(const Ref& r, int axis, const Box& cbox, const glm::vec3& scale) {
+    return std::min(kBins - 1, (int)((r.box.centre()[axis] - cbox.lo[axis]) * scale[axis]));
+  }
+  static glm::vec3 bin_scale(const Box& cbox) {
+    glm::vec3 extent = cbox.hi - cbox.lo, scale;
+    for (int a = 0; a < 3; ++a) {
+      scale[a] = extent[a] > 0.0f ? (float)kBins / extent[a] : 0.0f;
+      if (!std::isfinite(scale[a])) scale[a] = 0.0f;
+    }
+    return scale;
   }
   // The plane between spatial bins b − 1 and b of the node's box.
   static float plane(const Box& box, int axis, int b) {
@@ -111,16 +123,21 @@ struct Builder {
   // best split's two boxes overlap.
   Split object_split(const std::vector<Ref>& refs, const Box& cbox, float* overlap) {
     Split best;
-    for (int axis = 0; axis < 3; ++axis) {
-      float lo = cbox.lo[axis], extent = cbox.hi[axis] - lo;
-      if (!(extent > 0.0f)) continue;
-      Box bin_box[kBins];
-      size_t bin_count[kBins] = {};
-      for (const Ref& r : refs) {
-        int b = centroid_bin(r, axis, lo, extent);
-        bin_box[b].grow(r.box);
-        bin_count[b]++;
+    // One pass over the references bins all three axes.
+    const glm::vec3 scale = bin_scale(cbox);
+    Box bins[3][kBins];
+    size_t counts[3][kBins] = {};
+    for (const Ref& r : refs) {
+      for (int axis = 0; axis < 3; ++axis) {
+        int b = centroid_bin(r, axis, cbox, scale);
+        bins[axis][b].grow(r.box);
+        counts[axis][b]++;
       }
+    }
+    for (int axis = 0; axis < 3; ++axis) {
+      if (scale[axis] == 0.0f) continue;
+      const Box* bin_box = bins[axis];
+      const size_t* bin_count = counts[axis];
       // Sweep from the right to get the area × count of every right part, then from the left.
       Box right_box[kBins];
       float right_cost[kBins];
@@ -149,15 +166,17 @@ struct Builder {
 
   // Binned SAH over planes through the node's box, each reference clipped into the bins it spans.
   Split spatial_split(const std::vector<Ref>& refs, const Box& box, size_t budget) {
-    Split best;
-    for (int axis = 0; axis < 3; ++axis) {
-      if (!(box.hi[axis] > box.lo[axis])) continue;
-      Box bin_box[kBins];
-      size_t enter[kBins] = {}, exit[kBins] = {};
-      for (const Ref& r : refs) {
-        int first = bin_of(box, axis, r.box.lo[axis]), last = bin_of(box, axis, r.box.hi[axis]);
-        enter[first]++;
-        exit[last]++;
+    // One pass over the references bins all three axes.
+    const glm::vec3 scale = bin_scale(box);
+    Box bins[3][kBins];
+    size_t enters[3][kBins] = {}, exits[3][kBins] = {};
+    for (const Ref& r : refs) {
+      for (int axis = 0; axis < 3; ++axis) {
+        if (scale[axis] == 0.0f) continue;
+        Box* bin_box = bins[axis];
+        int first = bin_of(box, axis, scale, r.box.lo[axis]), last = bin_of(box, axis, scale, r.box.hi[axis]);
+        enters[axis][first]++;
+        exits[axis][last]++;
         if (first == last) {
           bin_box[first].grow(r.box);
           continue;
@@ -167,7 +186,7 @@ struct Builder {
         // box and unwidened: each crossing computed once, for the two bins it bounds.
         const Triangle& t = tris[r.tri];
         for (const glm::vec3& p : t.v) {
-          int b = bin_of(box, axis, p[axis]);
+          int b = bin_of(box, axis, scale, p[axis]);
           if (b >= first && b <= last) bin_box[b].grow(glm::clamp(p, r.box.lo, r.box.hi));
         }
         for (int b = first + 1; b <= last; ++b) {
@@ -181,6 +200,12 @@ struct Builder {
           }
         }
       }
+    }
+    Split best;
+    for (int axis = 0; axis < 3; ++axis) {
+      if (scale[axis] == 0.0f) continue;
+      const Box* bin_box = bins[axis];
+      const size_t *enter = enters[axis], *exit = exits[axis];
       float right_cost[kBins];
       size_t exits_right[kBins];
       Box acc;
@@ -206,10 +231,9 @@ struct Builder {
   }
 
   // The spatial bin of coordinate x: the b with plane(b) ≤ x < plane(b + 1), by the same planes
-  // the references are clipped to.
-  static int bin_of(const Box& box, int axis, float x) {
-    float extent = box.hi[axis] - box.lo[axis];
-    int b = std::clamp((int)(kBins * (x - box.lo[axis]) / extent), 0, kBins - 1);
+  // the references are clipped to (scale = kBins / the box's extent only guesses it).
+  static int bin_of(const Box& box, int axis, const glm::vec3& scale, float x) {
+    int b = std::clamp((int)((x - box.lo[axis]) * scale[axis]), 0, kBins - 1);
     while (b > 0 && x < plane(box, axis, b)) --b;
     while (b < kBins - 1 && x >= plane(box, axis, b + 1)) ++b;
     return b;
@@ -282,8 +306,8 @@ struct Builder {
     std::vector<Ref> left, right;
     if (best.spatial) partition_spatial(refs, box, best, left, right);
     if (best.axis >= 0 && !best.spatial) {
-      float lo = cbox.lo[best.axis], extent = cbox.hi[best.axis] - lo;
-      for (const Ref& r : refs) (centroid_bin(r, best.axis, lo, extent) < best.bin ? left : right).push_back(r);
+      const glm::vec3 scale = bin_scale(cbox);
+      for (const Ref& r : refs) (centroid_bin(r, best.axis, cbox, scale) < best.bin ? left : right).push_back(r);
     }
     if (left.empty() || right.empty()) {  // coincident centroids (or a split unsplit to one side): halve
       left.assign(refs.begin(), refs.begin() + refs.size() / 2);
