@@ -315,7 +315,8 @@ TEST_F(CliRender, NoSpatialSplitsBuildsOneReferencePerTriangle) {
     return std::stol(out.substr(out.rfind(' ', at - 1) + 1, at));
   };
   const std::vector<std::string> base = {"render", "blades.json", "--spp", "2", "--resolution", "24x16"};
-  const Outcome split = run_xi(concat(base, {"-o", "a.exr"})), plain = run_xi(concat(base, {"-o", "b.exr", "--no-spatial-splits"}));
+  const Outcome split = run_xi(concat(base, {"-o", "a.exr"}));
+  const Outcome plain = run_xi(concat(base, {"-o", "b.exr", "--no-spatial-splits"}));
   ASSERT_EQ(split.code, 0) << split.err;
   ASSERT_EQ(plain.code, 0) << plain.err;
   EXPECT_NE(split.out.find("scene: blades.json, 42 triangles"), std::string::npos) << split.out;

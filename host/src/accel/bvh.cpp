@@ -255,7 +255,8 @@ struct Builder {
     // Both sides' clipped parts first, so that the unsplitting test sees the sides' full extent.
     std::vector<std::pair<Box, Box>> parts;
     for (const Ref& r : straddling) {
-      parts.emplace_back(clip(tris[r.tri], s.axis, -INFINITY, at, r.box), clip(tris[r.tri], s.axis, at, INFINITY, r.box));
+      parts.emplace_back(clip(tris[r.tri], s.axis, -INFINITY, at, r.box),
+                         clip(tris[r.tri], s.axis, at, INFINITY, r.box));
       lbox.grow(parts.back().first), rbox.grow(parts.back().second);
     }
     size_t nl = left.size() + straddling.size(), nr = right.size() + straddling.size();
