@@ -50,6 +50,15 @@ struct Ref {
   Box box;
 };
 
+// Where edge p–q crosses the plane p[axis] = at, if it does (an endpoint on the plane is no
+// crossing); the point's coordinate on `axis` is exactly `at`, the others rounded.
+bool edge_crossing(const glm::vec3& p, const glm::vec3& q, int axis, float at, glm::vec3* x) {
+  if (!((p[axis] < at && q[axis] > at) || (p[axis] > at && q[axis] < at))) return false;
+  *x = p + (at - p[axis]) / (q[axis] - p[axis]) * (q - p);
+  (*x)[axis] = at;
+  return true;
+}
+
 // The bounds of the part of triangle `t` with `lo` ≤ p[axis] ≤ `hi`, within `within` (the part a
 // reference already stands for). An edge's crossing of a plane is rounded; the box is widened by
 // a bound on that rounding so that it never cuts off a sliver of the triangle (the intersection
@@ -60,12 +69,12 @@ Box clip(const Triangle& t, int axis, float lo, float hi, const Box& within) {
     const glm::vec3 &p = t.v[i], &q = t.v[(i + 1) % 3];
     if (p[axis] >= lo && p[axis] <= hi) part.grow(p);
     for (float plane : {lo, hi}) {
-      if (!((p[axis] < plane && q[axis] > plane) || (p[axis] > plane && q[axis] < plane))) continue;
-      glm::vec3 x = p + (plane - p[axis]) / (q[axis] - p[axis]) * (q - p);
+      glm::vec3 x;
+      if (!edge_crossing(p, q, axis, plane, &x)) continue;
       // s = (plane − p)/(q − p) and s·(q − p) round a few times over magnitudes up to |p| + |q|:
       // 16 ε of the larger endpoint bounds the error with room to spare.
       glm::vec3 err = 16.0f * FLT_EPSILON * glm::max(glm::abs(p), glm::abs(q));
-      x[axis] = plane, err[axis] = 0.0f;
+      err[axis] = 0.0f;
       part.grow(x - err);
       part.grow(x + err);
     }
@@ -119,6 +128,32 @@ struct Builder {
     return box.lo[axis] + (box.hi[axis] - box.lo[axis]) * (float)b / kBins;
   }
 
+  // One axis's SAH sweep: the plane before bin b (1 ≤ b < kBins) has bins < b on its left, with
+  // left_counts[< b] references, and the rest on its right, with right_counts[≥ b]. Calls
+  // take(b, cost, left box, right box, left count, right count) for each plane with references on
+  // both sides.
+  template <class Take>
+  static void sweep(const Box* bins, const size_t* left_counts, const size_t* right_counts, Take take) {
+    Box right_box[kBins];
+    size_t right_n[kBins];
+    Box acc;
+    size_t n = 0;
+    for (int b = kBins - 1; b > 0; --b) {
+      acc.grow(bins[b]);
+      n += right_counts[b];
+      right_box[b] = acc, right_n[b] = n;
+    }
+    acc = Box();
+    n = 0;
+    for (int b = 1; b < kBins; ++b) {
+      acc.grow(bins[b - 1]);
+      n += left_counts[b - 1];
+      if (n == 0 || right_n[b] == 0) continue;
+      take(b, acc.area() * blocks_cost(n) + right_box[b].area() * blocks_cost(right_n[b]), acc, right_box[b], n,
+           right_n[b]);
+    }
+  }
+
   // Binned SAH over the centroids of the references' boxes; *overlap gets the area where the
   // best split's two boxes overlap.
   Split object_split(const std::vector<Ref>& refs, const Box& cbox, float* overlap) {
@@ -136,30 +171,12 @@ struct Builder {
     }
     for (int axis = 0; axis < 3; ++axis) {
       if (scale[axis] == 0.0f) continue;
-      const Box* bin_box = bins[axis];
-      const size_t* bin_count = counts[axis];
-      // Sweep from the right to get the area × count of every right part, then from the left.
-      Box right_box[kBins];
-      float right_cost[kBins];
-      Box acc;
-      size_t n = 0;
-      for (int b = kBins - 1; b > 0; --b) {
-        acc.grow(bin_box[b]);
-        n += bin_count[b];
-        right_box[b] = acc;
-        right_cost[b] = acc.area() * blocks_cost(n);
-      }
-      acc = Box();
-      n = 0;
-      for (int b = 0; b < kBins - 1; ++b) {
-        acc.grow(bin_box[b]);
-        n += bin_count[b];
-        float cost = acc.area() * blocks_cost(n) + right_cost[b + 1];
-        if (n > 0 && n < refs.size() && cost < best.cost) {
-          best = Split{cost, axis, b + 1, false};
-          *overlap = acc.intersect(right_box[b + 1]).area();
-        }
-      }
+      sweep(bins[axis], counts[axis], counts[axis],
+            [&](int bin, float cost, const Box& left, const Box& right, size_t, size_t) {
+              if (cost >= best.cost) return;
+              best = Split{cost, axis, bin, false};
+              *overlap = left.intersect(right).area();
+            });
     }
     return best;
   }
@@ -192,10 +209,9 @@ struct Builder {
         for (int b = first + 1; b <= last; ++b) {
           const float at = plane(box, axis, b);
           for (int i = 0; i < 3; ++i) {
-            const glm::vec3 &p = t.v[i], &q = t.v[(i + 1) % 3];
-            if (!((p[axis] < at && q[axis] > at) || (p[axis] > at && q[axis] < at))) continue;
-            glm::vec3 x = glm::clamp(p + (at - p[axis]) / (q[axis] - p[axis]) * (q - p), r.box.lo, r.box.hi);
-            x[axis] = at;
+            glm::vec3 x;
+            if (!edge_crossing(t.v[i], t.v[(i + 1) % 3], axis, at, &x)) continue;
+            x = glm::clamp(x, r.box.lo, r.box.hi);  // (x[axis] = at stays: the box spans the plane)
             bin_box[b - 1].grow(x), bin_box[b].grow(x);
           }
         }
@@ -204,28 +220,11 @@ struct Builder {
     Split best;
     for (int axis = 0; axis < 3; ++axis) {
       if (scale[axis] == 0.0f) continue;
-      const Box* bin_box = bins[axis];
-      const size_t *enter = enters[axis], *exit = exits[axis];
-      float right_cost[kBins];
-      size_t exits_right[kBins];
-      Box acc;
-      size_t n = 0;
-      for (int b = kBins - 1; b > 0; --b) {
-        acc.grow(bin_box[b]);
-        n += exit[b];
-        exits_right[b] = n;
-        right_cost[b] = n > 0 ? acc.area() * blocks_cost(n) : INFINITY;
-      }
-      acc = Box();
-      n = 0;
-      for (int b = 0; b < kBins - 1; ++b) {
-        acc.grow(bin_box[b]);
-        n += enter[b];
-        float cost = acc.area() * blocks_cost(n) + right_cost[b + 1];
-        size_t straddling = n + exits_right[b + 1] - refs.size();
-        // (Both sides may hold every reference: each gets its clipped part of all of them.)
-        if (n > 0 && straddling <= budget && cost < best.cost) best = Split{cost, axis, b + 1, true};
-      }
+      sweep(bins[axis], enters[axis], exits[axis],
+            [&](int bin, float cost, const Box&, const Box&, size_t left, size_t right) {
+              // (Both sides may hold every reference: each gets its clipped part of all of them.)
+              if (left + right - refs.size() <= budget && cost < best.cost) best = Split{cost, axis, bin, true};
+            });
     }
     return best;
   }
