@@ -8,6 +8,7 @@
 #include <chrono>
 #include <cstring>
 #include <glm/gtc/type_ptr.hpp>
+#include <span>
 #include <string>
 
 #include "intersect.h"
@@ -82,7 +83,7 @@ Box clip(const Triangle& t, int axis, float lo, float hi, const Box& within) {
   return part.intersect(within);
 }
 
-// The binary tree the SAH builds; collapsed into 4-wide nodes afterwards.
+// The binary tree the SAH builds; collapsed into 4- or 8-wide nodes afterwards.
 struct BinaryNode {
   Box box;
   uint32_t left = 0, right = 0;  // children, when count == 0
@@ -92,9 +93,19 @@ struct BinaryNode {
 struct Builder {
   const std::vector<Triangle>& tris;
   bool spatial_splits;
-  std::vector<BinaryNode> nodes;
-  std::vector<uint32_t> leaf_tris;  // the leaves' triangles (scene indices), leaf after leaf
+  std::vector<BinaryNode> nodes{1};  // the root first
+  std::vector<uint32_t> leaf_tris;   // the leaves' triangles (scene indices), leaf after leaf
   float root_area = 0.0f;
+  // Every node's references, in place: a subtree over `count` references at `first` owns
+  // refs[first, first + count + budget), room for those its spatial splits may add (one array
+  // for the whole build, no allocation per node).
+  std::vector<Ref> refs;
+  std::vector<Ref> scratch;  // a node's references while they are shared out to its children
+  enum class Side : uint8_t { Left, Right, Both };
+  std::vector<std::pair<Box, Box>> parts;  // a spatial split's straddlers: their clipped parts,
+  std::vector<Side> sides;                 // and where each goes
+
+  Builder(const std::vector<Triangle>& triangles, bool splits) : tris(triangles), spatial_splits(splits) {}
 
   struct Split {
     float cost = INFINITY;  // SAH area × blocks of the two sides
@@ -103,7 +114,7 @@ struct Builder {
     bool spatial = false;
   };
 
-  void leaf(size_t node, const std::vector<Ref>& refs) {
+  void leaf(size_t node, std::span<const Ref> refs) {
     nodes[node].first = (uint32_t)leaf_tris.size();
     nodes[node].count = (uint32_t)refs.size();
     for (const Ref& r : refs) leaf_tris.push_back(r.tri);
@@ -156,7 +167,7 @@ struct Builder {
 
   // Binned SAH over the centroids of the references' boxes; *overlap gets the area where the
   // best split's two boxes overlap.
-  Split object_split(const std::vector<Ref>& refs, const Box& cbox, float* overlap) {
+  Split object_split(std::span<const Ref> refs, const Box& cbox, float* overlap) {
     Split best;
     // One pass over the references bins all three axes.
     const glm::vec3 scale = bin_scale(cbox);
@@ -182,16 +193,21 @@ struct Builder {
   }
 
   // Binned SAH over planes through the node's box, each reference clipped into the bins it spans.
-  Split spatial_split(const std::vector<Ref>& refs, const Box& box, size_t budget) {
+  Split spatial_split(std::span<const Ref> refs, const Box& box, size_t budget) {
     // One pass over the references bins all three axes.
     const glm::vec3 scale = bin_scale(box);
+    float planes[3][kBins + 1];  // computed once: recomputing them in bin_in took most of this pass
+    for (int axis = 0; axis < 3; ++axis)
+      for (int b = 0; b <= kBins; ++b) planes[axis][b] = plane(box, axis, b);
     Box bins[3][kBins];
     size_t enters[3][kBins] = {}, exits[3][kBins] = {};
     for (const Ref& r : refs) {
       for (int axis = 0; axis < 3; ++axis) {
         if (scale[axis] == 0.0f) continue;
         Box* bin_box = bins[axis];
-        int first = bin_of(box, axis, scale, r.box.lo[axis]), last = bin_of(box, axis, scale, r.box.hi[axis]);
+        const float* at = planes[axis];
+        auto bin_of = [&](float x) { return bin_in(at, box.lo[axis], scale[axis], x); };
+        int first = bin_of(r.box.lo[axis]), last = bin_of(r.box.hi[axis]);
         enters[axis][first]++;
         exits[axis][last]++;
         if (first == last) {
@@ -203,14 +219,13 @@ struct Builder {
         // box and unwidened: each crossing computed once, for the two bins it bounds.
         const Triangle& t = tris[r.tri];
         for (const glm::vec3& p : t.v) {
-          int b = bin_of(box, axis, scale, p[axis]);
+          int b = bin_of(p[axis]);
           if (b >= first && b <= last) bin_box[b].grow(glm::clamp(p, r.box.lo, r.box.hi));
         }
         for (int b = first + 1; b <= last; ++b) {
-          const float at = plane(box, axis, b);
           for (int i = 0; i < 3; ++i) {
             glm::vec3 x;
-            if (!edge_crossing(t.v[i], t.v[(i + 1) % 3], axis, at, &x)) continue;
+            if (!edge_crossing(t.v[i], t.v[(i + 1) % 3], axis, at[b], &x)) continue;
             x = glm::clamp(x, r.box.lo, r.box.hi);  // (x[axis] = at stays: the box spans the plane)
             bin_box[b - 1].grow(x), bin_box[b].grow(x);
           }
@@ -229,101 +244,140 @@ struct Builder {
     return best;
   }
 
-  // The spatial bin of coordinate x: the b with plane(b) ≤ x < plane(b + 1), by the same planes
-  // the references are clipped to (scale = kBins / the box's extent only guesses it).
-  static int bin_of(const Box& box, int axis, const glm::vec3& scale, float x) {
-    int b = std::clamp((int)((x - box.lo[axis]) * scale[axis]), 0, kBins - 1);
-    while (b > 0 && x < plane(box, axis, b)) --b;
-    while (b < kBins - 1 && x >= plane(box, axis, b + 1)) ++b;
+  // The spatial bin of coordinate x: the b with planes[b] ≤ x < planes[b + 1], by the same planes
+  // the references are clipped to (scale = kBins / the extent from lo only guesses it).
+  static int bin_in(const float* planes, float lo, float scale, float x) {
+    int b = std::clamp((int)((x - lo) * scale), 0, kBins - 1);
+    while (b > 0 && x < planes[b]) --b;
+    while (b < kBins - 1 && x >= planes[b + 1]) ++b;
     return b;
   }
 
-  // Splits the references at a spatial plane. A reference that straddles it goes to both sides,
-  // clipped, unless putting it whole into one side costs less (Stich et al.'s unsplitting).
-  void partition_spatial(std::vector<Ref>& refs, const Box& box, const Split& s, std::vector<Ref>& left,
-                         std::vector<Ref>& right) {
+  // Where a spatial split sends each reference that straddles its plane: to both sides, clipped,
+  // unless putting it whole into one side costs less (Stich et al.'s unsplitting). Fills `parts`
+  // and `sides` for the straddlers in order; *nl, *nr get the sides' reference counts.
+  void decide_spatial(std::span<const Ref> refs, const Box& box, const Split& s, size_t* nl, size_t* nr) {
     const float at = plane(box, s.axis, s.bin);
     Box lbox, rbox;
-    for (const Ref& r : refs) {
-      if (r.box.hi[s.axis] <= at) left.push_back(r), lbox.grow(r.box);
-      else if (r.box.lo[s.axis] >= at) right.push_back(r), rbox.grow(r.box);
-    }
-    std::vector<Ref> straddling;
-    for (const Ref& r : refs)
-      if (r.box.lo[s.axis] < at && r.box.hi[s.axis] > at) straddling.push_back(r);
+    size_t left_only = 0, right_only = 0;
+    parts.clear();
+    sides.clear();
     // Both sides' clipped parts first, so that the unsplitting test sees the sides' full extent.
-    std::vector<std::pair<Box, Box>> parts;
-    for (const Ref& r : straddling) {
-      parts.emplace_back(clip(tris[r.tri], s.axis, -INFINITY, at, r.box),
-                         clip(tris[r.tri], s.axis, at, INFINITY, r.box));
-      lbox.grow(parts.back().first), rbox.grow(parts.back().second);
+    for (const Ref& r : refs) {
+      if (r.box.hi[s.axis] <= at) {
+        left_only++, lbox.grow(r.box);
+      } else if (r.box.lo[s.axis] >= at) {
+        right_only++, rbox.grow(r.box);
+      } else {
+        parts.emplace_back(clip(tris[r.tri], s.axis, -INFINITY, at, r.box),
+                           clip(tris[r.tri], s.axis, at, INFINITY, r.box));
+        lbox.grow(parts.back().first), rbox.grow(parts.back().second);
+      }
     }
-    size_t nl = left.size() + straddling.size(), nr = right.size() + straddling.size();
-    for (size_t k = 0; k < straddling.size(); ++k) {
-      const Ref& r = straddling[k];
-      const auto& [lpart, rpart] = parts[k];
+    *nl = left_only + parts.size(), *nr = right_only + parts.size();
+    size_t k = 0;
+    for (const Ref& r : refs) {
+      if (r.box.hi[s.axis] <= at || r.box.lo[s.axis] >= at) continue;
+      const auto& [lpart, rpart] = parts[k++];
       Box lwhole = lbox, rwhole = rbox;
       lwhole.grow(r.box), rwhole.grow(r.box);
-      float both = lbox.area() * nl + rbox.area() * nr;
-      float only_left = lwhole.area() * nl + rbox.area() * (nr - 1);
-      float only_right = lbox.area() * (nl - 1) + rwhole.area() * nr;
+      float both = lbox.area() * *nl + rbox.area() * *nr;
+      float only_left = lwhole.area() * *nl + rbox.area() * (*nr - 1);
+      float only_right = lbox.area() * (*nl - 1) + rwhole.area() * *nr;
       if (rpart.empty() || (!lpart.empty() && only_left <= std::min(both, only_right))) {
-        left.push_back(r), lbox = lwhole, nr--;
+        sides.push_back(Side::Left), lbox = lwhole, --*nr;
       } else if (lpart.empty() || only_right <= both) {
-        right.push_back(r), rbox = rwhole, nl--;
+        sides.push_back(Side::Right), rbox = rwhole, --*nl;
       } else {
-        left.push_back(Ref{r.tri, lpart}), right.push_back(Ref{r.tri, rpart});
+        sides.push_back(Side::Both);
       }
     }
   }
 
-  // Builds the subtree of `node` over `refs`; its spatial splits may add at most `budget`
-  // references. The budget is shared out between the children by their sizes, not spent first
-  // come first served, so that the left subtree cannot starve the right.
-  void build(size_t node, std::vector<Ref> refs, int depth, size_t budget) {
+  // Writes a spatial split's left references from the start of `refs` and its right ones from
+  // `right`, as decide_spatial decided: on each side, those wholly on it first, then the
+  // straddlers, in the given order.
+  void partition_spatial(std::span<Ref> refs, Ref* right, const Box& box, const Split& s) {
+    const std::span<const Ref> given(scratch.data(), refs.size());
+    std::copy(refs.begin(), refs.end(), scratch.begin());
+    const float at = plane(box, s.axis, s.bin);
+    Ref* left = refs.data();
+    for (const Ref& r : given) {
+      if (r.box.hi[s.axis] <= at) *left++ = r;
+      else if (r.box.lo[s.axis] >= at) *right++ = r;
+    }
+    size_t k = 0;
+    for (const Ref& r : given) {
+      if (r.box.hi[s.axis] <= at || r.box.lo[s.axis] >= at) continue;
+      const auto& [lpart, rpart] = parts[k];
+      switch (sides[k++]) {
+        case Side::Left: *left++ = r; break;
+        case Side::Right: *right++ = r; break;
+        case Side::Both: *left++ = Ref{r.tri, lpart}, *right++ = Ref{r.tri, rpart}; break;
+      }
+    }
+  }
+
+  // Builds the subtree of `node` over refs[first, first + count); its spatial splits may add at
+  // most `budget` references. The budget is shared out between the children by their sizes, not
+  // spent first come first served, so that the left subtree cannot starve the right.
+  void build(size_t node, size_t first, size_t count, int depth, size_t budget) {
+    const std::span<Ref> span(refs.data() + first, count);
     Box box, cbox;
-    for (const Ref& r : refs) box.grow(r.box), cbox.grow(r.box.centre());
+    for (const Ref& r : span) box.grow(r.box), cbox.grow(r.box.centre());
     nodes[node].box = box;
-    if (refs.size() == 1) return leaf(node, refs);
+    if (count == 1) return leaf(node, span);
 
     Split best;
     if (depth < kMaxSahDepth) {
       float overlap = 0.0f;
-      best = object_split(refs, cbox, &overlap);
+      best = object_split(span, cbox, &overlap);
       if (spatial_splits && budget > 0 && overlap > kSpatialOverlap * root_area) {
-        Split spatial = spatial_split(refs, box, budget);
+        Split spatial = spatial_split(span, box, budget);
         if (spatial.cost < best.cost) best = spatial;
       }
     }
-    float leaf_cost = blocks_cost(refs.size());
+    float leaf_cost = blocks_cost(count);
     float split_cost = kTraversalCost + best.cost / std::max(box.area(), 1e-30f);
     if (best.axis < 0) {  // every centroid in one point (or too deep): no split separates them
-      if (refs.size() <= kMaxLeaf) return leaf(node, refs);
-    } else if (refs.size() <= kMaxLeaf && leaf_cost <= split_cost) {
-      return leaf(node, refs);
+      if (count <= kMaxLeaf) return leaf(node, span);
+    } else if (count <= kMaxLeaf && leaf_cost <= split_cost) {
+      return leaf(node, span);
     }
 
-    std::vector<Ref> left, right;
-    if (best.spatial) partition_spatial(refs, box, best, left, right);
-    if (best.axis >= 0 && !best.spatial) {
+    // The children's references: left ones in order at `first`, right ones in order after the
+    // left subtree's budget, each side's straddlers after the rest.
+    size_t nl = 0, nr = 0;
+    if (best.spatial) {
+      decide_spatial(span, box, best, &nl, &nr);
+    } else if (best.axis >= 0) {  // left ones in place, right ones to scratch
       const glm::vec3 scale = bin_scale(cbox);
-      for (const Ref& r : refs) (centroid_bin(r, best.axis, cbox, scale) < best.bin ? left : right).push_back(r);
+      for (const Ref& r : span) {
+        if (centroid_bin(r, best.axis, cbox, scale) < best.bin) span[nl++] = r;
+        else scratch[nr++] = r;
+      }
     }
-    if (left.empty() || right.empty()) {  // coincident centroids (or a split unsplit to one side): halve
-      left.assign(refs.begin(), refs.begin() + refs.size() / 2);
-      right.assign(refs.begin() + refs.size() / 2, refs.end());
-    }
-    const size_t children = left.size() + right.size();
-    budget -= children - refs.size();
-    const size_t left_budget = (size_t)((double)budget * (double)left.size() / (double)children);
+    // No split (coincident centroids, or a split unsplit to one side): halve, in the given order
+    // (untouched: an object split that sends all to one side moves none).
+    const bool halve = nl == 0 || nr == 0;
+    if (halve) nl = count / 2, nr = count - nl;
+    budget -= nl + nr - count;
+    const size_t left_budget = (size_t)((double)budget * (double)nl / (double)(nl + nr));
     const size_t right_budget = budget - left_budget;
-    refs = {};  // free before recursing
+    const auto right_first = refs.begin() + (ptrdiff_t)(first + nl + left_budget);
+    if (halve) {
+      std::copy_backward(span.begin() + (ptrdiff_t)nl, span.end(), right_first + (ptrdiff_t)nr);
+    } else if (!best.spatial) {
+      std::copy(scratch.begin(), scratch.begin() + (ptrdiff_t)nr, right_first);
+    } else {
+      partition_spatial(span, &*right_first, box, best);
+    }
     uint32_t l = (uint32_t)nodes.size(), r = l + 1;
     nodes.resize(nodes.size() + 2);
     nodes[node].left = l;
     nodes[node].right = r;
-    build(l, std::move(left), depth + 1, left_budget);
-    build(r, std::move(right), depth + 1, right_budget);
+    build(l, first, nl, depth + 1, left_budget);
+    build(r, first + nl + left_budget, nr, depth + 1, right_budget);
   }
 };
 
@@ -433,17 +487,20 @@ Bvh build_bvh(const std::vector<Triangle>& triangles, int width, bool spatial_sp
   if (triangles.size() > XI_BVH_FIRST_MASK) throw Error("too many triangles for the BVH (at most 134217727)");
   Bvh bvh;
   bvh.width = width;
-  Builder b{triangles, spatial_splits, {BinaryNode{}}, {}, 0.0f};
-  std::vector<Ref> refs(triangles.size());
+  Builder b{triangles, spatial_splits};
+  const size_t budget = spatial_splits ? (size_t)((kMaxReferences - 1.0) * (double)triangles.size()) : 0;
+  b.refs.resize(triangles.size() + budget);
+  b.scratch.resize(triangles.size());  // no node holds more references than the root
   Box root;
   for (size_t i = 0; i < triangles.size(); ++i) {
-    refs[i].tri = (uint32_t)i;
-    for (auto& v : triangles[i].v) refs[i].box.grow(v);
-    root.grow(refs[i].box);
+    b.refs[i].tri = (uint32_t)i;
+    for (auto& v : triangles[i].v) b.refs[i].box.grow(v);
+    root.grow(b.refs[i].box);
   }
   b.root_area = root.area();
   b.nodes.reserve(2 * triangles.size());
-  b.build(0, std::move(refs), 0, (size_t)((kMaxReferences - 1.0) * (double)triangles.size()));
+  b.leaf_tris.reserve(b.refs.size());
+  b.build(0, 0, triangles.size(), 0, budget);
   bvh.stats.references = b.leaf_tris.size();
   // BVH order: the triangles by their first place in a leaf, leaves left to right, so that the
   // arrays in this order (CompiledScene) follow the tree.
@@ -452,6 +509,9 @@ Bvh build_bvh(const std::vector<Triangle>& triangles, int width, bool spatial_sp
   for (uint32_t t : b.leaf_tris)
     if (position[t] == kUnplaced) position[t] = (uint32_t)bvh.order.size(), bvh.order.push_back(t);
   if (bvh.order.size() != triangles.size()) throw Error("internal: the BVH lost a triangle");
+  size_t blocks = 0;  // reserved up front: growing a vector of this size would copy it into fresh pages
+  for (const BinaryNode& n : b.nodes) blocks += (n.count + 3) / 4;
+  bvh.blocks.reserve(blocks);
   Collapser collapser{b.nodes, b.leaf_tris, position, triangles, bvh};
   collapser.new_node();  // the root
   bvh.stats.stack = collapser.collapse(0, 0, 0);
