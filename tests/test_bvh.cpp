@@ -472,6 +472,43 @@ TEST(BvhBuild, IsDeterministic) {
   EXPECT_EQ(std::memcmp(a.blocks.data(), b.blocks.data(), sizeof(TriBlock) * a.blocks.size()), 0);
 }
 
+// Subtrees of 4096 references or more are built on threads of their own and grafted back: the
+// tree must be the one a single thread builds, byte for byte. Long slanted pipes make spatial
+// splits (their budget shared across the forks) as well as object splits.
+TEST(BvhBuild, ThreadsBuildTheSameTree) {
+  std::vector<xi::Triangle> tris = soup(30000, 21).triangles;
+  std::mt19937 rng(22);
+  std::uniform_real_distribution<float> pos(-20.0f, 20.0f);
+  for (int pipe = 0; pipe < 400; ++pipe) {
+    const vec3 a(pos(rng), pos(rng), pos(rng)), b = a + glm::normalize(vec3(1.0f, 0.7f, 0.4f)) * 15.0f;
+    for (int k = 0; k < 8; ++k) {
+      const vec3 o(0.0f, 0.3f * std::cos(0.785f * k), 0.3f * std::sin(0.785f * k));
+      const vec3 o2(0.0f, 0.3f * std::cos(0.785f * (k + 1)), 0.3f * std::sin(0.785f * (k + 1)));
+      tris.push_back(triangle(a + o, a + o2, b + o2));
+      tris.push_back(triangle(a + o, b + o2, b + o));
+    }
+  }
+  for (int width : {4, 8}) {
+    for (bool splits : {true, false}) {
+      SCOPED_TRACE(testing::Message() << "width " << width << (splits ? ", spatial splits" : ", no splits"));
+      const xi::Bvh one = xi::build_bvh(tris, width, splits, 1), many = xi::build_bvh(tris, width, splits, 4);
+      EXPECT_EQ(one.stats.threads, 1u);
+      EXPECT_GE(many.stats.threads, 4u);  // 36400 triangles: forks at least two levels deep
+      if (splits) EXPECT_GT(many.stats.references, tris.size());
+      EXPECT_EQ(one.stats.references, many.stats.references);
+      EXPECT_EQ(one.order, many.order);
+      ASSERT_EQ(one.nodes.size(), many.nodes.size());
+      ASSERT_EQ(one.nodes8.size(), many.nodes8.size());
+      ASSERT_EQ(one.blocks.size(), many.blocks.size());
+      EXPECT_EQ(std::memcmp(one.nodes.data(), many.nodes.data(), sizeof(BvhNode) * one.nodes.size()), 0);
+      EXPECT_EQ(std::memcmp(one.nodes8.data(), many.nodes8.data(), sizeof(BvhNode8) * one.nodes8.size()), 0);
+      EXPECT_EQ(std::memcmp(one.blocks.data(), many.blocks.data(), sizeof(TriBlock) * one.blocks.size()), 0);
+      const Walk w = check_tree(many, tris);
+      check_coverage(many, tris, w);
+    }
+  }
+}
+
 // 100 copies of one triangle: every centroid coincides, so no SAH split separates them.
 TEST(BvhBuild, CoincidentCopies) {
   xi::Triangle t = triangle(vec3(0, 0, 0), vec3(1, 0, 0), vec3(0, 1, 0));

@@ -258,9 +258,11 @@ void print_setup(const Job& job, const Team& team, const std::vector<std::string
   if (job.asset)
     std::printf("film: %dx%d (%s)\n", job.scene.width, job.scene.height,
                 job.resolution_given ? "--resolution" : "height 512, width from the camera's aspect ratio");
-  std::printf("bvh: %zu %d-wide nodes, %zu leaves, %zu triangle references, depth %d, stack %zu, built in %.2f ms\n",
+  std::printf("bvh: %zu %d-wide nodes, %zu leaves, %zu triangle references, depth %d, stack %zu, built in %.2f ms "
+              "on %zu thread%s\n",
               cs.bvh.stats.nodes, cs.bvh.width, cs.bvh.stats.leaves, cs.bvh.stats.references, cs.bvh.stats.depth,
-              cs.bvh.stats.stack, cs.bvh.stats.build_seconds * 1e3);
+              cs.bvh.stats.stack, cs.bvh.stats.build_seconds * 1e3, cs.bvh.stats.threads,
+              cs.bvh.stats.threads == 1 ? "" : "s");
   std::printf("kernels: %s in %.3f s\n", renderer.program().from_cache ? "loaded from cache" : "compiled",
               renderer.program().build_seconds);
   std::printf("paths in flight: %zu, %d spp per pass%s\n", renderer.paths_in_flight(), renderer.samples_per_pass(),

@@ -18,6 +18,7 @@ struct BvhStats {
   size_t max_leaf = 0;    // most triangles in one leaf
   size_t references = 0;  // triangles in leaves: more than the scene's where spatial splits put one in several
   size_t stack = 0;       // most traversal stack entries any ray can need (≤ XI_BVH_STACK)
+  size_t threads = 1;     // threads the build ran on: one, and one more per subtree it forked
 };
 
 struct Bvh {
@@ -31,7 +32,9 @@ struct Bvh {
 
 // spatial_splits: let a triangle be split between subtrees where that tightens their boxes (the
 // default); without them every triangle is in exactly one leaf and every box is exactly the
-// bounds of what it holds.
-Bvh build_bvh(const std::vector<Triangle>& triangles, int width = 4, bool spatial_splits = true);
+// bounds of what it holds. threads: the cores to build on (0: all the machine has); subtrees are
+// built on threads of their own, and the tree is the same, byte for byte, for any number.
+Bvh build_bvh(const std::vector<Triangle>& triangles, int width = 4, bool spatial_splits = true,
+              unsigned threads = 0);
 
 }  // namespace xi

@@ -7,9 +7,11 @@
 #include <cmath>
 #include <chrono>
 #include <cstring>
+#include <future>
 #include <glm/gtc/type_ptr.hpp>
 #include <span>
 #include <string>
+#include <thread>
 
 #include "intersect.h"
 #include "xi/error.h"
@@ -31,6 +33,7 @@ float blocks_cost(size_t triangles) { return (float)((triangles + 3) / 4); }
 // triangle: long thin triangles stop stretching boxes over empty space, at a bounded memory cost.
 constexpr float kSpatialOverlap = 1e-5f;
 constexpr double kMaxReferences = 2.0;
+constexpr size_t kForkMin = 4096;  // references below which a subtree is not worth a thread
 
 struct Box {
   glm::vec3 lo{INFINITY}, hi{-INFINITY};
@@ -90,22 +93,27 @@ struct BinaryNode {
   uint32_t first = 0, count = 0; // a leaf's range of `leaf_tris`
 };
 
+// Builds a subtree: the top of the tree on one thread, subtrees below it on threads of their own,
+// each with its own Builder, grafted into their parent's when done.
 struct Builder {
   const std::vector<Triangle>& tris;
-  bool spatial_splits;
+  const bool spatial_splits;
+  const float root_area;
+  // Every node's references, in place: a subtree over `count` references at `first` owns
+  // refs[first, first + count + budget), room for those its spatial splits may add, and the same
+  // stretch of scratch, where a node's references wait while they are shared out to its children
+  // (two arrays for the whole build, no allocation per node; threads work on disjoint stretches).
+  Ref* const refs;
+  Ref* const scratch;
   std::vector<BinaryNode> nodes{1};  // the root first
   std::vector<uint32_t> leaf_tris;   // the leaves' triangles (scene indices), leaf after leaf
-  float root_area = 0.0f;
-  // Every node's references, in place: a subtree over `count` references at `first` owns
-  // refs[first, first + count + budget), room for those its spatial splits may add (one array
-  // for the whole build, no allocation per node).
-  std::vector<Ref> refs;
-  std::vector<Ref> scratch;  // a node's references while they are shared out to its children
+  size_t forks = 0;                  // subtrees built on threads of their own, below this one
   enum class Side : uint8_t { Left, Right, Both };
   std::vector<std::pair<Box, Box>> parts;  // a spatial split's straddlers: their clipped parts,
   std::vector<Side> sides;                 // and where each goes
 
-  Builder(const std::vector<Triangle>& triangles, bool splits) : tris(triangles), spatial_splits(splits) {}
+  Builder(const std::vector<Triangle>& triangles, bool splits, float area, Ref* all, Ref* spare)
+      : tris(triangles), spatial_splits(splits), root_area(area), refs(all), scratch(spare) {}
 
   struct Split {
     float cost = INFINITY;  // SAH area × blocks of the two sides
@@ -296,10 +304,10 @@ struct Builder {
 
   // Writes a spatial split's left references from the start of `refs` and its right ones from
   // `right`, as decide_spatial decided: on each side, those wholly on it first, then the
-  // straddlers, in the given order.
-  void partition_spatial(std::span<Ref> refs, Ref* right, const Box& box, const Split& s) {
-    const std::span<const Ref> given(scratch.data(), refs.size());
-    std::copy(refs.begin(), refs.end(), scratch.begin());
+  // straddlers, in the given order. `spare`: room for a copy of `refs`.
+  void partition_spatial(std::span<Ref> refs, Ref* spare, Ref* right, const Box& box, const Split& s) {
+    const std::span<const Ref> given(spare, refs.size());
+    std::copy(refs.begin(), refs.end(), spare);
     const float at = plane(box, s.axis, s.bin);
     Ref* left = refs.data();
     for (const Ref& r : given) {
@@ -321,8 +329,9 @@ struct Builder {
   // Builds the subtree of `node` over refs[first, first + count); its spatial splits may add at
   // most `budget` references. The budget is shared out between the children by their sizes, not
   // spent first come first served, so that the left subtree cannot starve the right.
-  void build(size_t node, size_t first, size_t count, int depth, size_t budget) {
-    const std::span<Ref> span(refs.data() + first, count);
+  // Below `fork_levels` levels from here, the right child is built on a thread of its own.
+  void build(size_t node, size_t first, size_t count, int depth, size_t budget, int fork_levels) {
+    const std::span<Ref> span(refs + first, count);
     Box box, cbox;
     for (const Ref& r : span) box.grow(r.box), cbox.grow(r.box.centre());
     nodes[node].box = box;
@@ -354,7 +363,7 @@ struct Builder {
       const glm::vec3 scale = bin_scale(cbox);
       for (const Ref& r : span) {
         if (centroid_bin(r, best.axis, cbox, scale) < best.bin) span[nl++] = r;
-        else scratch[nr++] = r;
+        else scratch[first + nr++] = r;
       }
     }
     // No split (coincident centroids, or a split unsplit to one side): halve, in the given order
@@ -364,20 +373,46 @@ struct Builder {
     budget -= nl + nr - count;
     const size_t left_budget = (size_t)((double)budget * (double)nl / (double)(nl + nr));
     const size_t right_budget = budget - left_budget;
-    const auto right_first = refs.begin() + (ptrdiff_t)(first + nl + left_budget);
+    const size_t right_first = first + nl + left_budget;
     if (halve) {
-      std::copy_backward(span.begin() + (ptrdiff_t)nl, span.end(), right_first + (ptrdiff_t)nr);
+      std::copy_backward(span.begin() + (ptrdiff_t)nl, span.end(), refs + right_first + nr);
     } else if (!best.spatial) {
-      std::copy(scratch.begin(), scratch.begin() + (ptrdiff_t)nr, right_first);
+      std::copy(scratch + first, scratch + first + nr, refs + right_first);
     } else {
-      partition_spatial(span, &*right_first, box, best);
+      partition_spatial(span, scratch + first, refs + right_first, box, best);
     }
     uint32_t l = (uint32_t)nodes.size(), r = l + 1;
     nodes.resize(nodes.size() + 2);
     nodes[node].left = l;
     nodes[node].right = r;
-    build(l, first, nl, depth + 1, left_budget);
-    build(r, first + nl + left_budget, nr, depth + 1, right_budget);
+    if (fork_levels > 0 && nr >= kForkMin) {
+      Builder right(tris, spatial_splits, root_area, refs, scratch);
+      auto job = std::async(std::launch::async, [&] {
+        right.build(0, right_first, nr, depth + 1, right_budget, fork_levels - 1);
+      });
+      build(l, first, nl, depth + 1, left_budget, fork_levels - 1);
+      job.get();
+      graft(r, right);
+    } else {
+      build(l, first, nl, depth + 1, left_budget, fork_levels);
+      build(r, right_first, nr, depth + 1, right_budget, fork_levels);
+    }
+  }
+
+  // Takes in the subtree `sub` built for node r, after everything built here so far: its nodes
+  // renumbered, its leaves' triangles after those already here (leaves stay left to right).
+  void graft(uint32_t r, const Builder& sub) {
+    const uint32_t base = (uint32_t)nodes.size() - 1, leaf_base = (uint32_t)leaf_tris.size();
+    auto renumber = [&](uint32_t i) { return i == 0 ? r : base + i; };
+    for (size_t i = 0; i < sub.nodes.size(); ++i) {
+      BinaryNode n = sub.nodes[i];
+      if (n.count > 0) n.first += leaf_base;
+      else n.left = renumber(n.left), n.right = renumber(n.right);
+      if (i == 0) nodes[r] = n;
+      else nodes.push_back(n);
+    }
+    leaf_tris.insert(leaf_tris.end(), sub.leaf_tris.begin(), sub.leaf_tris.end());
+    forks += 1 + sub.forks;
   }
 };
 
@@ -478,7 +513,7 @@ struct Collapser {
 
 }  // namespace
 
-Bvh build_bvh(const std::vector<Triangle>& triangles, int width, bool spatial_splits) {
+Bvh build_bvh(const std::vector<Triangle>& triangles, int width, bool spatial_splits, unsigned threads) {
   auto start = std::chrono::steady_clock::now();
   if (width != 4 && width != 8) throw Error("BVH width must be 4 or 8, not " + std::to_string(width), "--bvh-width");
   if (triangles.empty()) throw Error("cannot build a BVH over an empty scene");
@@ -487,21 +522,24 @@ Bvh build_bvh(const std::vector<Triangle>& triangles, int width, bool spatial_sp
   if (triangles.size() > XI_BVH_FIRST_MASK) throw Error("too many triangles for the BVH (at most 134217727)");
   Bvh bvh;
   bvh.width = width;
-  Builder b{triangles, spatial_splits};
   const size_t budget = spatial_splits ? (size_t)((kMaxReferences - 1.0) * (double)triangles.size()) : 0;
-  b.refs.resize(triangles.size() + budget);
-  b.scratch.resize(triangles.size());  // no node holds more references than the root
+  std::vector<Ref> refs(triangles.size() + budget), scratch(refs.size());
   Box root;
   for (size_t i = 0; i < triangles.size(); ++i) {
-    b.refs[i].tri = (uint32_t)i;
-    for (auto& v : triangles[i].v) b.refs[i].box.grow(v);
-    root.grow(b.refs[i].box);
+    refs[i].tri = (uint32_t)i;
+    for (auto& v : triangles[i].v) refs[i].box.grow(v);
+    root.grow(refs[i].box);
   }
-  b.root_area = root.area();
+  Builder b(triangles, spatial_splits, root.area(), refs.data(), scratch.data());
   b.nodes.reserve(2 * triangles.size());
-  b.leaf_tris.reserve(b.refs.size());
-  b.build(0, 0, triangles.size(), 0, budget);
+  b.leaf_tris.reserve(refs.size());
+  // Forks down to about four subtrees per core, so that uneven halves still keep every core busy.
+  if (threads == 0) threads = std::max(1u, std::thread::hardware_concurrency());
+  int fork_levels = 0;
+  for (unsigned n = 1; threads > 1 && n < 4 * threads && fork_levels < 8; n *= 2) ++fork_levels;
+  b.build(0, 0, triangles.size(), 0, budget, fork_levels);
   bvh.stats.references = b.leaf_tris.size();
+  bvh.stats.threads = 1 + b.forks;
   // BVH order: the triangles by their first place in a leaf, leaves left to right, so that the
   // arrays in this order (CompiledScene) follow the tree.
   constexpr uint32_t kUnplaced = ~0u;
