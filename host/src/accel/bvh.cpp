@@ -109,8 +109,11 @@ struct Builder {
   std::vector<uint32_t> leaf_tris;   // the leaves' triangles (scene indices), leaf after leaf
   size_t forks = 0;                  // subtrees built on threads of their own, below this one
   enum class Side : uint8_t { Left, Right, Both };
-  std::vector<std::pair<Box, Box>> parts;  // a spatial split's straddlers: their clipped parts,
-  std::vector<Side> sides;                 // and where each goes
+  struct Straddler {
+    Box left, right;  // the clipped parts on each side of the plane
+    Side side;        // where the reference goes
+  };
+  std::vector<Straddler> straddlers;  // a spatial split's, in the order of its references
 
   Builder(const std::vector<Triangle>& triangles, bool splits, float area, Ref* all, Ref* spare)
       : tris(triangles), spatial_splits(splits), root_area(area), refs(all), scratch(spare) {}
@@ -261,43 +264,47 @@ struct Builder {
     return b;
   }
 
+  // Which side of the plane p[axis] = at a reference lies on; Both where it straddles the plane.
+  static Side side_of(const Ref& r, int axis, float at) {
+    if (r.box.hi[axis] <= at) return Side::Left;
+    if (r.box.lo[axis] >= at) return Side::Right;
+    return Side::Both;
+  }
+
   // Where a spatial split sends each reference that straddles its plane: to both sides, clipped,
-  // unless putting it whole into one side costs less (Stich et al.'s unsplitting). Fills `parts`
-  // and `sides` for the straddlers in order; *nl, *nr get the sides' reference counts.
+  // unless putting it whole into one side costs less (Stich et al.'s unsplitting). Fills
+  // `straddlers` in order; *nl, *nr get the sides' reference counts.
   void decide_spatial(std::span<const Ref> refs, const Box& box, const Split& s, size_t* nl, size_t* nr) {
     const float at = plane(box, s.axis, s.bin);
     Box lbox, rbox;
     size_t left_only = 0, right_only = 0;
-    parts.clear();
-    sides.clear();
+    straddlers.clear();
     // Both sides' clipped parts first, so that the unsplitting test sees the sides' full extent.
     for (const Ref& r : refs) {
-      if (r.box.hi[s.axis] <= at) {
-        left_only++, lbox.grow(r.box);
-      } else if (r.box.lo[s.axis] >= at) {
-        right_only++, rbox.grow(r.box);
-      } else {
-        parts.emplace_back(clip(tris[r.tri], s.axis, -INFINITY, at, r.box),
-                           clip(tris[r.tri], s.axis, at, INFINITY, r.box));
-        lbox.grow(parts.back().first), rbox.grow(parts.back().second);
+      switch (side_of(r, s.axis, at)) {
+        case Side::Left: left_only++, lbox.grow(r.box); break;
+        case Side::Right: right_only++, rbox.grow(r.box); break;
+        case Side::Both:
+          straddlers.push_back(Straddler{clip(tris[r.tri], s.axis, -INFINITY, at, r.box),
+                                         clip(tris[r.tri], s.axis, at, INFINITY, r.box), Side::Both});
+          lbox.grow(straddlers.back().left), rbox.grow(straddlers.back().right);
+          break;
       }
     }
-    *nl = left_only + parts.size(), *nr = right_only + parts.size();
+    *nl = left_only + straddlers.size(), *nr = right_only + straddlers.size();
     size_t k = 0;
     for (const Ref& r : refs) {
-      if (r.box.hi[s.axis] <= at || r.box.lo[s.axis] >= at) continue;
-      const auto& [lpart, rpart] = parts[k++];
+      if (side_of(r, s.axis, at) != Side::Both) continue;
+      Straddler& st = straddlers[k++];
       Box lwhole = lbox, rwhole = rbox;
       lwhole.grow(r.box), rwhole.grow(r.box);
       float both = lbox.area() * *nl + rbox.area() * *nr;
       float only_left = lwhole.area() * *nl + rbox.area() * (*nr - 1);
       float only_right = lbox.area() * (*nl - 1) + rwhole.area() * *nr;
-      if (rpart.empty() || (!lpart.empty() && only_left <= std::min(both, only_right))) {
-        sides.push_back(Side::Left), lbox = lwhole, --*nr;
-      } else if (lpart.empty() || only_right <= both) {
-        sides.push_back(Side::Right), rbox = rwhole, --*nl;
-      } else {
-        sides.push_back(Side::Both);
+      if (st.right.empty() || (!st.left.empty() && only_left <= std::min(both, only_right))) {
+        st.side = Side::Left, lbox = lwhole, --*nr;
+      } else if (st.left.empty() || only_right <= both) {
+        st.side = Side::Right, rbox = rwhole, --*nl;
       }
     }
   }
@@ -311,17 +318,18 @@ struct Builder {
     const float at = plane(box, s.axis, s.bin);
     Ref* left = refs.data();
     for (const Ref& r : given) {
-      if (r.box.hi[s.axis] <= at) *left++ = r;
-      else if (r.box.lo[s.axis] >= at) *right++ = r;
+      const Side side = side_of(r, s.axis, at);
+      if (side == Side::Left) *left++ = r;
+      else if (side == Side::Right) *right++ = r;
     }
     size_t k = 0;
     for (const Ref& r : given) {
-      if (r.box.hi[s.axis] <= at || r.box.lo[s.axis] >= at) continue;
-      const auto& [lpart, rpart] = parts[k];
-      switch (sides[k++]) {
+      if (side_of(r, s.axis, at) != Side::Both) continue;
+      const Straddler& st = straddlers[k++];
+      switch (st.side) {
         case Side::Left: *left++ = r; break;
         case Side::Right: *right++ = r; break;
-        case Side::Both: *left++ = Ref{r.tri, lpart}, *right++ = Ref{r.tri, rpart}; break;
+        case Side::Both: *left++ = Ref{r.tri, st.left}, *right++ = Ref{r.tri, st.right}; break;
       }
     }
   }
