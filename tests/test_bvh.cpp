@@ -430,12 +430,12 @@ TEST(BvhBuild, RandomSoup) {
 // spatial splits are for, where every triangle's box spans a slab of space it barely touches. They
 // must split many (within the budget of 2 references per triangle), give a tree of much lower SAH
 // cost than the build without them, and keep every query exact.
-TEST(BvhBuild, SpatialSplitsTightenLongTriangles) {
-  std::mt19937 rng(11);
+std::vector<xi::Triangle> pipes(int count, uint32_t seed) {
+  std::mt19937 rng(seed);
   std::uniform_real_distribution<float> pos(-10.0f, 10.0f);
   std::normal_distribution<float> g;
   std::vector<xi::Triangle> tris;
-  for (int pipe = 0; pipe < 120; ++pipe) {
+  for (int pipe = 0; pipe < count; ++pipe) {
     const vec3 a(pos(rng), pos(rng), pos(rng)), axis = glm::normalize(vec3(g(rng), g(rng), g(rng)));
     const vec3 u = glm::normalize(glm::cross(axis, vec3(g(rng), g(rng), g(rng)))), v = glm::cross(axis, u);
     auto rim = [&](int k) {
@@ -448,6 +448,11 @@ TEST(BvhBuild, SpatialSplitsTightenLongTriangles) {
       tris.push_back(triangle(p0, q1, q0));
     }
   }
+  return tris;
+}
+
+TEST(BvhBuild, SpatialSplitsTightenLongTriangles) {
+  const std::vector<xi::Triangle> tris = pipes(120, 11);
   xi::Scene scene = with_triangles(tris);
   const xi::Bvh split = xi::build_bvh(tris, 4, true), plain = xi::build_bvh(tris, 4, false);
   EXPECT_GT(split.stats.references, tris.size() + tris.size() / 10);
@@ -473,21 +478,12 @@ TEST(BvhBuild, IsDeterministic) {
 }
 
 // Subtrees of 4096 references or more are built on threads of their own and grafted back: the
-// tree must be the one a single thread builds, byte for byte. Long slanted pipes make spatial
+// tree must be the one a single thread builds, byte for byte. The pipes (as above) make spatial
 // splits (their budget shared across the forks) as well as object splits.
 TEST(BvhBuild, ThreadsBuildTheSameTree) {
   std::vector<xi::Triangle> tris = soup(30000, 21).triangles;
-  std::mt19937 rng(22);
-  std::uniform_real_distribution<float> pos(-20.0f, 20.0f);
-  for (int pipe = 0; pipe < 400; ++pipe) {
-    const vec3 a(pos(rng), pos(rng), pos(rng)), b = a + glm::normalize(vec3(1.0f, 0.7f, 0.4f)) * 15.0f;
-    for (int k = 0; k < 8; ++k) {
-      const vec3 o(0.0f, 0.3f * std::cos(0.785f * k), 0.3f * std::sin(0.785f * k));
-      const vec3 o2(0.0f, 0.3f * std::cos(0.785f * (k + 1)), 0.3f * std::sin(0.785f * (k + 1)));
-      tris.push_back(triangle(a + o, a + o2, b + o2));
-      tris.push_back(triangle(a + o, b + o2, b + o));
-    }
-  }
+  const std::vector<xi::Triangle> long_ones = pipes(200, 22);
+  tris.insert(tris.end(), long_ones.begin(), long_ones.end());
   for (int width : {4, 8}) {
     for (bool splits : {true, false}) {
       SCOPED_TRACE(testing::Message() << "width " << width << (splits ? ", spatial splits" : ", no splits"));
