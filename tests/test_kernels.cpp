@@ -357,10 +357,9 @@ TEST_F(Kernel, GenerateCameraRays) {
       dir[pixel] = vec3(out.ray_dir[slot]);
       EXPECT_LE(glm::length(org[pixel] - vec3(cam.position)), 1e-5f);  // a pinhole: every ray starts at the eye
       EXPECT_LE(glm::length(dir[pixel] - want), 1e-5f);  // unit vectors; fused multiply-adds move a few ulps
-      EXPECT_TRUE(same_bits(out.throughput[slot], vec4(1, 1, 1, 0)));  // exact constants
-      EXPECT_TRUE(same_bits(out.radiance[slot], vec4(0.0f)));
-      EXPECT_TRUE(same_bits(out.aov_albedo[slot], vec4(0.0f)));
-      EXPECT_TRUE(same_bits(out.aov_normal[slot], vec4(0.0f)));
+      // The rest of a new path's state is shade's to start (ShadeStartsPathsAtBounceZero).
+      EXPECT_EQ(as_uint(out.throughput[slot].x), kGarbage);
+      EXPECT_EQ(as_uint(out.radiance[slot].x), kGarbage);
       EXPECT_EQ(q[slot], slot);
     }
     for (uint32_t slot = count; slot < slots; ++slot) {  // beyond `count`, nothing is written
@@ -475,6 +474,87 @@ TEST_F(Kernel, AccumulateSumsAndDropsNonFinite) {
   int bad_sq = mismatches(sum_sq_b, want_sq), bad_sq_fma = mismatches(sum_sq_b, want_sq_fma);
   EXPECT_TRUE(bad_sq == 0 || bad_sq_fma == 0) << bad_sq << " pixels differ from mul+add, " << bad_sq_fma
                                               << " from fma";
+}
+
+// --- shade ---------------------------------------------------------------------------------------
+
+// Camera-ray hits on every triangle of the Cornell box (and misses) shaded at bounce 0 over path
+// state full of garbage, as generate leaves it: each path starts from throughput 1 and no radiance,
+// so a miss gathers exactly the background, a hit exactly its emission, the AOVs are its albedo and
+// normal (zero for a miss), and a continuing path carries exactly its albedo. 1 and 8 lanes.
+TEST_F(Kernel, ShadeStartsPathsAtBounceZero) {
+  xi::CompiledScene cs = xi::compile_scene(xi::load_scene(XI_SCENE_DIR "/cornell-box.json"));
+  const uint32_t tris = (uint32_t)cs.tri_material.size(), count = 200, slots = 256;
+  const vec4 background(0.25f, 0.5f, 0.75f, 0.0f);
+  auto normal_of = [&](uint32_t tri) {
+    vec3 p0(cs.tri_verts[3 * tri]), p1(cs.tri_verts[3 * tri + 1]), p2(cs.tri_verts[3 * tri + 2]);
+    return glm::normalize(glm::cross(p1 - p0, p2 - p0));
+  };
+  PathState state(slots);
+  for (uint32_t i = 0; i < count; ++i) {
+    const uint32_t tri = i % tris;
+    const bool miss = i % 5 == 4;
+    state.hit[i] = miss ? vec4(-1.0f, 0.0f, 0.0f, 0.0f) : vec4(100.0f, 0.2f, 0.3f, as_float(tri));
+    state.ray_dir[i] = vec4(-normal_of(tri), 0.0f);  // seen from the front
+    state.item_pixel[i] = i;
+    state.item_sample[i] = 0;
+  }
+  std::vector<uint32_t> identity(slots);
+  std::iota(identity.begin(), identity.end(), 0u);
+  std::vector<std::string> defines = xi::kernel_defines(cs.features, XI_SAMPLER_RANDOM, xi::Strategy::Mis);
+  defines.push_back("XI_LANES=8");
+  const xi::Program program8 = xi::build_program(*device_, {"shade.cl"}, defines);
+  for (int lanes : {1, 8}) {
+    SCOPED_TRACE(testing::Message() << lanes << " lanes");
+    PathBuffers b = upload(state);
+    cl::Buffer queue_in = buffer(identity), queue_out = buffer(garbage<uint32_t>(slots));
+    cl::Buffer shadow_org = buffer(garbage<vec4>(slots)), shadow_dir = buffer(garbage<vec4>(slots)),
+               shadow_contrib = buffer(garbage<vec4>(slots));
+    std::vector<uint32_t> counters(XI_COUNTER_COUNT(8), 0u);
+    counters[XI_COUNTER_RAYS(0)] = count;
+    cl::Buffer cb = buffer(counters);
+    // (Kernel arguments do not keep buffers alive: each is named until the launch.)
+    cl::Buffer materials = buffer(cs.materials), verts = buffer(cs.tri_verts), tri_material = buffer(cs.tri_material),
+               normals = buffer(cs.tri_normals), light_cdf = buffer(cs.light_cdf), light_tri = buffer(cs.light_tri),
+               light_pdf = buffer(cs.tri_light_pdf);
+    cl::Kernel k(lanes == 8 ? program8.program : program_->program, "shade");
+    bind(k, b, queue_in, queue_out, shadow_org, shadow_dir, shadow_contrib, cb, 0u, materials, verts, tri_material,
+         normals, light_cdf, light_tri, light_pdf, (uint32_t)cs.light_tri.size(), xi_make_sampler_params(3, 16), 8u,
+         background);
+    launch(k, (count + lanes - 1) / lanes);
+    PathState out = download(b, slots);
+    const uint32_t next = read<uint32_t>(cb, XI_COUNTER_COUNT(8))[XI_COUNTER_RAYS(1)];
+    ASSERT_LE(next, count);
+    std::vector<uint32_t> queued = read<uint32_t>(queue_out, slots);
+    queued.resize(next);
+    int misses = 0, emitters = 0, continuing = 0;
+    for (uint32_t i = 0; i < count; ++i) {
+      SCOPED_TRACE(testing::Message() << "path " << i);
+      const bool goes_on = std::find(queued.begin(), queued.end(), i) != queued.end();
+      if (out.hit[i].x < 0.0f) {
+        misses++;
+        EXPECT_TRUE(same_bits(vec3(out.radiance[i]), vec3(background)));
+        EXPECT_TRUE(same_bits(out.aov_albedo[i], vec4(0.0f)));
+        EXPECT_TRUE(same_bits(out.aov_normal[i], vec4(0.0f)));
+        EXPECT_FALSE(goes_on);
+        continue;
+      }
+      const uint32_t tri = as_uint(out.hit[i].w);
+      const MaterialData& m = cs.materials[cs.tri_material[tri]];
+      emitters += glm::length(vec3(m.emission)) > 0.0f;
+      EXPECT_TRUE(same_bits(vec3(out.radiance[i]), vec3(m.emission)));  // 0 + 1 · emission · weight 1
+      EXPECT_TRUE(same_bits(vec3(out.aov_albedo[i]), vec3(m.albedo)));
+      EXPECT_LE(glm::length(vec3(out.aov_normal[i]) - normal_of(tri)), 1e-6f);
+      if (goes_on) {
+        continuing++;
+        EXPECT_TRUE(same_bits(vec3(out.throughput[i]), vec3(m.albedo)));  // 1 · f · cos / pdf = albedo
+        EXPECT_GT(out.throughput[i].w, 0.0f);  // the pdf of its cosine-weighted direction
+      }
+    }
+    EXPECT_EQ(misses, (int)count / 5);
+    EXPECT_GT(emitters, 0);
+    EXPECT_GT(continuing, (int)count / 2);
+  }
 }
 
 // --- shadow --------------------------------------------------------------------------------------
