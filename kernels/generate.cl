@@ -26,11 +26,13 @@ __kernel void generate(XI_PATH_PARAMS __global uint* restrict queue, __global ui
   org += lens_radius * (d.x * normalize(cam.right.xyz) + d.y * normalize(cam.up.xyz));
   dir = normalize(focus - org);
 #endif
-  // Only the ray and the item: shade starts the throughput, radiance and first-hit AOVs of every
-  // path at bounce 0 without reading them (half the bytes this memory-bound stage wrote).
   ray_org[slot] = (float4)(org, 0.0f);
   ray_dir[slot] = (float4)(dir, 0.0f);
+  throughput[slot] = (float4)(1.0f, 1.0f, 1.0f, 0.0f);
+  radiance[slot] = (float4)(0.0f);
   item_pixel[slot] = pixel;  // shade draws its samples for them without redoing the divisions
   item_sample[slot] = sample_index;
+  aov_albedo[slot] = (float4)(0.0f);
+  aov_normal[slot] = (float4)(0.0f);
   queue[slot] = slot;
 }

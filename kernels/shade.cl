@@ -28,16 +28,6 @@ typedef struct {
   xfloat3 shadow_contrib;
 } ShadeResult;
 
-// The AOVs for denoisers, at bounce 0: the first hit's albedo and shading normal, zero where the
-// camera ray escaped. Written for every path, as generate leaves them unset.
-static inline XI_INLINE void xi_store_first_hit(__global float4* aov_albedo, __global float4* aov_normal,
-                                                xuint slot, xmask active, xmask at_surface, xfloat3 albedo,
-                                                xfloat3 normal) {
-  const xfloat3 none = xi_splat3(make_float3(0.0f, 0.0f, 0.0f));
-  xi_scatter4(aov_albedo, slot, xi_select3(at_surface, albedo, none), (xfloat)0.0f, active);
-  xi_scatter4(aov_normal, slot, xi_select3(at_surface, normal, none), (xfloat)0.0f, active);
-}
-
 static inline XI_INLINE ShadeResult xi_shade_paths(XI_PATH_PARAMS xuint slot, xmask active, uint d,
                                                    __global const MaterialData* restrict materials,
                                                    __global const float4* restrict tri_verts,
@@ -56,14 +46,9 @@ static inline XI_INLINE ShadeResult xi_shade_paths(XI_PATH_PARAMS xuint slot, xm
   if (!XI_ANY(active)) return r;
   xfloat tri_bits;
   xfloat3 h = xi_gather_xyz(hit, slot, &tri_bits);  // t (< 0: missed), barycentrics u, v
-  // A camera ray's path starts here (generate leaves these unwritten): throughput 1, no radiance.
-  xfloat prev_pdf = 0.0f;  // 0 after a camera ray or a specular bounce
-  xfloat3 beta = xi_splat3(make_float3(1.0f, 1.0f, 1.0f));
-  xfloat3 L = xi_splat3(make_float3(0.0f, 0.0f, 0.0f));
-  if (d > 0u) {
-    beta = xi_gather_xyz(throughput, slot, &prev_pdf);
-    L = xi_gather_xyz(radiance, slot, 0);
-  }
+  xfloat prev_pdf;  // 0 after a camera ray or a specular bounce
+  xfloat3 beta = xi_gather_xyz(throughput, slot, &prev_pdf);
+  xfloat3 L = xi_gather_xyz(radiance, slot, 0);
 
   // Escaped: the background is not sampled as a light, so it has weight 1.
   xmask escaped = h.x < 0.0f;
@@ -71,7 +56,6 @@ static inline XI_INLINE ShadeResult xi_shade_paths(XI_PATH_PARAMS xuint slot, xm
   xmask at_surface = active && !escaped;
   if (!XI_ANY(at_surface)) {
     xi_scatter4(radiance, slot, L, (xfloat)0.0f, active);
-    if (d == 0u) xi_store_first_hit(aov_albedo, aov_normal, slot, active, at_surface, L, L);  // no lane hit: zeros
     return r;
   }
 
@@ -120,7 +104,10 @@ static inline XI_INLINE ShadeResult xi_shade_paths(XI_PATH_PARAMS xuint slot, xm
   }
 #endif
 
-  if (d == 0u) xi_store_first_hit(aov_albedo, aov_normal, slot, active, at_surface, m.albedo, n);
+  if (d == 0u) {
+    xi_scatter4(aov_albedo, slot, m.albedo, (xfloat)0.0f, at_surface);
+    xi_scatter4(aov_normal, slot, n, (xfloat)0.0f, at_surface);
+  }
 
   xfloat3 wi = n;     // the next direction, where a lobe below sets it
   xfloat pdf = 0.0f;  // stays 0 for specular lobes

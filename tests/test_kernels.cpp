@@ -357,9 +357,10 @@ TEST_F(Kernel, GenerateCameraRays) {
       dir[pixel] = vec3(out.ray_dir[slot]);
       EXPECT_LE(glm::length(org[pixel] - vec3(cam.position)), 1e-5f);  // a pinhole: every ray starts at the eye
       EXPECT_LE(glm::length(dir[pixel] - want), 1e-5f);  // unit vectors; fused multiply-adds move a few ulps
-      // The rest of a new path's state is shade's to start (ShadeStartsPathsAtBounceZero).
-      EXPECT_EQ(as_uint(out.throughput[slot].x), kGarbage);
-      EXPECT_EQ(as_uint(out.radiance[slot].x), kGarbage);
+      EXPECT_TRUE(same_bits(out.throughput[slot], vec4(1, 1, 1, 0)));  // exact constants
+      EXPECT_TRUE(same_bits(out.radiance[slot], vec4(0.0f)));
+      EXPECT_TRUE(same_bits(out.aov_albedo[slot], vec4(0.0f)));
+      EXPECT_TRUE(same_bits(out.aov_normal[slot], vec4(0.0f)));
       EXPECT_EQ(q[slot], slot);
     }
     for (uint32_t slot = count; slot < slots; ++slot) {  // beyond `count`, nothing is written
@@ -478,11 +479,12 @@ TEST_F(Kernel, AccumulateSumsAndDropsNonFinite) {
 
 // --- shade ---------------------------------------------------------------------------------------
 
-// Camera-ray hits on every triangle of the Cornell box (and misses) shaded at bounce 0 over path
-// state full of garbage, as generate leaves it: each path starts from throughput 1 and no radiance,
-// so a miss gathers exactly the background, a hit exactly its emission, the AOVs are its albedo and
-// normal (zero for a miss), and a continuing path carries exactly its albedo. 1 and 8 lanes.
-TEST_F(Kernel, ShadeStartsPathsAtBounceZero) {
+// Camera-ray hits on every triangle of the Cornell box (and misses), shaded at bounce 0 from the
+// state generate leaves (throughput 1, pdf 0, no radiance, AOVs zero; garbage elsewhere): a miss
+// gathers exactly the background, a hit exactly its emission (weight 1 after a camera ray), the
+// AOVs are its albedo and normal (zero for a miss), and a continuing path carries exactly its
+// albedo (f · cos / pdf of a cosine-weighted sample). 1 and 8 lanes.
+TEST_F(Kernel, ShadeFirstHitsFromTheCamera) {
   xi::CompiledScene cs = xi::compile_scene(xi::load_scene(XI_SCENE_DIR "/cornell-box.json"));
   const uint32_t tris = (uint32_t)cs.tri_material.size(), count = 200, slots = 256;
   const vec4 background(0.25f, 0.5f, 0.75f, 0.0f);
@@ -496,6 +498,8 @@ TEST_F(Kernel, ShadeStartsPathsAtBounceZero) {
     const bool miss = i % 5 == 4;
     state.hit[i] = miss ? vec4(-1.0f, 0.0f, 0.0f, 0.0f) : vec4(100.0f, 0.2f, 0.3f, as_float(tri));
     state.ray_dir[i] = vec4(-normal_of(tri), 0.0f);  // seen from the front
+    state.throughput[i] = vec4(1.0f, 1.0f, 1.0f, 0.0f);
+    state.radiance[i] = state.aov_albedo[i] = state.aov_normal[i] = vec4(0.0f);
     state.item_pixel[i] = i;
     state.item_sample[i] = 0;
   }

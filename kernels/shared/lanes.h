@@ -88,33 +88,33 @@ static inline XI_INLINE xuint xi_gather_uint(__global const uint* p, xuint i) {
   XI_FOR_LANES(k) v[k] = p[idx[k]];
   return vload8(0, v);
 }
-// xyz of float4 elements, and their w: the eight elements loaded whole and transposed by shuffles.
+// xyz of float4 elements, and their w.
 static inline XI_INLINE xfloat3 xi_gather_xyz(__global const float4* p, xuint i, xfloat* w) {
-  float8 a01 = (float8)(p[i.s0], p[i.s1]), a23 = (float8)(p[i.s2], p[i.s3]);
-  float8 a45 = (float8)(p[i.s4], p[i.s5]), a67 = (float8)(p[i.s6], p[i.s7]);
-  const uint8 xy = (uint8)(0u, 4u, 8u, 12u, 1u, 5u, 9u, 13u), zw = (uint8)(2u, 6u, 10u, 14u, 3u, 7u, 11u, 15u);
-  float8 xy03 = shuffle2(a01, a23, xy), zw03 = shuffle2(a01, a23, zw);
-  float8 xy47 = shuffle2(a45, a67, xy), zw47 = shuffle2(a45, a67, zw);
-  const uint8 lo = (uint8)(0u, 1u, 2u, 3u, 8u, 9u, 10u, 11u), hi = (uint8)(4u, 5u, 6u, 7u, 12u, 13u, 14u, 15u);
-  if (w) *w = shuffle2(zw03, zw47, hi);
-  return make_xfloat3(shuffle2(xy03, xy47, lo), shuffle2(xy03, xy47, hi), shuffle2(zw03, zw47, lo));
+  uint idx[8];
+  float x[8], y[8], z[8], ww[8];
+  vstore8(i, 0, idx);
+  XI_FOR_LANES(k) {
+    float4 e = p[idx[k]];
+    x[k] = e.x;
+    y[k] = e.y;
+    z[k] = e.z;
+    ww[k] = e.w;
+  }
+  if (w) *w = vload8(0, ww);
+  return make_xfloat3(vload8(0, x), vload8(0, y), vload8(0, z));
 }
-// Stores (xyz, w) to element i[k] of the lanes where m is true, transposed back by shuffles.
+// Stores (xyz, w) to element i[k] of the lanes where m is true.
 static inline XI_INLINE void xi_scatter4(__global float4* p, xuint i, xfloat3 v, xfloat w, xmask m) {
-  const uint8 pair_lo = (uint8)(0u, 8u, 1u, 9u, 2u, 10u, 3u, 11u), pair_hi = (uint8)(4u, 12u, 5u, 13u, 6u, 14u, 7u, 15u);
-  float8 xy03 = shuffle2(v.x, v.y, pair_lo), zw03 = shuffle2(v.z, w, pair_lo);
-  float8 xy47 = shuffle2(v.x, v.y, pair_hi), zw47 = shuffle2(v.z, w, pair_hi);
-  const uint8 rows_lo = (uint8)(0u, 1u, 8u, 9u, 2u, 3u, 10u, 11u), rows_hi = (uint8)(4u, 5u, 12u, 13u, 6u, 7u, 14u, 15u);
-  float8 r01 = shuffle2(xy03, zw03, rows_lo), r23 = shuffle2(xy03, zw03, rows_hi);
-  float8 r45 = shuffle2(xy47, zw47, rows_lo), r67 = shuffle2(xy47, zw47, rows_hi);
-  if (m.s0) p[i.s0] = r01.lo;
-  if (m.s1) p[i.s1] = r01.hi;
-  if (m.s2) p[i.s2] = r23.lo;
-  if (m.s3) p[i.s3] = r23.hi;
-  if (m.s4) p[i.s4] = r45.lo;
-  if (m.s5) p[i.s5] = r45.hi;
-  if (m.s6) p[i.s6] = r67.lo;
-  if (m.s7) p[i.s7] = r67.hi;
+  uint idx[8];
+  int on[8];
+  float x[8], y[8], z[8], ww[8];
+  vstore8(i, 0, idx);
+  vstore8(m, 0, on);
+  vstore8(v.x, 0, x);
+  vstore8(v.y, 0, y);
+  vstore8(v.z, 0, z);
+  vstore8(w, 0, ww);
+  XI_FOR_LANES(k) if (on[k]) p[idx[k]] = (float4)(x[k], y[k], z[k], ww[k]);
 }
 // The number of lanes where m is true.
 static inline XI_INLINE uint xi_count(xmask m) {
