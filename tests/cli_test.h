@@ -9,6 +9,7 @@
 #include <unistd.h>
 
 #include <algorithm>
+#include <cmath>
 #include <cstdio>
 #include <cstdlib>
 #include <cstring>
@@ -220,6 +221,33 @@ class CliTest : public ::testing::Test {
     json j = json::parse(read_text(kCornell));
     edit(j);
     write_text(work_ / name, j.dump(2));
+  }
+
+  // The Cornell box with a wavy 100 × 100 grid (20,000 triangles, grid.obj) on its floor: enough
+  // for the BVH build to fork subtrees onto threads (it forks at 4096 references).
+  void write_grid_scene(const std::string& name) {
+    std::string obj;
+    for (int i = 0; i <= 100; ++i)
+      for (int j = 0; j <= 100; ++j)
+        obj += "v " + std::to_string(50 + 4.5 * i) + " " + std::to_string(20 + 10 * std::sin(0.7 * i + 0.3 * j)) +
+               " " + std::to_string(50 + 4.5 * j) + "\n";
+    for (int i = 0; i < 100; ++i)
+      for (int j = 0; j < 100; ++j) {
+        const int a = i * 101 + j + 1, b = a + 1, c = a + 101, d = c + 1;  // OBJ counts from 1
+        obj += "f " + std::to_string(a) + " " + std::to_string(c) + " " + std::to_string(d) + "\n";
+        obj += "f " + std::to_string(a) + " " + std::to_string(d) + " " + std::to_string(b) + "\n";
+      }
+    write_text(work_ / "grid.obj", obj);
+    write_scene(name, [](json& j) {
+      j["shapes"].push_back({{"type", "mesh"}, {"material", "white"}, {"file", "grid.obj"}});
+    });
+  }
+
+  // The threads `xi render` printed that its BVH build ran on ("built in X ms on N threads"); -1 if
+  // the line is missing.
+  static long build_threads(const std::string& out) {
+    const size_t at = out.find(" ms on ");
+    return at == std::string::npos ? -1L : std::stol(out.substr(at + 7));
   }
 
   // The program failed as a user error should: exit code 1, exactly one line on stderr of the form

@@ -19,6 +19,7 @@
 #include <set>
 #include <sstream>
 #include <string>
+#include <thread>
 #include <vector>
 
 #include <nlohmann/json.hpp>
@@ -296,6 +297,24 @@ TEST_F(CliRender, PathsInFlightDoNotChangeTheImage) {
 // --no-spatial-splits reaches the BVH build: a scene of slanted long triangles (a fan of blades
 // through a box) is split by default (more references than triangles in the `bvh:` line) and not
 // with the flag, and the two images are the same.
+// The BVH build runs on the cores PoCL may use: with POCL_MAX_PTHREAD_COUNT=1 on one thread; with
+// it unset, on a machine of several cores, subtrees go to threads of their own. The image is the same.
+TEST_F(CliRender, BuildThreadsFollowPoclsCoreCount) {
+  write_grid_scene("grid.json");
+  const std::vector<std::string> base = {"render", "grid.json", "--spp", "1", "--resolution", "16x16"};
+  const Outcome one = run_xi(concat(base, {"-o", "one.exr"}), "export POCL_MAX_PTHREAD_COUNT=1");
+  const Outcome all = run_xi(concat(base, {"-o", "all.exr"}), "unset POCL_MAX_PTHREAD_COUNT");
+  ASSERT_EQ(one.code, 0) << one.err;
+  ASSERT_EQ(all.code, 0) << all.err;
+  EXPECT_NE(one.out.find("scene: grid.json, 20032 triangles"), std::string::npos) << one.out;
+  EXPECT_EQ(build_threads(one.out), 1) << one.out;
+  if (std::thread::hardware_concurrency() > 1)
+    EXPECT_GT(build_threads(all.out), 1) << all.out;
+  else
+    std::printf("note: one core here, so the unset case builds on one thread too\n");
+  expect_same_image("one.exr", "all.exr");
+}
+
 TEST_F(CliRender, NoSpatialSplitsBuildsOneReferencePerTriangle) {
   std::string shapes;
   for (int i = 0; i < 40; ++i) {

@@ -9,6 +9,7 @@
 
 #include <optional>
 #include <regex>
+#include <thread>
 
 #include "cli_test.h"
 #include "xi/image.h"
@@ -107,6 +108,21 @@ TEST_F(MpiRender, AnyNumberOfProcessesGivesTheOneProcessImage) {
       }
     }
   }
+}
+
+// Ranks on one host share its cores: each rank's PoCL gets cores / ranks threads, and so does its
+// BVH build (forking to about four subtrees per core: fewer than 8 × share threads; one for one core).
+TEST_F(MpiRender, RanksShareTheCoresOfTheBvhBuild) {
+  write_grid_scene("grid.json");
+  const std::vector<std::string> base = {"render", "grid.json", "--spp", "1", "--resolution", "16x16"};
+  const Outcome r = run_mpi(2, concat(base, {"-o", "two.exr"}));
+  ASSERT_EQ(r.code, 0) << r.out << r.err;
+  const long share = std::max(1u, std::thread::hardware_concurrency() / 2), threads = build_threads(r.out);
+  ASSERT_GE(threads, 1) << r.out;
+  EXPECT_LT(threads, 8 * share) << r.out;
+  if (share == 1) EXPECT_EQ(threads, 1) << r.out;
+  ASSERT_EQ(run_xi(concat(base, {"-o", "one.exr", "--quiet"})).code, 0);
+  expect_same_image("two.exr", "one.exr");
 }
 
 TEST_F(MpiRender, ConvergenceLogIsTheOneProcessLog) {

@@ -432,20 +432,26 @@ int run(Job& job, Team& team) {
 }
 
 // PoCL runs a CPU device on every core; ranks sharing a host split its cores instead (a variable
-// the user set wins). Read when OpenCL starts, so set before anything touches it.
-void share_cpu_cores(const Team& team) {
-  if (team.local_size() < 2 || std::getenv("POCL_MAX_PTHREAD_COUNT")) return;
-  const unsigned cores = std::max(1u, std::thread::hardware_concurrency());
-  setenv("POCL_MAX_PTHREAD_COUNT", std::to_string(std::max(1u, cores / team.local_size())).c_str(), 0);
+// the user set wins). Read when OpenCL starts, so set before anything touches it. Returns the
+// cores this process may use, for the BVH build too: POCL_MAX_PTHREAD_COUNT, 0 (all) if unset.
+unsigned share_cpu_cores(const Team& team) {
+  if (team.local_size() >= 2 && !std::getenv("POCL_MAX_PTHREAD_COUNT")) {
+    const unsigned cores = std::max(1u, std::thread::hardware_concurrency());
+    setenv("POCL_MAX_PTHREAD_COUNT", std::to_string(std::max(1u, cores / team.local_size())).c_str(), 0);
+  }
+  const char* cap = std::getenv("POCL_MAX_PTHREAD_COUNT");
+  const long n = cap ? std::strtol(cap, nullptr, 10) : 0;
+  return n > 0 ? (unsigned)n : 0u;  // (PoCL itself ignores a value that is not a positive number)
 }
 
 }  // namespace
 
 int render(const std::vector<std::string>& argv) {
   Team team;
-  share_cpu_cores(team);
+  const unsigned cores = share_cpu_cores(team);
   // Setup can fail on any rank (a file, a device): the ranks agree on it, then render together.
   auto job = std::make_unique<Job>();
+  job->opt.build_threads = cores;
   std::string error;
   try {
     prepare(*job, argv, team);

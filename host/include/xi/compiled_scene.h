@@ -55,6 +55,7 @@ struct CompiledScene {
 
 // bvh_width: the lanes of the BVH's nodes, 4 or 8 (the kernels' XI_BVH_WIDTH); spatial_splits: as
 // build_bvh's.
-CompiledScene compile_scene(const Scene& scene, int bvh_width = 4, bool spatial_splits = true);
+CompiledScene compile_scene(const Scene& scene, int bvh_width = 4, bool spatial_splits = true,
+                            unsigned build_threads = 0);
 
 }  // namespace xi

@@ -55,6 +55,9 @@ struct RenderOptions {
   // Spatial splits in the BVH build (xi::build_bvh): faster rays where long triangles overlap,
   // a slower build. Off: every triangle in one leaf, the build as fast as plain binned SAH.
   bool spatial_splits = true;
+  // Threads of the BVH build (xi::build_bvh); 0: every core. `xi render` gives it the cores PoCL
+  // may use (POCL_MAX_PTHREAD_COUNT), which ranks sharing a host split between them.
+  unsigned build_threads = 0;
   // Most paths in flight at once, (pixel, sample) items of one wave; 0 sizes it for the device
   // (default_paths_in_flight). The image does not depend on it.
   size_t paths_in_flight = 0;

@@ -65,9 +65,9 @@ std::vector<std::string> kernel_defines(const Features& f, int sampler, Strategy
   return d;
 }
 
-CompiledScene compile_scene(const Scene& scene, int bvh_width, bool spatial_splits) {
+CompiledScene compile_scene(const Scene& scene, int bvh_width, bool spatial_splits, unsigned build_threads) {
   CompiledScene cs;
-  cs.bvh = build_bvh(scene.triangles, bvh_width, spatial_splits);
+  cs.bvh = build_bvh(scene.triangles, bvh_width, spatial_splits, build_threads);
   const size_t n = scene.triangles.size();
 
   for (auto& m : scene.materials) {

@@ -118,7 +118,7 @@ static int bvh_width(Device& device, const RenderOptions& options) {
 Renderer::Renderer(Device& device, const Scene& scene, const RenderOptions& options)
     : device_(device),
       options_(options),
-      scene_(compile_scene(scene, bvh_width(device, options), options.spatial_splits)) {
+      scene_(compile_scene(scene, bvh_width(device, options), options.spatial_splits, options.build_threads)) {
   if (options.spp < 1) throw Error("spp must be at least 1", "--spp");
   if (options.max_depth < 1 || options.max_depth > 64) throw Error("max depth must be in 1..64", "--max-depth");
   if (options.samples_per_pass < 0) throw Error("samples per pass must be at least 1 (0: automatic)");
