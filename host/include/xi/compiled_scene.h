@@ -53,8 +53,8 @@ struct CompiledScene {
   Features features;
 };
 
-// bvh_width: the lanes of the BVH's nodes, 4 or 8 (the kernels' XI_BVH_WIDTH); spatial_splits: as
-// build_bvh's.
+// bvh_width: the lanes of the BVH's nodes, 4 or 8 (the kernels' XI_BVH_WIDTH); spatial_splits and
+// build_threads: build_bvh's spatial_splits and threads.
 CompiledScene compile_scene(const Scene& scene, int bvh_width = 4, bool spatial_splits = true,
                             unsigned build_threads = 0);
 
