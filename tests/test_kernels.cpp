@@ -48,8 +48,8 @@ std::vector<T> garbage(size_t n) {
 template <class T>
 bool same_bits(const T& a, const T& b) { return std::memcmp(&a, &b, sizeof(T)) == 0; }
 
-// One program with every stage, built once for the suite, and extend and shadow again for 8-wide
-// BVH nodes (the default one traverses 4-wide nodes). Features of the Cornell box (emitters, no
+// One program with every stage, built once for the suite, extend and shadow again for 8-wide BVH
+// nodes (the default one traverses 4-wide nodes), and shade again for 8 lanes (the default: 1). Features of the Cornell box (emitters, no
 // lens), so generate is the pinhole camera.
 class Kernel : public ::testing::Test {
  protected:
@@ -59,12 +59,13 @@ class Kernel : public ::testing::Test {
     std::vector<std::string> defines = xi::kernel_defines(f, XI_SAMPLER_RANDOM, xi::Strategy::Mis);
     program_.emplace(xi::build_program(*device_, {"generate.cl", "extend.cl", "shade.cl", "shadow.cl", "accumulate.cl"},
                                        defines));
-    defines.push_back("XI_BVH_WIDTH=8");
-    program8_.emplace(xi::build_program(*device_, {"extend.cl", "shadow.cl"}, defines));
+    shade8_.emplace(xi::build_program(*device_, {"shade.cl"}, concat(defines, "XI_LANES=8")));
+    program8_.emplace(xi::build_program(*device_, {"extend.cl", "shadow.cl"}, concat(defines, "XI_BVH_WIDTH=8")));
   }
   static void TearDownTestSuite() {  // release OpenCL objects before the driver unloads
     program_.reset();
     program8_.reset();
+    shade8_.reset();
     device_.reset();
   }
 
@@ -134,11 +135,16 @@ class Kernel : public ::testing::Test {
     return s;
   }
 
+  static std::vector<std::string> concat(std::vector<std::string> defines, const std::string& more) {
+    defines.push_back(more);
+    return defines;
+  }
+
   static std::optional<xi::Device> device_;
-  static std::optional<xi::Program> program_, program8_;
+  static std::optional<xi::Program> program_, program8_, shade8_;
 };
 std::optional<xi::Device> Kernel::device_;
-std::optional<xi::Program> Kernel::program_, Kernel::program8_;
+std::optional<xi::Program> Kernel::program_, Kernel::program8_, Kernel::shade8_;
 
 vec3 random_direction(std::mt19937& rng) {
   std::normal_distribution<float> g;
@@ -505,9 +511,6 @@ TEST_F(Kernel, ShadeFirstHitsFromTheCamera) {
   }
   std::vector<uint32_t> identity(slots);
   std::iota(identity.begin(), identity.end(), 0u);
-  std::vector<std::string> defines = xi::kernel_defines(cs.features, XI_SAMPLER_RANDOM, xi::Strategy::Mis);
-  defines.push_back("XI_LANES=8");
-  const xi::Program program8 = xi::build_program(*device_, {"shade.cl"}, defines);
   for (int lanes : {1, 8}) {
     SCOPED_TRACE(testing::Message() << lanes << " lanes");
     PathBuffers b = upload(state);
@@ -521,7 +524,7 @@ TEST_F(Kernel, ShadeFirstHitsFromTheCamera) {
     cl::Buffer materials = buffer(cs.materials), verts = buffer(cs.tri_verts), tri_material = buffer(cs.tri_material),
                normals = buffer(cs.tri_normals), light_cdf = buffer(cs.light_cdf), light_tri = buffer(cs.light_tri),
                light_pdf = buffer(cs.tri_light_pdf);
-    cl::Kernel k(lanes == 8 ? program8.program : program_->program, "shade");
+    cl::Kernel k((lanes == 8 ? shade8_ : program_)->program, "shade");
     bind(k, b, queue_in, queue_out, shadow_org, shadow_dir, shadow_contrib, cb, 0u, materials, verts, tri_material,
          normals, light_cdf, light_tri, light_pdf, (uint32_t)cs.light_tri.size(), xi_make_sampler_params(3, 16), 8u,
          background);
