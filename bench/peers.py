@@ -14,6 +14,7 @@ import json
 import math
 import os
 import re
+import select
 import shutil
 import subprocess
 import sys
@@ -376,7 +377,8 @@ class Mitsuba:
     """The Mitsuba worker: this file run by the venv's python with --worker, kept for the whole run so that
     Dr.Jit's compiled kernels stay in memory between the warm-up and the timed renders."""
 
-    def __init__(self, venv, variant):
+    def __init__(self, venv, variant, timeout):
+        self.timeout = timeout
         python = Path(venv) / "bin" / "python"
         if not python.exists():
             sys.exit(f"bench: no Mitsuba venv at {venv}: run bash bench/setup-mitsuba.sh")
@@ -388,8 +390,14 @@ class Mitsuba:
         self.info = self.ask(cmd="hello")
 
     def ask(self, **req):
+        """One request and its reply. A worker that does not answer within the timeout (a GPU driver that
+        never returns, say) is stopped with an error naming the request, so the bench never hangs."""
         self.proc.stdin.write(json.dumps(req) + "\n")
         self.proc.stdin.flush()
+        if not select.select([self.proc.stdout], [], [], self.timeout)[0]:
+            self.proc.kill()
+            sys.exit(f"bench: the Mitsuba worker gave no answer to '{req['cmd']}' in {self.timeout:g} s "
+                     f"(--worker-timeout); its messages, if any, are above")
         line = self.proc.stdout.readline()
         if not line:
             sys.exit(f"bench: the Mitsuba worker stopped (exit status {self.proc.wait()}; its messages are above)")
@@ -527,6 +535,8 @@ def main():
                    help="xi's sampler; random matches Mitsuba's independent sampler (xi's default is sobol)")
     p.add_argument("--mitsuba-variant", default="llvm_ad_rgb", help="cuda_ad_rgb on an NVIDIA GPU")
     p.add_argument("--venv", default=str(VENV), help="the venv with Mitsuba (bench/setup-mitsuba.sh)")
+    p.add_argument("--worker-timeout", type=float, default=600,
+                   help="seconds the Mitsuba worker may take to answer one request (start, load, render)")
     p.add_argument("--embree", action="store_true", help="also run the Embree ceiling tool, if built")
     p.add_argument("--ceiling", help="the xi_ceiling program (default: bench/xi_ceiling beside --xi)")
     p.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
@@ -538,7 +548,7 @@ def main():
     xi, out_dir = c.find_xi(a.xi), Path(a.out)
     out_dir.mkdir(parents=True, exist_ok=True)
     scenes = [Path(c.scene_path(s)) for s in a.scenes]
-    mitsuba = Mitsuba(a.venv, a.mitsuba_variant)
+    mitsuba = Mitsuba(a.venv, a.mitsuba_variant, a.worker_timeout)
     info = mitsuba.info
     print(f"xi: {xi} ({c.machine(xi)}; device {a.xi_device or 'default'}, {a.xi_sampler} sampler); "
           f"Mitsuba {info['version']} {info['variant']}, independent sampler, {info['threads']} threads",
