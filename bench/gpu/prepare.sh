@@ -13,34 +13,54 @@
 set -euo pipefail
 cd "$(dirname "$0")/../.."
 PACK=${PACK:-../shared/gpu/pack.sh}
-MITSUBA=${MITSUBA:-3.9.1} DRJIT=${DRJIT:-1.5.0}
 for f in build/xi build/xi_tests; do
   [ -x "$f" ] || { echo "prepare: no $f: build first (bash scripts/build.sh)" >&2; exit 1; }
 done
 [ -f "$PACK" ] || { echo "prepare: no $PACK (set PACK to the GPU packing script)" >&2; exit 1; }
 bash "$PACK" build/xi build/xi_tests
 
+# bench/.venv's pip fetches the wheels, assimp-utils exports meshes (both idempotent, as for peers.py).
+bash bench/setup-mitsuba.sh >/dev/null
+# the same Mitsuba and Dr.Jit as the CPU bench's venv
+read -r MITSUBA DRJIT < <(bench/.venv/bin/python -c 'import mitsuba, drjit; print(mitsuba.__version__, drjit.__version__)')
 tmp=$(mktemp -d)
 trap 'rm -rf "$tmp"' EXIT
 echo "prepare: Mitsuba $MITSUBA and Dr.Jit $DRJIT wheels for CPython 3.12"
-python3 -m pip download -q --no-deps --only-binary=:all: --python-version 3.12 --implementation cp \
-  --platform manylinux_2_28_x86_64 --platform manylinux_2_27_x86_64 --platform manylinux_2_17_x86_64 \
-  --platform manylinux2014_x86_64 -d "$tmp/wheels" "mitsuba==$MITSUBA" "drjit==$DRJIT"
-site=$tmp/site
-for w in "$tmp"/wheels/*.whl; do unzip -q -o "$w" -d "$site"; done
-# Variants other than cuda_ad_rgb (scalar_rgb is Mitsuba's default, kept), headers, stubs, and the large
-# plugins that no converted xi scene uses (peers.py convert(): ply shapes, diffuse/conductor/dielectric/
-# twosided BSDFs, area and constant emitters, perspective camera, hdrfilm, box filter, path integrator).
-(cd "$site/mitsuba" && rm -rf llvm_* cuda_ad_mono* cuda_ad_spectral* scalar_mono* scalar_spectral* \
-  include cmake mitsuba_stubs && cd plugins && rm -f ellipsoids.so ellipsoidsmesh.so volpath.so \
-  volpathmis.so bsplinecurve.so linearcurve.so sdfgrid.so sunsky.so timed_sunsky.so ptracer.so cylinder.so \
-  principled.so principledthin.so roughplastic.so roughconductor.so roughdielectric.so hair.so measured.so \
-  measured_polarized.so aov.so pplastic.so plastic.so envmap.so distant.so instance.so thinlens.so \
-  projector.so spot.so gridvolume.so bumpmap.so normalmap.so blendbsdf.so orthographic.so specfilm.so \
-  blender.so directionalarea.so serialized.so blendphase.so irradiancemeter.so radiancemeter.so)
-rm -rf "$site"/drjit/include "$site"/drjit/cmake
-find "$site" -name '*.pyi' -delete
-tar -cJf .gpu/mitsuba-site.tar.xz -C "$site" .
+bench/.venv/bin/python -m pip download -q --no-deps --only-binary=:all: --python-version 3.12 \
+  --implementation cp --platform manylinux_2_28_x86_64 --platform manylinux_2_27_x86_64 \
+  --platform manylinux_2_17_x86_64 --platform manylinux2014_x86_64 -d "$tmp/wheels" \
+  "mitsuba==$MITSUBA" "drjit==$DRJIT"
+/usr/bin/python3 - "$tmp" <<'PY'
+# Unpacks both wheels, keeps the cuda_ad_rgb variant (and scalar_rgb, Mitsuba's default), drops headers,
+# stubs and the large plugins no converted xi scene uses (peers.py convert(): ply shapes, diffuse,
+# conductor, dielectric and twosided BSDFs, area and constant emitters, perspective camera, hdrfilm, box
+# filter, path integrator), and writes the rest as one .tar.xz.
+import shutil, sys, tarfile, zipfile
+from pathlib import Path
+tmp = Path(sys.argv[1])
+site = tmp / "site"
+for wheel in sorted((tmp / "wheels").glob("*.whl")):
+    zipfile.ZipFile(wheel).extractall(site)
+unused_plugins = """ellipsoids ellipsoidsmesh volpath volpathmis bsplinecurve linearcurve sdfgrid sunsky
+    timed_sunsky ptracer cylinder principled principledthin roughplastic roughconductor roughdielectric hair
+    measured measured_polarized aov pplastic plastic envmap distant instance thinlens projector spot
+    gridvolume bumpmap normalmap blendbsdf orthographic specfilm blender directionalarea serialized
+    blendphase irradiancemeter radiancemeter""".split()
+drop = [site / "mitsuba" / "plugins" / f"{p}.so" for p in unused_plugins]
+for pattern in ["llvm_*", "cuda_ad_mono*", "cuda_ad_spectral*", "scalar_mono*", "scalar_spectral*"]:
+    drop += (site / "mitsuba").glob(pattern)
+drop += [site / d for d in ["mitsuba/include", "mitsuba/cmake", "mitsuba/mitsuba_stubs", "drjit/include",
+                            "drjit/cmake"]]
+drop += site.rglob("*.pyi")
+for path in drop:
+    if path.is_dir():
+        shutil.rmtree(path)
+    elif path.exists():
+        path.unlink()
+with tarfile.open(".gpu/mitsuba-site.tar.xz", "w:xz") as tar:
+    for path in sorted(site.iterdir()):
+        tar.add(path, arcname=path.name)
+PY
 
 mkdir -p .gpu/assimp-models/PLY .gpu/assimp-models/OBJ
 cp -r /usr/share/assimp/models/glTF2 /usr/share/assimp/models/invalid .gpu/assimp-models/
