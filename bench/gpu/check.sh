@@ -14,9 +14,10 @@ cd "$(dirname "$0")/../.."
 [ -f .gpu/env.sh ] && [ -f .gpu/mitsuba-site.tar.xz ] || { echo "check: run bash bench/gpu/prepare.sh here first" >&2; exit 2; }
 source .gpu/env.sh
 log=${OUT:-/tmp}/check.txt
-steps=${*:-suite profile mitsuba peers}
+all_steps="suite profile mitsuba peers"
+steps=${*:-$all_steps}
 for step in $steps; do
-  case $step in suite|profile|mitsuba|peers) ;; *) echo "check: unknown step '$step' (suite, profile, mitsuba, peers)" >&2; exit 2 ;; esac
+  [[ " $all_steps " == *" $step "* ]] || { echo "check: unknown step '$step' (one of: $all_steps)" >&2; exit 2; }
 done
 start=$(date +%s)
 say() { echo "== $(( $(date +%s) - start )) s: $*" | tee -a "$log"; }
