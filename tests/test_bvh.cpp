@@ -132,6 +132,9 @@ Walk check_tree(const xi::Bvh& bvh, const std::vector<xi::Triangle>& tris) {
   for (uint32_t t : bvh.order)
     if (t < n) seen_tri[t]++;
   EXPECT_EQ((size_t)std::count(seen_tri.begin(), seen_tri.end(), 1), n) << "order is not a permutation";
+  EXPECT_EQ(bvh.position.size(), n);
+  for (size_t p = 0; p < n && p < bvh.position.size(); ++p)
+    if (bvh.order[p] < n) EXPECT_EQ(bvh.position[bvh.order[p]], p) << "position is not order's inverse";
 
   const bool split = bvh.stats.references != n;
   Walk w;

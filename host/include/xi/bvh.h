@@ -26,7 +26,8 @@ struct Bvh {
   std::vector<BvhNode> nodes;
   std::vector<BvhNode8> nodes8;
   std::vector<TriBlock> blocks; // the leaves' triangles, in blocks of four
-  std::vector<uint32_t> order;  // order[i]: the scene triangle at position i (blocks name triangles by position)
+  std::vector<uint32_t> order;     // order[i]: the scene triangle at position i (blocks name triangles by position)
+  std::vector<uint32_t> position;  // position[t]: where scene triangle t is in order (order's inverse)
   BvhStats stats;
 };
 

@@ -442,7 +442,7 @@ void store_node(Node& n, const float (*lo)[8], const float (*hi)[8], const uint3
 struct Collapser {
   const std::vector<BinaryNode>& bin;
   const std::vector<uint32_t>& leaf_tris;
-  const std::vector<uint32_t>& position;  // a scene triangle's position in bvh.order
+  const std::vector<uint32_t>& position;  // bvh.position
   const std::vector<Triangle>& tris;
   Bvh& bvh;
 
@@ -551,7 +551,8 @@ Bvh build_bvh(const std::vector<Triangle>& triangles, int width, bool spatial_sp
   // BVH order: the triangles by their first place in a leaf, leaves left to right, so that the
   // arrays in this order (CompiledScene) follow the tree.
   constexpr uint32_t kUnplaced = ~0u;
-  std::vector<uint32_t> position(triangles.size(), kUnplaced);
+  std::vector<uint32_t>& position = bvh.position;
+  position.assign(triangles.size(), kUnplaced);
   for (uint32_t t : b.leaf_tris)
     if (position[t] == kUnplaced) position[t] = (uint32_t)bvh.order.size(), bvh.order.push_back(t);
   if (bvh.order.size() != triangles.size()) throw Error("internal: the BVH lost a triangle");

@@ -86,10 +86,8 @@ CompiledScene compile_scene(const Scene& scene, int bvh_width, bool spatial_spli
   for (auto& t : scene.triangles) cs.features.normals |= t.has_normals;
   // Always 3 per triangle: an --all-features build reads them even when no triangle has normals.
   cs.tri_normals.assign(3 * n, glm::vec4(0.0f));
-  std::vector<uint32_t> position(n);  // a scene triangle's position in BVH order
   for (size_t i = 0; i < n; ++i) {
     const Triangle& t = scene.triangles[cs.bvh.order[i]];
-    position[cs.bvh.order[i]] = (uint32_t)i;
     for (int k = 0; k < 3; ++k) {
       cs.tri_verts[3 * i + k] = glm::vec4(t.v[k], 0.0f);
       if (t.has_normals) cs.tri_normals[3 * i + k] = glm::vec4(t.n[k], 1.0f);
@@ -107,7 +105,7 @@ CompiledScene compile_scene(const Scene& scene, int bvh_width, bool spatial_spli
     double lum = 0.2126 * m.emission.x + 0.7152 * m.emission.y + 0.0722 * m.emission.z;
     double p = lum * area * M_PI * (m.two_sided ? 2.0 : 1.0);
     if (p > 0.0 && area > 0.0) {
-      cs.light_tri.push_back(position[j]);
+      cs.light_tri.push_back(cs.bvh.position[j]);
       power.push_back(p);
     }
   }
