@@ -545,6 +545,38 @@ TEST_F(CliTest, DiffReportsMetricsHeatmapAndErrors) {
   expect_user_error(run_xi({"diff", "a.exr", "b.exr", "--crop", "0,0,99,5"}), {"--crop"}, before);
 }
 
+// xi tonemap writes the PNG that render writes beside its EXR, byte for byte; with --exposure and
+// --layer, what the library's write_png makes of the same values; refuses bad input with no file.
+TEST_F(CliTest, TonemapWritesRendersPngAndRefusesBadInput) {
+  ASSERT_EQ(run_xi(concat({"render", "-o", "a.exr"}, kFast)).code, 0);
+  auto r = run_xi({"tonemap", "a.exr", "t.png"});
+  ASSERT_EQ(r.code, 0) << r.err;
+  EXPECT_EQ(read_text(work_ / "t.png"), read_text(work_ / "a.png"));
+
+  const xi::Image rgb = xi::read_exr(work_ / "a.exr");
+  xi::write_png(work_ / "lib-exposure.png", rgb, 2.5f);
+  ASSERT_EQ(run_xi({"tonemap", "a.exr", "exposure.png", "--exposure", "2.5"}).code, 0);
+  EXPECT_EQ(read_text(work_ / "exposure.png"), read_text(work_ / "lib-exposure.png"));
+  EXPECT_NE(read_text(work_ / "exposure.png"), read_text(work_ / "t.png"));  // the exposure did something
+
+  xi::write_png(work_ / "lib-albedo.png", xi::read_exr(work_ / "a.exr", "albedo"));
+  ASSERT_EQ(run_xi({"tonemap", "a.exr", "albedo.png", "--layer", "albedo"}).code, 0);
+  EXPECT_EQ(read_text(work_ / "albedo.png"), read_text(work_ / "lib-albedo.png"));
+  EXPECT_NE(read_text(work_ / "albedo.png"), read_text(work_ / "t.png"));
+
+  xi::Image bad = rgb;
+  bad.at(3, 2).y = NAN;
+  bad.at(5, 7).x = INFINITY;
+  xi::write_exr(work_ / "nan.exr", {{"", &bad}});
+  auto before = files();
+  expect_user_error(run_xi({"tonemap", "nan.exr", "n.png"}), {"2 non-finite pixel(s)", "nan.exr", "x=3, y=2"}, before);
+  expect_user_error(run_xi({"tonemap", "missing.exr", "m.png"}), {"missing.exr"}, before);
+  expect_user_error(run_xi({"tonemap", "a.exr", "m.jpg"}), {".png", "m.jpg"}, before);
+  expect_user_error(run_xi({"tonemap", "a.exr", "m.png", "--exposure", "nan"}), {"--exposure", "nan"}, before);
+  expect_user_error(run_xi({"tonemap", "a.exr", "m.png", "--layer", "bogus"}), {"bogus"}, before);
+  expect_user_error(run_xi({"tonemap", "a.exr"}), {"IMAGE.exr OUT.png"}, before);
+}
+
 TEST_F(CliTest, WarpWritesPointsInTheDomain) {
   auto r = run_xi({"warp", "--map", "disc", "--sampler", "sobol", "-n", "256", "-o", "p.csv"});
   ASSERT_EQ(r.code, 0) << r.err;

@@ -14,6 +14,7 @@ class Args {
   std::string get(const std::string& flag, const std::string& fallback = "") const;
   int get_int(const std::string& flag, int fallback, int lo, int hi) const;
   double get_seconds(const std::string& flag, double fallback) const;  // a finite number > 0
+  double get_positive(const std::string& flag, double fallback, const std::string& what) const;  // the same
   const std::vector<std::string>& positional() const { return positional_; }
 
  private:
@@ -28,5 +29,6 @@ int render(const std::vector<std::string>& args);
 int devices(const std::vector<std::string>& args);
 int warp(const std::vector<std::string>& args);
 int diff(const std::vector<std::string>& args);
+int tonemap(const std::vector<std::string>& args);
 
 }  // namespace xi::cli

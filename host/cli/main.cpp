@@ -67,6 +67,10 @@ int Args::get_int(const std::string& flag, int fallback, int lo, int hi) const {
 }
 
 double Args::get_seconds(const std::string& flag, double fallback) const {
+  return get_positive(flag, fallback, "a number of seconds");
+}
+
+double Args::get_positive(const std::string& flag, double fallback, const std::string& what) const {
   if (!has(flag)) return fallback;
   const std::string v = get(flag);
   size_t used = 0;
@@ -77,7 +81,7 @@ double Args::get_seconds(const std::string& flag, double fallback) const {
     used = 0;
   }
   if (used != v.size() || v.empty() || !std::isfinite(x) || x <= 0.0 || x > 1e9)
-    throw Error("expected a number of seconds > 0, got '" + v + "'", flag);
+    throw Error("expected " + what + " > 0, got '" + v + "'", flag);
   return x;
 }
 
@@ -149,6 +153,9 @@ static const char* kUsage =
     "      --crop x0,y0,x1,y1    only pixels x0 <= x < x1, y0 <= y < y1\n"
     "      --heatmap OUT.png     write the per-pixel error in false colour\n"
     "      --layer NAME          compare an EXR layer (e.g. variance) instead of RGB\n"
+    "  tonemap IMAGE.exr OUT.png   the 8-bit sRGB PNG that `xi render` writes beside its EXR\n"
+    "      --exposure E          scale the linear values by E first (default 1)\n"
+    "      --layer NAME          an EXR layer (e.g. albedo) instead of RGB\n"
     "  help                  this text\n";
 
 int main(int argc, char** argv) {
@@ -164,6 +171,7 @@ int main(int argc, char** argv) {
     if (command == "devices") return xi::cli::devices(args);
     if (command == "warp") return xi::cli::warp(args);
     if (command == "diff") return xi::cli::diff(args);
+    if (command == "tonemap") return xi::cli::tonemap(args);
     throw xi::Error("unknown command '" + command + "'", "xi help lists the commands");
   } catch (const xi::cli::Team::QuietExit&) {
     // a rank of an MPI job whose setup error rank 0 reports

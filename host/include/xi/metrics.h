@@ -24,6 +24,9 @@ struct Crop {
 };
 Crop parse_crop(const std::string& text, int width, int height);  // "x0,y0,x1,y1"; throws xi::Error
 
+// Throws xi::Error if the image holds a non-finite value: how many, in the image called `name`, and the first.
+void check_finite(const Image& image, const std::string& name);
+
 // Throws xi::Error if the sizes differ or either image holds a non-finite value (naming the pixel).
 double image_metric(const Image& image, const Image& reference, Metric metric,
                     const std::optional<Crop>& crop = std::nullopt);

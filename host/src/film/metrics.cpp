@@ -24,19 +24,26 @@ double term(Metric m, double v, double r) {
   return 0.0;
 }
 
+}  // namespace
+
+void check_finite(const Image& image, const std::string& name) {
+  size_t bad = 0, first = 0;
+  for (size_t i = 0; i < image.pixels.size(); ++i)
+    if (!std::isfinite(image.pixels[i].x) || !std::isfinite(image.pixels[i].y) || !std::isfinite(image.pixels[i].z))
+      if (bad++ == 0) first = i;
+  if (bad)
+    throw Error(std::to_string(bad) + " non-finite pixel(s) in the " + name,
+                "first at x=" + std::to_string(first % image.width) + ", y=" + std::to_string(first / image.width));
+}
+
+namespace {
+
 void check_pair(const Image& image, const Image& reference) {
   if (image.width != reference.width || image.height != reference.height)
     throw Error("images differ in size: " + std::to_string(image.width) + "x" + std::to_string(image.height) +
                 " vs reference " + std::to_string(reference.width) + "x" + std::to_string(reference.height));
-  for (const Image* img : {&image, &reference}) {
-    size_t bad = 0, first = 0;
-    for (size_t i = 0; i < img->pixels.size(); ++i)
-      if (!std::isfinite(img->pixels[i].x) || !std::isfinite(img->pixels[i].y) || !std::isfinite(img->pixels[i].z))
-        if (bad++ == 0) first = i;
-    if (bad)
-      throw Error(std::to_string(bad) + " non-finite pixel(s) in the " + (img == &image ? "image" : "reference"),
-                  "first at x=" + std::to_string(first % img->width) + ", y=" + std::to_string(first / img->width));
-  }
+  check_finite(image, "image");
+  check_finite(reference, "reference");
 }
 
 double pixel_term(Metric m, const glm::vec3& v, const glm::vec3& r) {

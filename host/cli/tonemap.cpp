@@ -1,0 +1,23 @@
+// `xi tonemap`: an EXR as the PNG `xi render` writes beside it (a preview of a reference whose PNG
+// was not kept, or of one layer).
+#include "cli.h"
+#include "xi/error.h"
+#include "xi/image.h"
+#include "xi/metrics.h"
+
+namespace xi::cli {
+
+int tonemap(const std::vector<std::string>& argv) {
+  Args args(argv, {"--exposure", "--layer"}, {});
+  if (args.positional().size() != 2) throw Error("expected IMAGE.exr OUT.png", "xi tonemap");
+  const std::filesystem::path out = args.positional()[1];
+  if (out.extension() != ".png") throw Error("the output must be a .png file", out.string());
+  const float exposure = (float)args.get_positive("--exposure", 1.0, "an exposure");
+  const std::string in = args.positional()[0];
+  Image image = read_exr(in, args.get("--layer"));
+  check_finite(image, "image " + in);  // a PNG would show them as black, hiding them
+  write_png(out, image, exposure);
+  return 0;
+}
+
+}  // namespace xi::cli
