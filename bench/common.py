@@ -148,7 +148,7 @@ def machine(xi):
 def reference(xi, scene, resolution, spp, log=print, max_depth=None):
     """A high-spp reference of SCENE at RESOLUTION ('WxH'), rendered once with the random sampler, MIS and
     REF_SEED, and cached as bench/refs/<scene>-<W>x<H>-<spp>spp.exr (-d<K> before .exr for a max depth other
-    than the scene's). Returns its path."""
+    than the scene's), with its PNG preview beside it. Returns its path."""
     path = scene_path(str(scene))
     w, h = parse_resolution(resolution)
     ref = REFS / f"{path.stem}-{w}x{h}-{spp}spp{'' if max_depth is None else f'-d{max_depth}'}.exr"
@@ -158,6 +158,8 @@ def reference(xi, scene, resolution, spp, log=print, max_depth=None):
         if a.get("spp") != spp or (x1 - x0 + 1, y1 - y0 + 1) != (w, h):
             sys.exit(f"bench: {ref} holds {a.get('spp')} spp at {x1 - x0 + 1}x{y1 - y0 + 1}, not its name; delete it")
         log(f"reference: {ref.relative_to(ROOT)} (cached, {spp} spp, seed {a.get('seed')})")
+        if not ref.with_suffix(".png").exists():  # previews are not committed: made again after a fresh clone
+            run([xi, "tonemap", ref, ref.with_suffix(".png")])
         return ref
     REFS.mkdir(parents=True, exist_ok=True)
     log(f"reference: rendering {ref.relative_to(ROOT)} ({spp} spp, {REF_SAMPLER} sampler, {REF_STRATEGY}, "

@@ -49,11 +49,9 @@ def main():
                 axes[row][col].imshow(plt.imread(str(img.with_suffix(".png"))))
                 axes[row][col].set_title(f"{sampler}, {spp} spp\nRMSE {r['rmse']:.4f} (penumbra {r['shadow']:.4f})",
                                          fontsize=9)
-        preview = ref.with_suffix(".png")  # not committed: absent after a fresh clone
         for row in range(len(a.spp)):
             ax = axes[row][-1]
-            if preview.exists():
-                ax.imshow(plt.imread(str(preview)))
+            ax.imshow(plt.imread(str(ref.with_suffix(".png"))))
             x0, y0, x1, y1 = shadow
             ax.add_patch(plt.Rectangle((x0, y0), x1 - x0, y1 - y0, fill=False, color="cyan", lw=1))
             ax.set_title(f"reference, {a.ref_spp} spp\n(cyan: penumbra crop)", fontsize=9)
