@@ -442,7 +442,6 @@ void store_node(Node& n, const float (*lo)[8], const float (*hi)[8], const uint3
 struct Collapser {
   const std::vector<BinaryNode>& bin;
   const std::vector<uint32_t>& leaf_tris;
-  const std::vector<uint32_t>& position;  // bvh.position
   const std::vector<Triangle>& tris;
   Bvh& bvh;
 
@@ -466,7 +465,7 @@ struct Collapser {
         blk.tri[k] = XI_NO_HIT;
         if (4 * b + k >= count) continue;
         const uint32_t tri = leaf_tris[first + 4 * b + k];
-        blk.tri[k] = position[tri];
+        blk.tri[k] = bvh.position[tri];
         for (int j = 0; j < 3; ++j)
           for (int a = 0; a < 3; ++a) blk.coord[a][j][k] = tris[tri].v[j][a];
       }
@@ -559,7 +558,7 @@ Bvh build_bvh(const std::vector<Triangle>& triangles, int width, bool spatial_sp
   size_t blocks = 0;  // reserved up front: growing a vector of this size would copy it into fresh pages
   for (const BinaryNode& n : b.nodes) blocks += (n.count + 3) / 4;
   bvh.blocks.reserve(blocks);
-  Collapser collapser{b.nodes, b.leaf_tris, position, triangles, bvh};
+  Collapser collapser{b.nodes, b.leaf_tris, triangles, bvh};
   collapser.new_node();  // the root
   bvh.stats.stack = collapser.collapse(0, 0, 0);
   if (bvh.stats.stack > XI_BVH_STACK)
