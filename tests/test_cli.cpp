@@ -277,11 +277,15 @@ TEST_F(CliRender, PathsInFlightDoNotChangeTheImage) {
   ASSERT_EQ(run_xi(concat(base, {"-o", "a.exr", "--quiet"})).code, 0);
   const xi::Image a = xi::read_exr(work_ / "a.exr");
   struct Case { const char* paths; const char* per_pass; const char* summary; };
-  for (Case c : {Case{"100", "0", "paths in flight: 100, 1 spp per pass"},
-                 Case{"1000", "0", "paths in flight: 768, 2 spp per pass"},
-                 Case{"0", "3", ", 3 spp per pass"}}) {
+  // (An empty value: the flag left out, its default.)
+  for (Case c : {Case{"100", "", "paths in flight: 100, 1 spp per pass"},
+                 Case{"1000", "", "paths in flight: 768, 2 spp per pass"},
+                 Case{"", "3", ", 3 spp per pass"}}) {
     SCOPED_TRACE(std::string(c.paths) + " paths, " + c.per_pass + " per pass");
-    const Outcome r = run_xi(concat(base, {"-o", "b.exr", "--paths-in-flight", c.paths, "--samples-per-pass", c.per_pass}));
+    std::vector<std::string> args = concat(base, {"-o", "b.exr"});
+    if (*c.paths) args = concat(args, {"--paths-in-flight", c.paths});
+    if (*c.per_pass) args = concat(args, {"--samples-per-pass", c.per_pass});
+    const Outcome r = run_xi(args);
     ASSERT_EQ(r.code, 0) << r.err;
     EXPECT_NE(r.out.find(c.summary), std::string::npos) << r.out;
     const xi::Image b = xi::read_exr(work_ / "b.exr");
@@ -290,8 +294,10 @@ TEST_F(CliRender, PathsInFlightDoNotChangeTheImage) {
     EXPECT_EQ(std::get<int>(xi::read_exr_attributes(work_ / "b.exr").at("spp")), 5);
   }
   const auto before = files();
-  expect_user_error(run_xi(concat(base, {"-o", "c.exr", "--paths-in-flight", "-1"})), {"--paths-in-flight"}, before);
-  expect_user_error(run_xi(concat(base, {"-o", "c.exr", "--samples-per-pass", "x"})), {"--samples-per-pass"}, before);
+  for (const char* bad : {"-1", "0"})
+    expect_user_error(run_xi(concat(base, {"-o", "c.exr", "--paths-in-flight", bad})), {"--paths-in-flight", bad}, before);
+  for (const char* bad : {"x", "0"})
+    expect_user_error(run_xi(concat(base, {"-o", "c.exr", "--samples-per-pass", bad})), {"--samples-per-pass", bad}, before);
 }
 
 // --no-spatial-splits reaches the BVH build: a scene of slanted long triangles (a fan of blades
@@ -392,9 +398,9 @@ TEST_F(CliBadInput, BadSpp) {
   }
 }
 
-TEST_F(CliBadInput, BadShadeLanes) { expect_each_refused("--shade-lanes", {"3", "9", "-1", "abc"}); }
+TEST_F(CliBadInput, BadShadeLanes) { expect_each_refused("--shade-lanes", {"0", "3", "9", "-1", "abc"}); }
 
-TEST_F(CliBadInput, BadBvhWidth) { expect_each_refused("--bvh-width", {"5", "16", "-4", "wide"}); }
+TEST_F(CliBadInput, BadBvhWidth) { expect_each_refused("--bvh-width", {"0", "5", "16", "-4", "wide"}); }
 
 TEST_F(CliBadInput, BadResolution) {
   const auto before = files();

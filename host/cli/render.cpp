@@ -171,13 +171,14 @@ void prepare(Job& job, const std::vector<std::string>& argv, const Team& team) {
   opt.sampler = parse_sampler(args.get("--sampler", scene.render.sampler));
   opt.strategy = parse_strategy(args.get("--strategy", "mis"));
   opt.local_size = (size_t)args.get_int("--local-size", (int)opt.local_size, 0, 1024);
-  opt.shade_lanes = args.get_int("--shade-lanes", 0, 0, 8);
-  opt.bvh_width = args.get_int("--bvh-width", 0, 0, 8);
+  // 0 (the fallback, never a value a user may give): the device's default.
+  opt.shade_lanes = args.get_int("--shade-lanes", 0, 1, 8);
+  opt.bvh_width = args.get_int("--bvh-width", 0, 1, 8);
   opt.all_features = args.has("--all-features");
   opt.spatial_splits = !args.has("--no-spatial-splits");
-  opt.paths_in_flight = (size_t)args.get_int("--paths-in-flight", 0, 0, 1 << 30);
+  opt.paths_in_flight = (size_t)args.get_int("--paths-in-flight", 0, 1, 1 << 30);
   // A convergence log has one row per pass: one spp per pass unless asked otherwise.
-  opt.samples_per_pass = args.get_int("--samples-per-pass", args.has("--convergence") ? 1 : 0, 0, 1 << 20);
+  opt.samples_per_pass = args.get_int("--samples-per-pass", args.has("--convergence") ? 1 : 0, 1, 1 << 20);
   job.profile = args.has("--profile");
   opt.profile = job.profile || args.has("--trace");
   opt.rows = team.rows();
