@@ -29,6 +29,13 @@ import common as c  # noqa: E402
 DEFAULT_SCENES = ["cornell-box", "bench/scenes/engine.json"]
 VENV = c.ROOT / "bench" / ".venv"
 MESH_CACHE = c.ROOT / "bench" / ".cache" / "meshes"  # Assimp exports of mesh files (ignored by git)
+# Mitsuba 3.9.1's samplers and the spp each takes without rounding it (to a square, a power of two).
+MITSUBA_SAMPLERS = {"independent": lambda n: n > 0,
+                    "stratified": lambda n: n > 0 and math.isqrt(n) ** 2 == n,
+                    "multijitter": lambda n: n > 0 and math.isqrt(n) ** 2 == n,
+                    "ldsampler": lambda n: n > 0 and n & (n - 1) == 0}
+MITSUBA_SAMPLER_SPP = {"independent": "any spp", "stratified": "a square spp", "multijitter": "a square spp",
+                       "ldsampler": "a power-of-two spp"}
 
 
 # ---------------------------------------------------------------------------------------------------------
@@ -254,7 +261,7 @@ def bsdf(m):
     return b, emitter
 
 
-def convert(scene_file, width, height, max_depth, tmp):
+def convert(scene_file, width, height, max_depth, sampler, tmp):
     """xi's JSON scene as a Mitsuba scene dict. Geometry goes over as xi's own triangles (quads split as xi
     splits them, spheres as xi's icospheres with exact vertex normals, meshes through Assimp), one PLY per
     material; the camera as a perspective (or thin-lens) sensor with the same vertical fov."""
@@ -272,7 +279,7 @@ def convert(scene_file, width, height, max_depth, tmp):
               "near_clip": 1e-3 * dist, "far_clip": 1e3 * dist,
               "film": {"type": "hdrfilm", "width": width, "height": height, "rfilter": {"type": "box"},
                        "pixel_format": "rgb", "component_format": "float32"},
-              "sampler": {"type": "independent", "sample_count": 1}}
+              "sampler": {"type": sampler, "sample_count": 1}}  # (mi.render sets the spp)
     if cam.get("aperture_radius", 0) > 0:
         sensor.update(type="thinlens", aperture_radius=cam["aperture_radius"],
                       focus_distance=cam.get("focus_distance", dist))
@@ -331,7 +338,8 @@ def worker(variant):
                 res = dict(version=mi.__version__, variant=variant, threads=dr.thread_count())
             elif cmd == "load":
                 scene = None
-                d, triangles = convert(req["scene"], req["width"], req["height"], req["max_depth"], req["tmp"])
+                d, triangles = convert(req["scene"], req["width"], req["height"], req["max_depth"], req["sampler"],
+                                       req["tmp"])
                 scene = mi.load_dict(d)
                 res = dict(triangles=triangles)
             elif cmd == "render":
@@ -412,11 +420,12 @@ def scene_depth(scene):
     return json.loads(Path(scene).read_text()).get("render", {}).get("max_depth", 8)
 
 
-def load(mitsuba, scene, resolution, depth, tmp):
+def load(a, mitsuba, scene, resolution, depth, tmp):
     """Loads SCENE into the worker; returns False (after saying why) if Mitsuba cannot render it."""
     w, h = c.parse_resolution(resolution)
     t0 = time.monotonic()
-    r = mitsuba.ask(cmd="load", scene=str(scene), width=w, height=h, max_depth=depth, tmp=str(tmp))
+    r = mitsuba.ask(cmd="load", scene=str(scene), width=w, height=h, max_depth=depth, sampler=a.mitsuba_sampler,
+                    tmp=str(tmp))
     if "unsupported" in r:
         print(f"mitsuba: skipping {scene.stem}: unsupported: {r['unsupported']}", file=sys.stderr)
         return False
@@ -435,7 +444,7 @@ def measure(a, xi, mitsuba, scene, resolution, tmp):
     name, depth = scene.stem, a.max_depth or scene_depth(scene)
     w, h = c.parse_resolution(resolution)
     samples = w * h * a.spp
-    ok = load(mitsuba, scene, resolution, depth, tmp)
+    ok = load(a, mitsuba, scene, resolution, depth, tmp)
     ref = None
     if a.error:
         default_depth = a.max_depth is None or a.max_depth == scene_depth(scene)
@@ -468,7 +477,7 @@ def measure(a, xi, mitsuba, scene, resolution, tmp):
 def check(a, xi, mitsuba, scene, resolution, out_dir, tmp):
     """Mean radiance per channel of both renderers at RESOLUTION with --spp: should agree within noise."""
     name, depth = scene.stem, a.max_depth or scene_depth(scene)
-    if not load(mitsuba, scene, resolution, depth, tmp):
+    if not load(a, mitsuba, scene, resolution, depth, tmp):
         return []
     xi_out, mi_out = out_dir / f"peers-check-{name}-xi.exr", out_dir / f"peers-check-{name}-mitsuba.exr"
     t_xi = xi_render(a, xi, scene, xi_out, a.spp, 1, resolution)["seconds"]
@@ -534,6 +543,9 @@ def main():
     p.add_argument("--xi-sampler", default="random",
                    help="xi's sampler; random matches Mitsuba's independent sampler (xi's default is sobol)")
     p.add_argument("--mitsuba-variant", default="llvm_ad_rgb", help="cuda_ad_rgb on an NVIDIA GPU")
+    p.add_argument("--mitsuba-sampler", default="independent", choices=sorted(MITSUBA_SAMPLERS),
+                   help="Mitsuba's sampler (independent matches xi's random; ldsampler is its low-discrepancy one, "
+                        "stratified and multijitter its stratified ones, to set against xi's sobol or stratified)")
     p.add_argument("--venv", default=str(VENV), help="the venv with Mitsuba (bench/setup-mitsuba.sh)")
     p.add_argument("--worker-timeout", type=float, default=600,
                    help="seconds the Mitsuba worker may take to answer one request (start, load, render)")
@@ -544,6 +556,9 @@ def main():
     if a.worker:
         return worker(a.mitsuba_variant)
     a.spp = a.spp or (1024 if a.check else 64)
+    if not MITSUBA_SAMPLERS[a.mitsuba_sampler](a.spp):  # Mitsuba would round the spp and time other work
+        p.error(f"--mitsuba-sampler {a.mitsuba_sampler} takes {MITSUBA_SAMPLER_SPP[a.mitsuba_sampler]}, "
+                f"not --spp {a.spp}")
     resolution = a.resolution or ("64x64" if a.check else "256x256" if a.error else "512x512")
     xi, out_dir = c.find_xi(a.xi), Path(a.out)
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -551,7 +566,7 @@ def main():
     mitsuba = Mitsuba(a.venv, a.mitsuba_variant, a.worker_timeout)
     info = mitsuba.info
     print(f"xi: {xi} ({c.machine(xi)}; device {a.xi_device or 'default'}, {a.xi_sampler} sampler); "
-          f"Mitsuba {info['version']} {info['variant']}, independent sampler, {info['threads']} threads",
+          f"Mitsuba {info['version']} {info['variant']}, {a.mitsuba_sampler} sampler, {info['threads']} threads",
           file=sys.stderr)
 
     with tempfile.TemporaryDirectory(prefix="xi-peers-") as tmp:
@@ -586,8 +601,9 @@ def main():
               f"eff xi/Mitsuba > 1: xi reaches a given error sooner.")
     keys = ["scene", "resolution", "spp", "max_depth", "runs", "xi_s", "xi_msamples", "mitsuba_s",
             "mitsuba_msamples", "time_ratio", "xi_relmse", "mitsuba_relmse", "xi_eff", "mitsuba_eff", "eff_ratio"]
-    c.write_csv(out_dir / "peers.csv", keys + ["xi_device", "xi_sampler", "mitsuba_variant"],
-                [[r[k] for k in keys] + [a.xi_device or "default", a.xi_sampler, info["variant"]] for r in rows])
+    c.write_csv(out_dir / "peers.csv", keys + ["xi_device", "xi_sampler", "mitsuba_variant", "mitsuba_sampler"],
+                [[r[k] for k in keys] + [a.xi_device or "default", a.xi_sampler, info["variant"], a.mitsuba_sampler]
+                 for r in rows])
     if a.embree:
         ceiling(a, xi, scenes, resolution, out_dir)
 
