@@ -360,6 +360,33 @@ TEST(AssetScene, NoCameraFramingAndNoEmitterBackground) {
     }
 }
 
+// An asset whose geometry, after its node transforms, spans less than 1e-6 is refused as a JSON
+// scene's is (SceneErrors.GeometryBelowTheSmallestExtent); scaled by 1e-5 instead it loads. (Node
+// scales, since Assimp merges vertices closer than about 1e-5 in the file itself.)
+TEST(AssetScene, GeometryBelowTheSmallestExtent) {
+  const fs::path dir = temp_dir();
+  for (const double scale : {4e-7, 1e-5}) {
+    SCOPED_TRACE(scale);
+    Gltf g;
+    g.mesh({{0, 0, 0}, {1, 0, 0}, {0, 1, 0}}, -1);
+    g.node({{"mesh", 0}, {"scale", {scale, scale, scale}}});
+    g.write(dir / "small.gltf");
+    if (scale < 1e-6) {
+      try {
+        xi::load_asset(dir / "small.gltf");
+        ADD_FAILURE() << "loaded";
+      } catch (const xi::Error& e) {
+        EXPECT_EQ(std::string(e.what()),
+                  "the geometry spans only 4e-07 units (the longest side of its bounding box; at least 1e-6): single "
+                  "precision cannot shade so small a scene; scale it up (" + (dir / "small.gltf").string() + ")");
+      }
+    } else {
+      EXPECT_EQ(xi::load_asset(dir / "small.gltf").triangles.size(), 1u);
+    }
+  }
+  fs::remove_all(dir);
+}
+
 // The glTF-Asset-Generator's primitive modes (not written here): every file with triangles loads,
 // and its triangle count is what its index/position accessors say for the mode.
 TEST(AssetScene, AssetGeneratorPrimitiveModes) {

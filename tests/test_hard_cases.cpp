@@ -71,6 +71,16 @@ const std::vector<Similarity> kTransforms = {
     {"scaled by 1e4", 1e4f, glm::vec3(0.0f)},
 };
 
+// Plus, per scene, a scale to just above the smallest extent the scene loader accepts (1e-6, the
+// longest side of the geometry's bounding box: SceneErrors.GeometryBelowTheSmallestExtent).
+Similarity smallest_accepted(const xi::Scene& s) {
+  glm::vec3 lo(INFINITY), hi(-INFINITY);
+  for (const xi::Triangle& t : s.triangles)
+    for (const glm::vec3& v : t.v) lo = glm::min(lo, v), hi = glm::max(hi, v);
+  const glm::vec3 size = hi - lo;
+  return {"scaled to an extent of 1.01e-6", 1.01e-6f / std::max({size.x, size.y, size.z}), glm::vec3(0.0f)};
+}
+
 }  // namespace
 
 // One test per bundled scene, so that ctest runs them side by side; together they are one family.
@@ -91,12 +101,14 @@ TEST_P(HardCasesScene, RendersTheSameMovedFarAwayOrScaled) {
   const int blocks = (kRes / kBlock) * (kRes / kBlock);
   // α = 0.01 for the whole family (every bundled scene × transforms × blocks × channels), Šidák-corrected.
   const double z_max =
-      xi::stats::sidak_critical_z(0.01, (int)(kBundledScenes.size() * kTransforms.size() * blocks * 3));
+      xi::stats::sidak_critical_z(0.01, (int)(kBundledScenes.size() * (kTransforms.size() + 1) * blocks * 3));
   {
     const fs::path path = fs::path(XI_SCENE_DIR) / GetParam();
     xi::Scene scene = xi::load_scene(path);
     scene.width = scene.height = kRes;
-    for (const Similarity& t : kTransforms) {
+    std::vector<Similarity> transforms = kTransforms;
+    transforms.push_back(smallest_accepted(scene));
+    for (const Similarity& t : transforms) {
       SCOPED_TRACE(path.filename().string() + ", " + t.name);
       const xi::Scene far = transformed(scene, t);
       const xi::test::Shot base = render(transformed(far, t, true), 1, kSpp);

@@ -395,6 +395,21 @@ TEST(SceneErrors, BadCameraAndTransform) {
   expect_parse_error(scene_text(kQuad).replace(1, 0, R"("render": {"seed": 4294967296}, )"), "/render/seed");
 }
 
+// The other end of single precision: geometry whose bounding box's longest side is below 1e-6 is
+// refused, in a scene file after every transform (edges of 1e-12 made normals and light areas
+// underflow: the Cornell box rendered black but for its light). AssetScene.GeometryBelowTheSmallestExtent:
+// the same for an asset file.
+TEST(SceneErrors, GeometryBelowTheSmallestExtent) {
+  const std::string tiny = R"({"type": "quad", "material": "white",
+      "vertices": [[0,0,0], [5e-7,0,0], [5e-7,5e-7,0], [0,5e-7,0]])";
+  expect_parse_error(scene_text(tiny + "}"),
+                     "the geometry spans only 5e-07 units (the longest side of its bounding box; at least 1e-6): "
+                     "single precision cannot shade so small a scene; scale it up with a transform (test.json: /shapes)");
+  // The same quad scaled up by its transform, or beside a larger shape, is a scene.
+  EXPECT_EQ(parse(scene_text(tiny + R"(, "transform": {"scale": 4}})")).triangles.size(), 2u);
+  EXPECT_EQ(parse(scene_text(kQuad + ", " + tiny + "}")).triangles.size(), 4u);
+}
+
 TEST(SceneErrors, CoordinatesBeyondTheLimit) {
   // Finite floats whose sums, extents or cross products overflow single precision: the BVH builder
   // indexed a bin by a NaN (coordinates of 3e38), light pdfs came out NaN (edges of 1e11).

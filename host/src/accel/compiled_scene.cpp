@@ -9,6 +9,16 @@
 static_assert(sizeof(MaterialData) == 48 && offsetof(MaterialData, type) == 32, "MaterialData layout");
 
 namespace xi {
+namespace {
+
+// In double: in float, |e1 × e2|² underflows for edges below about 1e-11 (a light dropped as
+// having no area).
+double triangle_area(const Triangle& t) {
+  const glm::dvec3 v0(t.v[0]);
+  return 0.5 * glm::length(glm::cross(glm::dvec3(t.v[1]) - v0, glm::dvec3(t.v[2]) - v0));
+}
+
+}  // namespace
 
 Features Features::everything() { return Features{true, true, true, true, true}; }
 
@@ -101,7 +111,7 @@ CompiledScene compile_scene(const Scene& scene, int bvh_width, bool spatial_spli
     const Triangle& t = scene.triangles[j];
     const Material& m = scene.materials[t.material];
     if (!m.is_emitter()) continue;
-    double area = 0.5 * glm::length(glm::cross(t.v[1] - t.v[0], t.v[2] - t.v[0]));
+    double area = triangle_area(t);
     double lum = 0.2126 * m.emission.x + 0.7152 * m.emission.y + 0.0722 * m.emission.z;
     double p = lum * area * M_PI * (m.two_sided ? 2.0 : 1.0);
     if (p > 0.0 && area > 0.0) {
@@ -118,7 +128,7 @@ CompiledScene compile_scene(const Scene& scene, int bvh_width, bool spatial_spli
     acc += power[k];
     cs.light_cdf.push_back(k + 1 == power.size() ? 1.0f : (float)(acc / total));
     const Triangle& t = scene.triangles[cs.bvh.order[cs.light_tri[k]]];
-    double area = 0.5 * glm::length(glm::cross(t.v[1] - t.v[0], t.v[2] - t.v[0]));
+    double area = triangle_area(t);
     cs.tri_light_pdf[cs.light_tri[k]] = (float)(power[k] / total / area);
   }
   cs.features.emitters = !cs.light_tri.empty();

@@ -339,6 +339,7 @@ Scene load_asset(const fs::path& path, const AssetOptions& options) {
   s.materials = std::move(g.materials);
   s.triangles = std::move(g.triangles);
   s.warnings = std::move(g.warnings);
+  if (const std::string small = too_small(s.triangles); !small.empty()) throw Error(small, path.string());
   if (options.height < 1 || options.height > 16384) throw Error("film height must be in [1, 16384]", path.string());
 
   const std::vector<CameraInfo> list = cameras(path, *l.scene);

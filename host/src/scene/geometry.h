@@ -4,6 +4,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdint>
+#include <cstdio>
 #include <utility>
 #include <string>
 #include <string_view>
@@ -23,6 +24,33 @@ namespace xi::scene_detail {
 // 3 * (2 * (2e9)^2)^2 = 1.9e38 < FLT_MAX = 3.4e38. Beyond, light pdfs and normals overflow (and near
 // 1e19 the BVH builder's box extents do). Float spacing at 1e9 is 64 units anyway.
 constexpr float kMaxCoordinate = 1e9f;
+
+// The smallest extent (the longest side of the bounding box) a scene's geometry may have. Single
+// precision fails the other way there: |e1 x e2|^2 of edges shorter than about 1e-11 underflows
+// (below the smallest float, 1.4e-45), so normals and light areas come out NaN or zero: the
+// Cornell box scaled to an extent of 6e-12 rendered black but for its light, at 6e-11 it rendered
+// right. 1e-6 leaves edges of a thousandth of the scene well clear of that.
+constexpr double kMinExtent = 1e-6;
+
+// The longest side of the triangles' bounding box (0 for none).
+inline double extent(const std::vector<Triangle>& tris) {
+  glm::dvec3 lo(INFINITY), hi(-INFINITY);
+  for (const Triangle& t : tris)
+    for (const glm::vec3& v : t.v) lo = glm::min(lo, glm::dvec3(v)), hi = glm::max(hi, glm::dvec3(v));
+  const glm::dvec3 size = hi - lo;
+  return tris.empty() ? 0.0 : std::max({size.x, size.y, size.z});
+}
+
+// The error for geometry smaller than kMinExtent, else empty.
+inline std::string too_small(const std::vector<Triangle>& tris) {
+  const double e = extent(tris);
+  if (e >= kMinExtent) return "";
+  char buf[64];
+  std::snprintf(buf, sizeof buf, "%.3g", e);
+  return std::string("the geometry spans only ") + buf +
+         " units (the longest side of its bounding box; at least 1e-6): single precision cannot shade so small "
+         "a scene; scale it up";
+}
 
 struct Transform {
   glm::dmat4 m{1.0};

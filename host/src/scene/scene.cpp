@@ -468,6 +468,7 @@ Scene parse_scene(const std::string& json_text, const std::string& source_name, 
     if (shape.has("type") && shape.at("type").raw() == "asset") read_asset_shape(shape, base_dir, s);
     else read_shape(shape, index, base_dir, s.triangles);
   }
+  if (const std::string small = too_small(s.triangles); !small.empty()) shapes.fail(small + " with a transform");
   return s;
 }
 
