@@ -330,6 +330,29 @@ TEST(AssetMaterials, MappingAndOneWarningPerKind) {
   EXPECT_FALSE(contains(s.notes, "white background"));
 }
 
+// An emissive factor × strength above the radiance limit (SceneErrors.RadianceAboveTheLimit) is one
+// error naming the material and the file; a strength beyond float (1e300) too, not an infinite light.
+TEST(AssetMaterials, RadianceAboveTheLimit) {
+  const fs::path dir = temp_dir();
+  for (const double strength : {2e10, 1e300}) {
+    SCOPED_TRACE(strength);
+    Gltf g;
+    const int lamp = g.add("materials", {{"name", "sun"}, {"emissiveFactor", {1.0, 1.0, 1.0}},
+                                         {"extensions", {{"KHR_materials_emissive_strength", {{"emissiveStrength", strength}}}}}});
+    g.doc["extensionsUsed"] = {"KHR_materials_emissive_strength"};
+    g.node({{"mesh", g.mesh({{0, 0, 0}, {1, 0, 0}, {0, 1, 0}}, lamp)}});
+    g.write(dir / "sun.gltf");
+    try {
+      xi::load_asset(dir / "sun.gltf");
+      ADD_FAILURE() << "loaded";
+    } catch (const xi::Error& e) {
+      EXPECT_EQ(std::string(e.what()), "material 'sun' emits radiance above 1e10 (emissive factor x strength): larger "
+                                       "radiance overflows the film's single-precision sums (" + (dir / "sun.gltf").string() + ")");
+    }
+  }
+  fs::remove_all(dir);
+}
+
 // No camera: the bounding box framed from +z, said in the notes; no emitter: a white background,
 // said too. Every vertex projects inside the film through xi's camera.
 TEST(AssetScene, NoCameraFramingAndNoEmitterBackground) {

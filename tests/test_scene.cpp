@@ -395,6 +395,22 @@ TEST(SceneErrors, BadCameraAndTransform) {
   expect_parse_error(scene_text(kQuad).replace(1, 0, R"("render": {"seed": 4294967296}, )"), "/render/seed");
 }
 
+// Radiance (an emitter's, the background's) above 1e10 is refused: the film's single-precision sums
+// of squares overflowed to infinity from about 1e20. At the limit the scene loads.
+// HardCases.RadianceAtTheLimitKeepsTheFilmFinite renders it; AssetMaterials.RadianceAboveTheLimit
+// refuses the same from a glTF file.
+TEST(SceneErrors, RadianceAboveTheLimit) {
+  const std::string why = "must be in [0, 1e10] (larger radiance overflows the film's single-precision sums)";
+  expect_parse_error(scene_text(kQuad, R"("materials": {"white": {"type": "emitter", "radiance": [1, 2e10, 1]}})"),
+                     why + " (test.json: /materials/white/radiance/1)");
+  expect_parse_error(scene_text(kQuad, kMaterials, kCamera + R"(, "background": [0, 0, 1.5e10])"),
+                     why + " (test.json: /background/2)");
+  const xi::Scene s = parse(scene_text(kQuad, R"("materials": {"white": {"type": "emitter", "radiance": [1e10, 1, 0]}})",
+                                       kCamera + R"(, "background": [1e10, 1e10, 1e10])"));
+  EXPECT_EQ(s.materials.at(0).emission.x, 1e10f);
+  EXPECT_EQ(s.background.z, 1e10f);
+}
+
 // The other end of single precision: geometry whose bounding box's longest side is below 1e-6 is
 // refused, in a scene file after every transform (edges of 1e-12 made normals and light areas
 // underflow: the Cornell box rendered black but for its light). AssetScene.GeometryBelowTheSmallestExtent:

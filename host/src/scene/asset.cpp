@@ -237,6 +237,10 @@ AssetGeometry geometry(const fs::path& path, const aiScene& scene) {
         g.materials.push_back(m);
       } else {
         g.materials.push_back(convert_material(*scene.mMaterials[i], i, i < strengths.size() ? strengths[i] : 1.0f, warn));
+        const glm::vec3 e = g.materials.back().emission;
+        if (!(std::max({e.x, e.y, e.z}) <= kMaxRadiance))
+          throw Error("material '" + g.materials.back().name + "' emits radiance above 1e10 (emissive factor x "
+                      "strength): larger radiance overflows the film's single-precision sums", path.string());
       }
     }
     return uint32_t(remap[i]);

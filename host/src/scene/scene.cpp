@@ -27,7 +27,6 @@ namespace {
 
 namespace fs = std::filesystem;
 using json = nlohmann::json;
-constexpr float kInf = INFINITY;
 using namespace scene_detail;  // kMaxCoordinate, Transform, apply, within_range, degenerate (geometry.h)
 
 // Keys may contain '/' or '~' (material names); escape them as RFC 6901 says.
@@ -121,13 +120,16 @@ class Node {
     auto e = elements(3);
     return {e[0].number(), e[1].number(), e[2].number()};
   }
-  // An RGB triple with every component in [0, max] (max = 1 for reflectances, inf for radiance).
+  // An RGB triple with every component in [0, max] (max = 1 for reflectances, kMaxRadiance for
+  // radiance).
   glm::vec3 rgb(float max) const {
     auto e = elements(3);
     glm::vec3 c;
     for (int i = 0; i < 3; ++i) {
       c[i] = e[i].number();
-      if (c[i] < 0.0f || c[i] > max) e[i].fail(max == kInf ? "must be >= 0" : "must be in [0, 1]");
+      if (c[i] < 0.0f || c[i] > max)
+        e[i].fail(max == 1.0f ? "must be in [0, 1]"
+                              : "must be in [0, 1e10] (larger radiance overflows the film's single-precision sums)");
     }
     return c;
   }
@@ -187,7 +189,7 @@ Material read_material(const Node& n, const std::string& name) {
     n.expect_object({"type", "albedo", "radiance", "two_sided"});
     const bool emitter = type == "emitter";
     m.albedo = emitter ? n.rgb("albedo", glm::vec3(0.0f), 1.0f) : n.at("albedo").rgb(1.0f);
-    if (emitter || n.has("radiance")) m.emission = n.at("radiance").rgb(kInf);
+    if (emitter || n.has("radiance")) m.emission = n.at("radiance").rgb(kMaxRadiance);
     m.two_sided = n.boolean("two_sided", false);
   } else if (type == "mirror") {
     n.expect_object({"type", "albedo"});
@@ -450,7 +452,7 @@ Scene parse_scene(const std::string& json_text, const std::string& source_name, 
         r.at("sampler").fail("unknown sampler '" + s.render.sampler + "' (expected random, grid, stratified or sobol)");
     }
   }
-  s.background = root.rgb("background", s.background, kInf);
+  s.background = root.rgb("background", s.background, kMaxRadiance);
 
   // Material indices follow the key order of the materials object (alphabetical in nlohmann::json).
   std::map<std::string, uint32_t> index;
