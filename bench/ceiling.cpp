@@ -7,9 +7,9 @@
 
 #include <algorithm>
 #include <chrono>
+#include <cstdio>
 #include <functional>
 #include <numeric>
-#include <cstdio>
 #include <string>
 #include <thread>
 #include <vector>
