@@ -429,6 +429,23 @@ TEST_F(CliBadInput, OutputFolderDoesNotExist) {
   EXPECT_FALSE(fs::exists(work_ / "nosuchdir"));
 }
 
+// Every file a render will write is checked before it starts: the PNG beside the EXR (an existing
+// folder of that name used to fail only after the EXR was written), the trace, the convergence
+// log and the checkpoint, each named with its flag; nothing is written.
+TEST_F(CliBadInput, OutputsCheckedBeforeTheRender) {
+  fs::create_directory(work_ / "out.png");
+  fs::create_directory(work_ / "ref");
+  ASSERT_EQ(run_xi(concat({"render", "-o", "ref/ref.exr", "--quiet"}, kFast)).code, 0);
+  const auto before = files();
+  expect_user_error(run_xi(concat({"render", "-o", "out.exr"}, kFast)), {"output is a folder", "(-o ", "out.png)"}, before);
+  expect_user_error(run_xi(concat({"render", "-o", "a.exr", "--trace", "nosuchdir/t.json"}, kFast)),
+                    {"output folder does not exist", "(--trace nosuchdir/t.json)"}, before);
+  expect_user_error(run_xi(concat({"render", "-o", "a.exr", "--reference", "ref/ref.exr", "--convergence", "ref"}, kFast)),
+                    {"output is a folder", "(--convergence ref)"}, before);
+  expect_user_error(run_xi(concat({"render", "-o", "a.exr", "--checkpoint", "nosuchdir/c.ckpt"}, kFast)),
+                    {"output folder does not exist", "(--checkpoint nosuchdir/c.ckpt)"}, before);
+}
+
 TEST_F(CliBadInput, OutputNotExr) {
   const auto before = files();
   expect_user_error(run_xi(concat({"render", "-o", "out.png"}, kFast)), {"out.png", ".exr"}, before);

@@ -204,11 +204,9 @@ void prepare(Job& job, const std::vector<std::string>& argv, const Team& team) {
   job.checkpoint_every = args.get_seconds("--checkpoint-every", 60.0);
   if (args.has("--checkpoint-every") && job.checkpoint.empty())
     throw Error("--checkpoint-every needs --checkpoint FILE", "--checkpoint-every");
-  // Rank 0 alone reads the reference and the checkpoint and writes every file, so only its folders
-  // must exist.
+  // Rank 0 alone reads the reference and the checkpoint and writes every file (below), so only its
+  // inputs and output folders are checked.
   if (team.leader()) {
-    auto out_dir = job.out.has_parent_path() ? job.out.parent_path() : std::filesystem::path(".");
-    if (!std::filesystem::is_directory(out_dir)) throw Error("output folder does not exist", out_dir.string());
     if (args.has("--reference")) {
       job.reference = read_exr(args.get("--reference"));
       if (job.reference->width != scene.width || job.reference->height != scene.height)
@@ -219,20 +217,25 @@ void prepare(Job& job, const std::vector<std::string>& argv, const Team& team) {
     }
     if (!job.resume.empty() && !std::filesystem::is_regular_file(job.resume))
       throw Error("no such checkpoint", "--resume " + job.resume.string());
-    if (!job.checkpoint.empty()) {
-      auto dir = job.checkpoint.has_parent_path() ? job.checkpoint.parent_path() : std::filesystem::path(".");
-      if (!std::filesystem::is_directory(dir))
-        throw Error("checkpoint folder does not exist", "--checkpoint " + dir.string());
-    }
   }
   job.quiet = args.has("--quiet") || !team.leader();
   job.progress = !job.quiet && isatty(STDERR_FILENO);
 
   std::vector<std::filesystem::path> outputs;
   if (team.leader()) {
-    outputs = {job.out, job.png};
-    for (const auto& f : {job.convergence, job.trace, job.checkpoint})
-      if (!f.empty()) outputs.push_back(f);
+    const std::pair<const char*, std::filesystem::path> named[] = {
+        {"-o", job.out}, {"-o", job.png}, {"--convergence", job.convergence}, {"--trace", job.trace},
+        {"--checkpoint", job.checkpoint}};
+    // Checked here, before the render, rather than found when writing after it (and after the
+    // files written before this one).
+    for (const auto& [flag, f] : named) {
+      if (f.empty()) continue;
+      const auto dir = f.has_parent_path() ? f.parent_path() : std::filesystem::path(".");
+      if (!std::filesystem::is_directory(dir))
+        throw Error("output folder does not exist", std::string(flag) + " " + f.string());
+      if (std::filesystem::is_directory(f)) throw Error("output is a folder", std::string(flag) + " " + f.string());
+      outputs.push_back(f);
+    }
   }
   install_stop_handlers(outputs);
 
