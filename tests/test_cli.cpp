@@ -270,6 +270,21 @@ TEST_F(CliBadInput, NanLiteral) {
   }
 }
 
+// A radiance of 1e20 seen directly squares beyond the largest float: the render succeeds, its mean
+// finite, and says how many pixels' variance layer holds infinity; the bundled box says nothing of it.
+TEST_F(CliRender, VarianceOverflowIsReported) {
+  write_scene("bright.json", [](json& j) { j["materials"]["light"]["radiance"] = {1e20, 1e20, 1e20}; });
+  const Outcome r = run_xi(concat({"render", "bright.json", "-o", "bright.exr"}, kFast));
+  ASSERT_EQ(r.code, 0) << r.err;
+  EXPECT_EQ(r.err.rfind("xi: warning: the variance of ", 0), 0u) << r.err;
+  EXPECT_NE(r.err.find(" pixel(s) overflows single precision (samples above about 1e19)"), std::string::npos) << r.err;
+  const xi::Image mean = xi::read_exr(work_ / "bright.exr");
+  for (const glm::vec3& p : mean.pixels) ASSERT_TRUE(std::isfinite(p.x + p.y + p.z));
+  const Outcome plain = run_xi(concat({"render", "-o", "plain.exr"}, kFast));
+  ASSERT_EQ(plain.code, 0) << plain.err;
+  EXPECT_EQ(plain.err, "");
+}
+
 // --paths-in-flight and --samples-per-pass change how the work is cut, never the image: the EXRs
 // of all settings hold the same floats (bitwise), and the summary names what was chosen.
 TEST_F(CliRender, PathsInFlightDoNotChangeTheImage) {

@@ -742,34 +742,6 @@ TEST(HardCases, Radiance1e6IsFiniteAndLinear) {
 // (Šidák, z = 2.81). MIS must tell 65 from 64 or 66 (one bounce lost or gained), BSDF sampling a
 // bias of 0.5, each with a power of at least 90%: the random sampler's hash used to correlate the
 // roulette's decisions across bounces, which gave 65.48 ± 0.07 over 8 seeds (fixed in rng.h).
-// At the largest radiance the loader accepts (1e10, SceneErrors.RadianceAboveTheLimit), the film's
-// sums, its sums of squares (the variance layer) included, stay finite: the Cornell box's light and
-// a background both at 1e10, 256 spp of each sampler. (At 1e20 the variance layer overflowed.)
-TEST(HardCases, RadianceAtTheLimitKeepsTheFilmFinite) {
-  xi::Scene s = xi::load_scene(fs::path(XI_SCENE_DIR) / "cornell-box.json");
-  s.width = s.height = 16;
-  for (xi::Material& m : s.materials)
-    if (m.is_emitter()) m.emission = glm::vec3(1e10f, 7e9f, 2e9f);
-  s.background = glm::vec3(1e10f);
-  for (const int sampler : {XI_SAMPLER_RANDOM, XI_SAMPLER_SOBOL}) {
-    xi::RenderOptions o;
-    o.spp = 256;
-    o.seed = 3;
-    o.sampler = sampler;
-    const Shot shot = xi::test::render_shot(s, o);
-    EXPECT_EQ(shot.nonfinite, 0u);
-    double brightest = 0.0;
-    for (int y = 0; y < 16; ++y)
-      for (int x = 0; x < 16; ++x)
-        for (int c = 0; c < 3; ++c) {
-          ASSERT_TRUE(std::isfinite(shot.mean.at(x, y)[c]) && std::isfinite(shot.variance.at(x, y)[c]))
-              << "pixel " << x << ", " << y;
-          brightest = std::max(brightest, (double)shot.mean.at(x, y)[c]);
-        }
-    EXPECT_GT(brightest, 1e9);  // the light is seen
-  }
-}
-
 TEST(HardCases, AlbedoOneFurnaceAtDepth64SumsExactly65Terms) {
   xi::Scene s;
   s.width = s.height = 32;

@@ -2,6 +2,7 @@
 #include <signal.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <csignal>
@@ -317,9 +318,10 @@ int run(Job& job, Team& team) {
     return st;
   };
   // The image so far, written atomically: spp is what it holds (sppTarget: what was asked for).
-  auto write_image = [&](int spp) {
+  // Returns how many of its pixels' variances single precision cannot hold (rank 0).
+  auto write_image = [&](int spp) -> size_t {
     const RenderState st = frame_state();
-    if (!team.leader()) return;
+    if (!team.leader()) return 0;
     const Film film = resolve_film(st, scene.width, scene.height);
     ExrAttributes attrs{{"spp", spp},
                         {"renderSeconds", seconds},
@@ -335,6 +337,8 @@ int run(Job& job, Team& team) {
     write_exr(job.out, {{"", &film.mean}, {"variance", &film.variance}, {"albedo", &film.albedo}, {"normal", &film.normal}},
               attrs);
     write_png(job.png, film.mean);
+    return (size_t)std::count_if(film.variance.pixels.begin(), film.variance.pixels.end(),
+                                 [](const glm::vec3& v) { return !std::isfinite(v.x + v.y + v.z); });
   };
   auto save_checkpoint = [&] {
     const RenderState st = frame_state();
@@ -400,7 +404,7 @@ int run(Job& job, Team& team) {
     }
   }
   if (stopped && (renderer.spp_done() == 0 || !sampler_is_progressive(opt.sampler))) return exit_code;
-  write_image(renderer.spp_done());
+  const size_t overflowed = write_image(renderer.spp_done());
   const uint64_t rays = team.sum(renderer.extend_rays() + renderer.shadow_rays());
   const uint64_t nonfinite = team.sum(renderer.nonfinite_samples());
   if (!team.leader()) return exit_code;
@@ -417,6 +421,12 @@ int run(Job& job, Team& team) {
   if (!job.trace.empty()) write_chrome_trace(job.trace, renderer.launches());
 
   if (nonfinite) std::fprintf(stderr, "xi: warning: %llu non-finite samples were dropped\n", (unsigned long long)nonfinite);
+  // Samples above about 1e19 (a radiance of 1e20 seen directly) square beyond the largest float.
+  if (overflowed)
+    std::fprintf(stderr,
+                 "xi: warning: the variance of %zu pixel(s) overflows single precision (samples above about 1e19): "
+                 "their variance layer holds infinity\n",
+                 overflowed);
   if (!job.quiet) {
     const int spp = renderer.spp_done();
     std::printf("%dx%d, %d spp, %.2f s, %.2f Msamples/s, %.2f Mrays/s%s\n", scene.width, scene.height, spp, seconds,

@@ -76,6 +76,7 @@ std::vector<std::string> kernel_defines(const Features& f, int sampler, Strategy
 }
 
 CompiledScene compile_scene(const Scene& scene, int bvh_width, bool spatial_splits, unsigned build_threads) {
+  check_scene_limits(scene);  // a scene built in code has not met the loaders' checks
   CompiledScene cs;
   cs.bvh = build_bvh(scene.triangles, bvh_width, spatial_splits, build_threads);
   const size_t n = scene.triangles.size();

@@ -238,9 +238,9 @@ AssetGeometry geometry(const fs::path& path, const aiScene& scene) {
       } else {
         g.materials.push_back(convert_material(*scene.mMaterials[i], i, i < strengths.size() ? strengths[i] : 1.0f, warn));
         const glm::vec3 e = g.materials.back().emission;
-        if (!(std::max({e.x, e.y, e.z}) <= kMaxRadiance))
-          throw Error("material '" + g.materials.back().name + "' emits radiance above 1e10 (emissive factor x "
-                      "strength): larger radiance overflows the film's single-precision sums", path.string());
+        if (!std::isfinite(e.x + e.y + e.z))  // a strength of 1e300 is infinite as a float
+          throw Error("material '" + g.materials.back().name + "' has a non-finite emissive factor x strength",
+                      path.string());
       }
     }
     return uint32_t(remap[i]);

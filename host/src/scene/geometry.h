@@ -25,13 +25,6 @@ namespace xi::scene_detail {
 // 1e19 the BVH builder's box extents do). Float spacing at 1e9 is 64 units anyway.
 constexpr float kMaxCoordinate = 1e9f;
 
-// The largest radiance an emitter or the background may have. The film sums each sample's square
-// in single precision (the variance layer): at a radiance of 1e20 those sums overflowed to
-// infinity within 16 spp, and 1e12 stayed finite at 256 spp; 1e10 leaves a factor of 1e5 for
-// the light-sampling weights above the radiance itself at a million spp. (The sun's radiance is
-// about 2e7 W/(m^2 sr).)
-constexpr float kMaxRadiance = 1e10f;
-
 // The smallest extent (the longest side of the bounding box) a scene's geometry may have. Single
 // precision fails the other way there: |e1 x e2|^2 of edges shorter than about 1e-11 underflows
 // (below the smallest float, 1.4e-45), so normals and light areas come out NaN or zero: the
@@ -51,7 +44,7 @@ inline double extent(const std::vector<Triangle>& tris) {
 // The error for geometry smaller than kMinExtent, else empty.
 inline std::string too_small(const std::vector<Triangle>& tris) {
   const double e = extent(tris);
-  if (e >= kMinExtent) return "";
+  if (tris.empty() || e >= kMinExtent) return "";  // (no geometry: an error of its own)
   char buf[64];
   std::snprintf(buf, sizeof buf, "%.3g", e);
   return std::string("the geometry spans only ") + buf +

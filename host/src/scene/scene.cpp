@@ -27,6 +27,7 @@ namespace {
 
 namespace fs = std::filesystem;
 using json = nlohmann::json;
+constexpr float kInf = INFINITY;
 using namespace scene_detail;  // kMaxCoordinate, Transform, apply, within_range, degenerate (geometry.h)
 
 // Keys may contain '/' or '~' (material names); escape them as RFC 6901 says.
@@ -120,16 +121,13 @@ class Node {
     auto e = elements(3);
     return {e[0].number(), e[1].number(), e[2].number()};
   }
-  // An RGB triple with every component in [0, max] (max = 1 for reflectances, kMaxRadiance for
-  // radiance).
+  // An RGB triple with every component in [0, max] (max = 1 for reflectances, inf for radiance).
   glm::vec3 rgb(float max) const {
     auto e = elements(3);
     glm::vec3 c;
     for (int i = 0; i < 3; ++i) {
       c[i] = e[i].number();
-      if (c[i] < 0.0f || c[i] > max)
-        e[i].fail(max == 1.0f ? "must be in [0, 1]"
-                              : "must be in [0, 1e10] (larger radiance overflows the film's single-precision sums)");
+      if (c[i] < 0.0f || c[i] > max) e[i].fail(max == kInf ? "must be >= 0" : "must be in [0, 1]");
     }
     return c;
   }
@@ -189,7 +187,7 @@ Material read_material(const Node& n, const std::string& name) {
     n.expect_object({"type", "albedo", "radiance", "two_sided"});
     const bool emitter = type == "emitter";
     m.albedo = emitter ? n.rgb("albedo", glm::vec3(0.0f), 1.0f) : n.at("albedo").rgb(1.0f);
-    if (emitter || n.has("radiance")) m.emission = n.at("radiance").rgb(kMaxRadiance);
+    if (emitter || n.has("radiance")) m.emission = n.at("radiance").rgb(kInf);
     m.two_sided = n.boolean("two_sided", false);
   } else if (type == "mirror") {
     n.expect_object({"type", "albedo"});
@@ -452,7 +450,7 @@ Scene parse_scene(const std::string& json_text, const std::string& source_name, 
         r.at("sampler").fail("unknown sampler '" + s.render.sampler + "' (expected random, grid, stratified or sobol)");
     }
   }
-  s.background = root.rgb("background", s.background, kMaxRadiance);
+  s.background = root.rgb("background", s.background, kInf);
 
   // Material indices follow the key order of the materials object (alphabetical in nlohmann::json).
   std::map<std::string, uint32_t> index;
@@ -472,6 +470,21 @@ Scene parse_scene(const std::string& json_text, const std::string& source_name, 
   }
   if (const std::string small = too_small(s.triangles); !small.empty()) shapes.fail(small + " with a transform");
   return s;
+}
+
+void check_scene_limits(const Scene& scene) {
+  for (size_t i = 0; i < scene.triangles.size(); ++i)
+    if (!within_range(scene.triangles[i]))
+      throw Error("triangle " + std::to_string(i) + " has a non-finite vertex coordinate or one beyond +-1e9",
+                  scene.source);
+  if (const std::string small = too_small(scene.triangles); !small.empty()) throw Error(small, scene.source);
+  auto radiance_ok = [](glm::vec3 c) {  // (false for NaN)
+    return c.x >= 0.0f && c.y >= 0.0f && c.z >= 0.0f && std::isfinite(c.x + c.y + c.z);
+  };
+  for (const Material& m : scene.materials)
+    if (!radiance_ok(m.emission))
+      throw Error("material '" + m.name + "' has a negative or non-finite radiance", scene.source);
+  if (!radiance_ok(scene.background)) throw Error("the background radiance is negative or not finite", scene.source);
 }
 
 Scene load_scene(const fs::path& path) {
