@@ -24,6 +24,17 @@ double median(std::vector<double> v) {
   return v[v.size() / 2];
 }
 
+// Runs work(t, threads) on one thread per core, t = 0 .. threads - 1; returns the wall seconds.
+template <class Work>
+double on_all_cores(const Work& work) {
+  const unsigned threads = std::max(1u, std::thread::hardware_concurrency());
+  auto start = std::chrono::steady_clock::now();
+  std::vector<std::thread> pool;
+  for (unsigned t = 0; t < threads; ++t) pool.emplace_back([&, t] { work(t, threads); });
+  for (auto& th : pool) th.join();
+  return std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+}
+
 struct Embree {
   RTCDevice device = rtcNewDevice(nullptr);
   RTCScene scene = rtcNewScene(device);
@@ -56,31 +67,25 @@ struct Embree {
   double trace(const xi::RayBatch& rays, std::vector<int>* prim) {
     const size_t n = rays.org.size();
     prim->assign(n, -1);
-    unsigned threads = std::max(1u, std::thread::hardware_concurrency());
-    auto start = std::chrono::steady_clock::now();
-    std::vector<std::thread> pool;
-    for (unsigned t = 0; t < threads; ++t)
-      pool.emplace_back([&, t] {
-        RTCIntersectContext ctx;
-        rtcInitIntersectContext(&ctx);
-        for (size_t i = t; i < n; i += threads) {
-          RTCRayHit rh{};
-          rh.ray.org_x = rays.org[i].x;
-          rh.ray.org_y = rays.org[i].y;
-          rh.ray.org_z = rays.org[i].z;
-          rh.ray.dir_x = rays.dir[i].x;
-          rh.ray.dir_y = rays.dir[i].y;
-          rh.ray.dir_z = rays.dir[i].z;
-          rh.ray.tnear = 0.0f;
-          rh.ray.tfar = INFINITY;
-          rh.ray.mask = ~0u;
-          rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
-          rtcIntersect1(scene, &ctx, &rh);
-          if (rh.hit.geomID != RTC_INVALID_GEOMETRY_ID) (*prim)[i] = (int)rh.hit.primID;
-        }
-      });
-    for (auto& th : pool) th.join();
-    return std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+    return on_all_cores([&](unsigned t, unsigned threads) {
+      RTCIntersectContext ctx;
+      rtcInitIntersectContext(&ctx);
+      for (size_t i = t; i < n; i += threads) {
+        RTCRayHit rh{};
+        rh.ray.org_x = rays.org[i].x;
+        rh.ray.org_y = rays.org[i].y;
+        rh.ray.org_z = rays.org[i].z;
+        rh.ray.dir_x = rays.dir[i].x;
+        rh.ray.dir_y = rays.dir[i].y;
+        rh.ray.dir_z = rays.dir[i].z;
+        rh.ray.tnear = 0.0f;
+        rh.ray.tfar = INFINITY;
+        rh.ray.mask = ~0u;
+        rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
+        rtcIntersect1(scene, &ctx, &rh);
+        if (rh.hit.geomID != RTC_INVALID_GEOMETRY_ID) (*prim)[i] = (int)rh.hit.primID;
+      }
+    });
   }
 
   // The same with rtcIntersect16 on packets of 16 consecutive rays (a thread takes every
@@ -88,40 +93,34 @@ struct Embree {
   double trace16(const xi::RayBatch& rays, bool coherent, std::vector<int>* prim) {
     const size_t n = rays.org.size(), packets = (n + 15) / 16;
     prim->assign(n, -1);
-    unsigned threads = std::max(1u, std::thread::hardware_concurrency());
-    auto start = std::chrono::steady_clock::now();
-    std::vector<std::thread> pool;
-    for (unsigned t = 0; t < threads; ++t)
-      pool.emplace_back([&, t] {
-        RTCIntersectContext ctx;
-        rtcInitIntersectContext(&ctx);
-        ctx.flags = coherent ? RTC_INTERSECT_CONTEXT_FLAG_COHERENT : RTC_INTERSECT_CONTEXT_FLAG_INCOHERENT;
-        alignas(64) RTCRayHit16 rh;
-        alignas(64) int valid[16];
-        for (size_t p = t; p < packets; p += threads) {
-          for (size_t k = 0; k < 16; ++k) {
-            const size_t i = std::min(p * 16 + k, n - 1);
-            valid[k] = p * 16 + k < n ? -1 : 0;
-            rh.ray.org_x[k] = rays.org[i].x;
-            rh.ray.org_y[k] = rays.org[i].y;
-            rh.ray.org_z[k] = rays.org[i].z;
-            rh.ray.dir_x[k] = rays.dir[i].x;
-            rh.ray.dir_y[k] = rays.dir[i].y;
-            rh.ray.dir_z[k] = rays.dir[i].z;
-            rh.ray.tnear[k] = 0.0f;
-            rh.ray.tfar[k] = INFINITY;
-            rh.ray.mask[k] = ~0u;
-            rh.ray.time[k] = 0.0f;
-            rh.ray.flags[k] = 0;
-            rh.hit.geomID[k] = RTC_INVALID_GEOMETRY_ID;
-          }
-          rtcIntersect16(valid, scene, &ctx, &rh);
-          for (size_t k = 0; k < 16 && p * 16 + k < n; ++k)
-            if (rh.hit.geomID[k] != RTC_INVALID_GEOMETRY_ID) (*prim)[p * 16 + k] = (int)rh.hit.primID[k];
+    return on_all_cores([&](unsigned t, unsigned threads) {
+      RTCIntersectContext ctx;
+      rtcInitIntersectContext(&ctx);
+      ctx.flags = coherent ? RTC_INTERSECT_CONTEXT_FLAG_COHERENT : RTC_INTERSECT_CONTEXT_FLAG_INCOHERENT;
+      alignas(64) RTCRayHit16 rh;
+      alignas(64) int valid[16];
+      for (size_t p = t; p < packets; p += threads) {
+        for (size_t k = 0; k < 16; ++k) {
+          const size_t i = std::min(p * 16 + k, n - 1);
+          valid[k] = p * 16 + k < n ? -1 : 0;
+          rh.ray.org_x[k] = rays.org[i].x;
+          rh.ray.org_y[k] = rays.org[i].y;
+          rh.ray.org_z[k] = rays.org[i].z;
+          rh.ray.dir_x[k] = rays.dir[i].x;
+          rh.ray.dir_y[k] = rays.dir[i].y;
+          rh.ray.dir_z[k] = rays.dir[i].z;
+          rh.ray.tnear[k] = 0.0f;
+          rh.ray.tfar[k] = INFINITY;
+          rh.ray.mask[k] = ~0u;
+          rh.ray.time[k] = 0.0f;
+          rh.ray.flags[k] = 0;
+          rh.hit.geomID[k] = RTC_INVALID_GEOMETRY_ID;
         }
-      });
-    for (auto& th : pool) th.join();
-    return std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+        rtcIntersect16(valid, scene, &ctx, &rh);
+        for (size_t k = 0; k < 16 && p * 16 + k < n; ++k)
+          if (rh.hit.geomID[k] != RTC_INVALID_GEOMETRY_ID) (*prim)[p * 16 + k] = (int)rh.hit.primID[k];
+      }
+    });
   }
 };
 
