@@ -388,7 +388,8 @@ void check_scene(const xi::Scene& scene, uint32_t seed) {
   check_queries(scene, cs, seed);
 
   // The 8-wide tree of CPU devices (traversed by the kernels only: Kernel.ExtendMatchesBruteForce)
-  // collapses the same binary tree: same triangle order and leaves, no deeper, fewer nodes.
+  // collapses the same binary tree: same triangle order, no deeper, fewer nodes. Its leaves may
+  // differ: a leaf of up to eight triangles costs it one test, the 4-wide tree two.
   SCOPED_TRACE("8-wide");
   xi::CompiledScene cs8 = xi::compile_scene(scene, 8);
   EXPECT_EQ(cs8.bvh.order, cs.bvh.order);
@@ -396,7 +397,6 @@ void check_scene(const xi::Scene& scene, uint32_t seed) {
   check_stats(cs8.bvh, w8, false);
   check_coverage(cs8.bvh, scene.triangles, w8);
   EXPECT_TRUE(root_bounds(cs8.bvh) == scene_bounds(scene));
-  EXPECT_EQ(w8.leaves, w.leaves);
   EXPECT_LE(w8.depth, w.depth);
   if (w.nodes > 1) EXPECT_LT(w8.nodes, w.nodes);
 
@@ -465,6 +465,37 @@ TEST(BvhBuild, SpatialSplitsTightenLongTriangles) {
               split.stats.references, plain_cost);
   EXPECT_LT(split_cost, 0.8 * plain_cost);
   check_scene(scene, 12);
+}
+
+// The six walls of a closed room, two triangles each. Rays from outside enter a box around three
+// walls as often as the three walls' own flat boxes, so the SAH alone cannot choose between them;
+// rays from inside (every bounce) enter the big box always. The collapse's cost per triangle of a
+// leaf must give each wall a leaf of its own, a flat box, at both widths (the greedy collapse of
+// the binary build's leaves made two leaves of three walls each).
+TEST(BvhBuild, RoomWallsGetLeavesOfTheirOwn) {
+  std::vector<xi::Triangle> tris;
+  for (int axis = 0; axis < 3; ++axis)
+    for (float side : {0.0f, 1.0f}) {
+      vec3 c[4];
+      for (int k = 0; k < 4; ++k) {
+        c[k][axis] = side;
+        c[k][(axis + 1) % 3] = (float)(k & 1);
+        c[k][(axis + 2) % 3] = (float)(k >> 1);
+      }
+      tris.push_back(triangle(c[0], c[1], c[3]));
+      tris.push_back(triangle(c[0], c[3], c[2]));
+    }
+  for (int width : {4, 8}) {
+    SCOPED_TRACE(width);
+    const xi::Bvh bvh = xi::build_bvh(tris, width);
+    const Walk w = check_tree(bvh, tris);
+    EXPECT_EQ(w.leaves, 6u);
+    for (const auto& boxes : w.leaf_boxes)
+      for (const Bounds& b : boxes) {
+        const vec3 extent = b.hi - b.lo;
+        EXPECT_EQ(std::min({extent.x, extent.y, extent.z}), 0.0f) << "a leaf spans the room";
+      }
+  }
 }
 
 TEST(BvhBuild, IsDeterministic) {

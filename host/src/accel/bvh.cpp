@@ -23,10 +23,19 @@ constexpr int kBins = 16;
 constexpr size_t kMaxLeaf = 8;      // triangles in a leaf, at most: two blocks of four
 static_assert((kMaxLeaf + 3) / 4 <= XI_BVH_LEAF_MAX, "a leaf's block count must fit its child entry");
 constexpr int kMaxSahDepth = 48;    // below it, ranges are halved by index: no deeper SAH recursion
-// SAH costs, relative to testing one block of four triangles (a 4-wide node test costs about
-// the same): triangles are tested four at a time, so a leaf costs its number of blocks.
-constexpr float kTraversalCost = 1.0f;
+// The binary build's SAH weighs a side by its blocks of four triangles (they are tested four at a
+// time); the collapse into wide nodes (Collapser) decides which subtrees become leaves.
 float blocks_cost(size_t triangles) { return (float)((triangles + 3) / 4); }
+// The collapse's costs, tuned on PoCL (README, "The wide tree by its own costs"): a wide node's
+// (its slab test of all lanes at once, then its pushes and pops) and a leaf's triangle test's (a
+// block of four; on 8 lanes, a leaf's two blocks at once), each weighted by how likely a ray is to
+// enter the box (Collapser::weight).
+constexpr float kNodeCost = 1.0f;
+constexpr float kLeafTestCost = 2.0f;
+// The binary build stops at this many references: the collapse then chooses the leaves among
+// subtrees of pairs (a mesh's quads). Down to single triangles the build took 30% longer on the
+// 1.3M-triangle bench scene, and traced no faster.
+constexpr size_t kMinBinaryLeaf = 2;
 // Spatial splits (Stich, Friedrich and Dietrich 2009, "Spatial Splits in Bounding Volume
 // Hierarchies") are tried only where the best object split's two boxes overlap by more than this
 // fraction of the root's area, and only while the references stay within kMaxReferences per
@@ -349,18 +358,17 @@ struct Builder {
     if (depth < kMaxSahDepth) {
       float overlap = 0.0f;
       best = object_split(span, cbox, &overlap);
-      if (spatial_splits && budget > 0 && overlap > kSpatialOverlap * root_area) {
+      // Not among a leaf's few references, which the collapse may well put in one leaf (the
+      // engine's build 0.28 → 0.20 s).
+      if (count > kMaxLeaf && spatial_splits && budget > 0 && overlap > kSpatialOverlap * root_area) {
         Split spatial = spatial_split(span, box, budget);
         if (spatial.cost < best.cost) best = spatial;
       }
     }
-    float leaf_cost = blocks_cost(count);
-    float split_cost = kTraversalCost + best.cost / std::max(box.area(), 1e-30f);
-    if (best.axis < 0) {  // every centroid in one point (or too deep): no split separates them
-      if (count <= kMaxLeaf) return leaf(node, span);
-    } else if (count <= kMaxLeaf && leaf_cost <= split_cost) {
-      return leaf(node, span);
-    }
+    // Down to pairs: which subtrees become leaves is the collapse's choice, by the costs of the
+    // wide tree. Where no split separates the references (every centroid in one point, or too
+    // deep), a few make one leaf; more are halved.
+    if (count <= kMinBinaryLeaf || (best.axis < 0 && count <= kMaxLeaf)) return leaf(node, span);
 
     // The children's references: left ones in order at `first`, right ones in order after the
     // left subtree's budget, each side's straddlers after the rest.
@@ -436,14 +444,116 @@ void store_node(Node& n, const float (*lo)[8], const float (*hi)[8], const uint3
   std::copy(child, child + Width, n.child);
 }
 
-// Collapses the binary tree into wide nodes (4 or 8 lanes): each wide node starts from a binary
-// node's two children and repeatedly opens the interior child of largest surface area (the one a
-// ray is most likely to enter, by the SAH's own measure) until it has `width`.
+// Collapses the binary tree into wide nodes (4 or 8 lanes) of least SAH cost (Ylitie, Karras and
+// Laine 2017, "Efficient Incoherent Ray Traversal on GPUs Through Compressed Wide BVHs", 3.1): for
+// each binary node, bottom-up, the cost of its subtree given i lanes of a wide parent, i ≤ width, as
+// one leaf, one wide node, or its two subtrees sharing the i lanes; then the least-cost choices are
+// laid out top-down. (A greedy collapse kept the binary build's leaves: in the Cornell box one leaf
+// held three walls, so every ray inside the room tested it.)
 struct Collapser {
   const std::vector<BinaryNode>& bin;
   const std::vector<uint32_t>& leaf_tris;
   const std::vector<Triangle>& tris;
   Bvh& bvh;
+
+  struct Plan {
+    float cost[8];          // cost[i − 1]: the least cost of the subtree given i lanes
+    uint8_t split[8];       // split[i − 1], i ≥ 2: the lanes of i its left subtree takes; 0: it takes i − 1 lanes' plan
+    uint8_t node_split;     // as a wide node of its own: the lanes (of width) its left subtree takes
+    bool leaf;              // given one lane: a leaf, else a wide node
+    uint32_t first, count;  // its references, leaf_tris[first, first + count)
+  };
+  std::vector<Plan> plan;
+  double root_area = 0.0, root_volume = 0.0;
+
+  // How likely a ray is to enter box b, up to a factor the same for every box: the SAH's surface
+  // area (rays from outside the scene), plus the box's volume times the root's area over its
+  // volume. For a ray from a uniform point inside the root, the chance it starts in b is
+  // V_b / V_root, and that it reaches b from outside about A_b / A_root (a random line meets a
+  // convex box in proportion to its area). Bounce rays start inside the scene; without this term
+  // the SAH sees no difference between a leaf of three walls of a room and three leaves of one
+  // wall each (rays from outside enter them as often), while every ray from inside the room enters
+  // the big leaf. The term matters only for boxes the size of the scene: deeper, volumes vanish
+  // against areas.
+  float weight(const Box& b) const {
+    const double area = b.area();
+    if (b.empty() || root_volume <= 0.0) return (float)area;  // a flat scene: areas alone
+    const glm::dvec3 d = glm::dvec3(b.hi) - glm::dvec3(b.lo);
+    return (float)(area + d.x * d.y * d.z * root_area / root_volume);
+  }
+
+  // The cost of a leaf of `count` references in a box of weight `w`; infinite for more than a
+  // leaf may hold. 8 lanes test a leaf's two blocks at once.
+  float leaf_cost(float w, uint32_t count) const {
+    if (count > kMaxLeaf) return INFINITY;
+    return w * kLeafTestCost * std::ceil((float)count / (bvh.width == 8 ? 8.0f : 4.0f));
+  }
+
+  // Children come after their parents in `bin`, so one backward pass is bottom-up.
+  void plan_tree() {
+    const int width = bvh.width;
+    plan.resize(bin.size());
+    const glm::dvec3 root = glm::dvec3(bin[0].box.hi) - glm::dvec3(bin[0].box.lo);
+    root_area = bin[0].box.area(), root_volume = root.x * root.y * root.z;
+    for (size_t n = bin.size(); n-- > 0;) {
+      const BinaryNode& b = bin[n];
+      Plan& p = plan[n];
+      const float w = weight(b.box);
+      std::fill(p.split, p.split + 8, 0);
+      p.node_split = 0;
+      if (b.count > 0) {  // a binary leaf: the build made it no larger than a leaf may be
+        p.first = b.first, p.count = b.count, p.leaf = true;
+        std::fill(p.cost, p.cost + 8, leaf_cost(w, b.count));
+        continue;
+      }
+      const Plan &l = plan[b.left], &r = plan[b.right];
+      if (r.first != l.first + l.count) throw Error("internal: the BVH's leaves are out of order");
+      p.first = l.first, p.count = l.count + r.count;
+      float spread[9];  // spread[j]: the least cost of the two subtrees sharing j lanes
+      uint8_t spread_split[9];
+      for (int j = 2; j <= width; ++j) {
+        spread[j] = INFINITY, spread_split[j] = 1;
+        for (int k = 1; k < j; ++k) {
+          float c = l.cost[k - 1] + r.cost[j - k - 1];
+          if (c < spread[j]) spread[j] = c, spread_split[j] = (uint8_t)k;
+        }
+      }
+      const float as_node = w * kNodeCost + spread[width];
+      const float as_leaf = leaf_cost(w, p.count);
+      p.leaf = as_leaf <= as_node;
+      p.node_split = spread_split[width];
+      p.cost[0] = std::min(as_leaf, as_node);
+      for (int i = 2; i <= width; ++i) {
+        p.cost[i - 1] = p.cost[i - 2];
+        if (spread[i] < p.cost[i - 1]) p.cost[i - 1] = spread[i], p.split[i - 1] = spread_split[i];
+      }
+    }
+  }
+
+  // Appends to `lanes` the binary nodes that take the i lanes given to subtree n.
+  void gather(uint32_t n, int i, std::vector<uint32_t>& lanes) const {
+    while (i > 1 && plan[n].split[i - 1] == 0) --i;
+    if (i == 1) return lanes.push_back(n);
+    gather(bin[n].left, plan[n].split[i - 1], lanes);
+    gather(bin[n].right, i - plan[n].split[i - 1], lanes);
+  }
+
+  // The binary nodes that become the lanes of the wide node made from binary node n.
+  std::vector<uint32_t> lanes_of(uint32_t n) const {
+    std::vector<uint32_t> lanes;
+    if (bin[n].count > 0) return {n};  // a root that is a leaf: one leaf lane
+    gather(bin[n].left, plan[n].node_split, lanes);
+    gather(bin[n].right, bvh.width - plan[n].node_split, lanes);
+    return lanes;
+  }
+
+  // The triangle blocks the wide node made from n and the nodes below it hold, at most (reserved
+  // up front: growing a vector of this size would copy it into fresh pages).
+  size_t blocks_below(uint32_t n) const {
+    size_t blocks = 0;
+    for (uint32_t k : lanes_of(n)) blocks += plan[k].leaf ? (plan[k].count + 3) / 4 : blocks_below(k);
+    return blocks;
+  }
 
   uint32_t new_node() {
     if (bvh.width == 8) bvh.nodes8.push_back(BvhNode8{});
@@ -451,10 +561,15 @@ struct Collapser {
     return (uint32_t)(bvh.width == 8 ? bvh.nodes8.size() : bvh.nodes.size()) - 1;
   }
 
-  // Appends the blocks of the leaf's triangles (leaf_tris[first..first+count), scene indices) and
-  // returns its child entry. Blocks name a triangle by its position in bvh.order.
+  // Appends the blocks of the triangles of leaf_tris[first, first + count) (scene indices; a
+  // triangle spatial splits put there twice, once) and returns the leaf's child entry. Blocks name
+  // a triangle by its position in bvh.order.
   uint32_t leaf(uint32_t first, uint32_t count) {
-    const uint32_t first_block = (uint32_t)bvh.blocks.size(), blocks = (count + 3) / 4;
+    uint32_t leaf[kMaxLeaf];
+    uint32_t unique = 0;
+    for (uint32_t i = first; i < first + count; ++i)
+      if (std::find(leaf, leaf + unique, leaf_tris[i]) == leaf + unique) leaf[unique++] = leaf_tris[i];
+    const uint32_t first_block = (uint32_t)bvh.blocks.size(), blocks = (unique + 3) / 4;
     // Spatial splits can make up to twice as many blocks as the triangles' count checked up front.
     if (first_block + blocks > XI_BVH_FIRST_MASK)
       throw Error("too many triangle blocks for the BVH's 27-bit leaf entries", "try --no-spatial-splits");
@@ -463,8 +578,8 @@ struct Collapser {
       for (auto& axis : blk.coord) std::fill(axis, axis + 3, glm::vec4(NAN));
       for (uint32_t k = 0; k < 4; ++k) {
         blk.tri[k] = XI_NO_HIT;
-        if (4 * b + k >= count) continue;
-        const uint32_t tri = leaf_tris[first + 4 * b + k];
+        if (4 * b + k >= unique) continue;
+        const uint32_t tri = leaf[4 * b + k];
         blk.tri[k] = bvh.position[tri];
         for (int j = 0; j < 3; ++j)
           for (int a = 0; a < 3; ++a) blk.coord[a][j][k] = tris[tri].v[j][a];
@@ -472,24 +587,16 @@ struct Collapser {
       bvh.blocks.push_back(blk);
     }
     bvh.stats.leaves++;
-    bvh.stats.max_leaf = std::max<size_t>(bvh.stats.max_leaf, count);
+    bvh.stats.references += unique;
+    bvh.stats.max_leaf = std::max<size_t>(bvh.stats.max_leaf, unique);
     return XI_BVH_LEAF | (blocks - 1) << 27 | first_block;
   }
 
-  // Returns the stack entries a traversal of this subtree may hold beyond those below it.
+  // Lays out the wide node `wide` made from binary node b and the nodes below it. Returns the
+  // stack entries a traversal of this subtree may hold beyond those below it.
   size_t collapse(uint32_t b, size_t wide, int depth) {
-    std::vector<uint32_t> kids{bin[b].left, bin[b].right};
-    if (bin[b].count > 0) kids = {b};  // a root that is a leaf: one leaf lane
+    const std::vector<uint32_t> kids = lanes_of(b);
     const size_t width = (size_t)bvh.width;
-    while (kids.size() < width) {
-      int open = -1;
-      for (int k = 0; k < (int)kids.size(); ++k)
-        if (bin[kids[k]].count == 0 && (open < 0 || bin[kids[k]].box.area() > bin[kids[open]].box.area())) open = k;
-      if (open < 0) break;
-      uint32_t c = kids[open];
-      kids[open] = bin[c].left;
-      kids.insert(kids.begin() + open + 1, bin[c].right);
-    }
     bvh.stats.depth = std::max(bvh.stats.depth, depth + 1);
     const float inf = INFINITY;
     float lo[3][8], hi[3][8];
@@ -502,11 +609,7 @@ struct Collapser {
       if (k >= kids.size()) continue;
       const BinaryNode& c = bin[kids[k]];
       for (int a = 0; a < 3; ++a) lo[a][k] = c.box.lo[a], hi[a][k] = c.box.hi[a];
-      if (c.count > 0) {
-        child[k] = leaf(c.first, c.count);
-      } else {
-        child[k] = new_node();
-      }
+      child[k] = plan[kids[k]].leaf ? leaf(plan[kids[k]].first, plan[kids[k]].count) : new_node();
     }
     size_t below = 0;
     for (size_t k = 0; k < kids.size(); ++k)
@@ -545,7 +648,7 @@ Bvh build_bvh(const std::vector<Triangle>& triangles, int width, bool spatial_sp
   int fork_levels = 0;
   for (unsigned n = 1; threads > 1 && n < 4 * threads && fork_levels < 8; n *= 2) ++fork_levels;
   b.build(0, 0, triangles.size(), 0, budget, fork_levels);
-  bvh.stats.references = b.leaf_tris.size();
+  std::vector<Ref>().swap(refs), std::vector<Ref>().swap(scratch);  // done with: the collapse needs room
   bvh.stats.threads = 1 + b.forks;
   // BVH order: the triangles by their first place in a leaf, leaves left to right, so that the
   // arrays in this order (CompiledScene) follow the tree.
@@ -555,10 +658,9 @@ Bvh build_bvh(const std::vector<Triangle>& triangles, int width, bool spatial_sp
   for (uint32_t t : b.leaf_tris)
     if (position[t] == kUnplaced) position[t] = (uint32_t)bvh.order.size(), bvh.order.push_back(t);
   if (bvh.order.size() != triangles.size()) throw Error("internal: the BVH lost a triangle");
-  size_t blocks = 0;  // reserved up front: growing a vector of this size would copy it into fresh pages
-  for (const BinaryNode& n : b.nodes) blocks += (n.count + 3) / 4;
-  bvh.blocks.reserve(blocks);
-  Collapser collapser{b.nodes, b.leaf_tris, triangles, bvh};
+  Collapser collapser{b.nodes, b.leaf_tris, triangles, bvh, {}, 0.0, 0.0};
+  collapser.plan_tree();
+  bvh.blocks.reserve(collapser.blocks_below(0));
   collapser.new_node();  // the root
   bvh.stats.stack = collapser.collapse(0, 0, 0);
   if (bvh.stats.stack > XI_BVH_STACK)
