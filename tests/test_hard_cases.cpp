@@ -633,17 +633,19 @@ TEST(HardCases, LightsInsideAClosedBoxLightNothingOutside) {
   }
 }
 
-// 4. Lights 1e-6 and 1e3 times the scene's size: a diffuse plane y = 0 (albedo 1/2, half-width 20)
-// under a square light centred 1 above it (the scene's unit), facing down, of side 1e-6 (radiance
-// 1e12, so that it delivers about as much light as a unit light of radiance 1) or 1e3 (radiance 1;
-// the plane then sees a light filling all but 0.1° of its sky). The plane's radiance is ρ/π · E
-// with Lambert's polygon formula (in long double; for the tiny light it is checked against the
-// point-source limit L·A·cos²θ/d², exact to (side/d)² = 1e-12). Three 3 × 3 pixel blocks per
-// light: 6 z-tests at family-wise α = 0.01 (Šidák, z = 2.87).
+// 4. Lights 1e-10, 1e-6 and 1e3 times the scene's size: a diffuse plane y = 0 (albedo 1/2,
+// half-width 20) under a square light centred 1 above it (the scene's unit), facing down, of side
+// 1e-10 or 1e-6 (radiance 1/side², so that it delivers about as much light as a unit light of
+// radiance 1) or 1e3 (radiance 1; the plane then sees a light filling all but 0.1° of its sky). The
+// plane's radiance is ρ/π · E with Lambert's polygon formula (in long double; for the 1e-6 light it
+// is checked against the point-source limit L·A·cos²θ/d², exact to (side/d)² = 1e-12, which is the
+// reference for the 1e-10 light: its solid-angle pdf, about 1e20, squared to infinity in the power
+// heuristic, which dropped every light sample as NaN). Three 3 × 3 pixel blocks per light: 9 z-tests
+// at family-wise α = 0.01 (Šidák).
 TEST(HardCases, TinyAndHugeLightsMatchLambertsFormula) {
-  const double z_max = xi::stats::sidak_critical_z(0.01, 6);
+  const double z_max = xi::stats::sidak_critical_z(0.01, 9);
   uint32_t seed = 51;
-  for (double side : {1e-6, 1e3}) {
+  for (double side : {1e-10, 1e-6, 1e3}) {
     SCOPED_TRACE("light side " + std::to_string(side));
     const double radiance = side < 1.0 ? 1.0 / (side * side) : 1.0;
     xi::Scene s;
@@ -656,18 +658,23 @@ TEST(HardCases, TinyAndHugeLightsMatchLambertsFormula) {
     const std::vector<dvec3> polygon = {dvec3(s.triangles[2].v[0]), dvec3(s.triangles[2].v[1]),
                                         dvec3(s.triangles[2].v[2]), dvec3(s.triangles[3].v[2])};
     const View v(s);
+    // The point-source limit of the irradiance: for the light of side 1e-6 it equals Lambert's
+    // formula to 1e-6 (checked below); for side 1e-10 it is the reference, as the formula's sums of
+    // angles between vertices 1e-10 apart lose their digits even in long double.
+    auto point_irradiance = [&](dvec3 p) {
+      const dvec3 d = dvec3(0, 1, 0) - p;
+      const double cos2 = (d.y / glm::length(d)) * (d.y / glm::length(d));
+      return radiance * side * side * cos2 / glm::dot(d, d);
+    };
     auto plane_radiance = [&](dvec3 d) {
       if (d.y >= 0.0) return (double)NAN;
-      return 0.5 / M_PI * lambert_irradiance(polygon, radiance, v.o + (-v.o.y / d.y) * d, dvec3(0, 1, 0));
+      const dvec3 p = v.o + (-v.o.y / d.y) * d;
+      return 0.5 / M_PI * (side < 1e-8 ? point_irradiance(p) : lambert_irradiance(polygon, radiance, p, dvec3(0, 1, 0)));
     };
     const dvec3 spots[] = {{0, 0, 0}, {0.56, 0, 0.1}, {-1.0, 0, 0.8}};
-    if (side < 1.0)
-      for (const dvec3& p : spots) {  // the reference itself, against the point-source limit
-        const dvec3 d = dvec3(0, 1, 0) - p;
-        const double cos2 = (d.y / glm::length(d)) * (d.y / glm::length(d));
-        const double point = radiance * side * side * cos2 / glm::dot(d, d);
-        EXPECT_NEAR(lambert_irradiance(polygon, radiance, p, dvec3(0, 1, 0)) / point, 1.0, 1e-6);
-      }
+    if (side == 1e-6)
+      for (const dvec3& p : spots)  // the reference itself, against the point-source limit
+        EXPECT_NEAR(lambert_irradiance(polygon, radiance, p, dvec3(0, 1, 0)) / point_irradiance(p), 1.0, 1e-6);
     const Shot shot = shoot(s, 256, seed++, 4);
     EXPECT_EQ(shot.nonfinite, 0u);
     for (const dvec3& p : spots) {

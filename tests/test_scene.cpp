@@ -460,6 +460,34 @@ TEST(SceneErrors, CoordinatesBeyondTheLimit) {
   for (float p : cs.tri_light_pdf) EXPECT_TRUE(std::isfinite(p) && p > 0.0f) << p;
 }
 
+// A light scaled to nothing (xi_fuzz --seed 20261129 --case 31571: scale 1e-45) has an area whose
+// inverse, the bound on its area density, overflows single precision: it stays in the scene, hit
+// by BSDF samples alone, and every light pdf the kernels read is finite. One of area 1e-20 (side
+// 1e-10) is still sampled, with a finite density (HardCases.TinyAndHugeLightsMatchLambertsFormula
+// renders it).
+TEST(SceneErrors, LightTooSmallForItsDensityIsNotSampled) {
+  const std::string materials = R"("materials": {"white": {"type": "diffuse", "albedo": [0.5, 0.5, 0.5]},
+      "light": {"type": "emitter", "radiance": [1, 1, 1]}})";
+  auto light = [](const char* scale) {
+    return std::string(R"({"type": "quad", "material": "light", "vertices": [[0,1,0], [1,1,0], [1,1,1], [0,1,1]],
+        "transform": {"scale": )") + scale + "}}";
+  };
+  struct Case {
+    std::string shapes;
+    size_t sampled;  // light triangles sampled
+  };
+  const Case cases[] = {{light("1") + ", " + light("1e-45"), 2},
+                        {light("1e-45"), 0},  // alone: its density was 1/area = inf
+                        {light("1") + ", " + light("1e-10"), 4}};
+  for (const Case& c : cases) {
+    SCOPED_TRACE(c.shapes);
+    const xi::CompiledScene cs = xi::compile_scene(parse(scene_text(kQuad + ", " + c.shapes, materials)));
+    EXPECT_EQ(cs.features.emitters ? cs.light_tri.size() : 0u, c.sampled);
+    for (float p : cs.tri_light_pdf) EXPECT_TRUE(std::isfinite(p)) << p;
+    for (float p : cs.light_cdf) EXPECT_TRUE(std::isfinite(p)) << p;
+  }
+}
+
 TEST(SceneErrors, ControlCharactersInNamesAreEscaped) {
   // A key holding a newline (a JSON escape) must not break the error onto two lines.
   const std::string text = "{\"back\\nground\": [0, 0, 0], " + scene_text(kQuad).substr(1);

@@ -73,10 +73,14 @@ static inline xfloat3 xi_dielectric_sample(xfloat3 wo, xfloat3 n, xfloat ior, xm
   return xi_select3(*reflected, xi_reflect(wo, n), xi_normalize3(wt));
 }
 
-// Power heuristic (β = 2) for multiple importance sampling of two strategies.
+// Power heuristic (β = 2) for multiple importance sampling of two strategies. The pdfs are scaled
+// by the larger (each first clamped to the largest float) before they are squared: a tiny light's
+// solid-angle pdf beyond about 1e19 squared to infinity, and inf / inf dropped its every sample
+// as NaN.
 static inline xfloat xi_power_heuristic(xfloat pdf_a, xfloat pdf_b) {
-  xfloat a = pdf_a * pdf_a, b = pdf_b * pdf_b;
-  return a + b > 0.0f ? a / (a + b) : (xfloat)0.0f;
+  xfloat pa = fmin(pdf_a, FLT_MAX), pb = fmin(pdf_b, FLT_MAX), larger = fmax(pa, pb);
+  xfloat a = pa / larger, b = pb / larger;
+  return larger > 0.0f ? a * a / (a * a + b * b) : (xfloat)0.0f;
 }
 
 #endif

@@ -1,5 +1,6 @@
 #include "xi/compiled_scene.h"
 
+#include <cfloat>
 #include <cmath>
 #include <cstddef>
 
@@ -115,7 +116,10 @@ CompiledScene compile_scene(const Scene& scene, int bvh_width, bool spatial_spli
     double area = triangle_area(t);
     double lum = 0.2126 * m.emission.x + 0.7152 * m.emission.y + 0.0722 * m.emission.z;
     double p = lum * area * M_PI * (m.two_sided ? 2.0 : 1.0);
-    if (p > 0.0 && area > 0.0) {
+    // Sampled only where its area density, at most 1 / area, is finite in single precision
+    // (a triangle of side below about 1e-19; a light scaled by 1e-45 made it inf): such a light,
+    // like one of no area, is reached by BSDF samples alone.
+    if (p > 0.0 && area * FLT_MAX >= 1.0) {
       cs.light_tri.push_back(cs.bvh.position[j]);
       power.push_back(p);
     }
