@@ -212,6 +212,37 @@ struct Builder {
     return best;
   }
 
+  // Exact SAH among a leaf's few references (most nodes, as the build goes down to pairs): every
+  // split between two distinct centroids on each axis, cheaper than filling and sweeping 16 bins
+  // per axis (million.json's build 1.27–1.55 → 1.13–1.22 s, its rays as fast). `sorted` gets the
+  // references in the best split's order; its `bin` is the left side's count.
+  Split exact_split(std::span<const Ref> refs, Ref* sorted) const {
+    Split best;
+    const size_t n = refs.size();
+    Ref order[kMaxLeaf];
+    Box right[kMaxLeaf];
+    for (int axis = 0; axis < 3; ++axis) {
+      // Insertion sort by centroid: stable, and fast for a few.
+      for (size_t i = 0; i < n; ++i) {
+        size_t j = i;
+        for (; j > 0 && order[j - 1].box.centre()[axis] > refs[i].box.centre()[axis]; --j) order[j] = order[j - 1];
+        order[j] = refs[i];
+      }
+      right[n - 1] = order[n - 1].box;
+      for (size_t i = n - 1; i-- > 1;) right[i] = right[i + 1], right[i].grow(order[i].box);
+      Box left;
+      bool improved = false;
+      for (size_t i = 1; i < n; ++i) {
+        left.grow(order[i - 1].box);
+        if (!(order[i - 1].box.centre()[axis] < order[i].box.centre()[axis])) continue;  // no plane between
+        const float cost = left.area() * blocks_cost(i) + right[i].area() * blocks_cost(n - i);
+        if (cost < best.cost) best = Split{cost, axis, (int)i, false}, improved = true;
+      }
+      if (improved) std::copy(order, order + n, sorted);
+    }
+    return best;
+  }
+
   // Binned SAH over planes through the node's box, each reference clipped into the bins it spans.
   Split spatial_split(std::span<const Ref> refs, const Box& box, size_t budget) {
     // One pass over the references bins all three axes.
@@ -352,29 +383,38 @@ struct Builder {
     Box box, cbox;
     for (const Ref& r : span) box.grow(r.box), cbox.grow(r.box.centre());
     nodes[node].box = box;
-    if (count == 1) return leaf(node, span);
+    // Down to pairs: which subtrees become leaves is the collapse's choice, by the costs of the
+    // wide tree.
+    if (count <= kMinBinaryLeaf) return leaf(node, span);
 
     Split best;
-    if (depth < kMaxSahDepth) {
+    Ref sorted[kMaxLeaf];  // an exact split's order
+    const bool exact = count <= kMaxLeaf;
+    if (depth < kMaxSahDepth && exact) {
+      best = exact_split(span, sorted);
+    } else if (depth < kMaxSahDepth) {
       float overlap = 0.0f;
       best = object_split(span, cbox, &overlap);
-      // Not among a leaf's few references, which the collapse may well put in one leaf (the
-      // engine's build 0.28 → 0.20 s).
-      if (count > kMaxLeaf && spatial_splits && budget > 0 && overlap > kSpatialOverlap * root_area) {
+      // Not among a leaf's few references (above), which the collapse may well put in one leaf
+      // (the engine's build 0.28 → 0.20 s).
+      if (spatial_splits && budget > 0 && overlap > kSpatialOverlap * root_area) {
         Split spatial = spatial_split(span, box, budget);
         if (spatial.cost < best.cost) best = spatial;
       }
     }
-    // Down to pairs: which subtrees become leaves is the collapse's choice, by the costs of the
-    // wide tree. Where no split separates the references (every centroid in one point, or too
-    // deep), a few make one leaf; more are halved.
-    if (count <= kMinBinaryLeaf || (best.axis < 0 && count <= kMaxLeaf)) return leaf(node, span);
+    // Where no split separates the references (every centroid in one point, or too deep), a few
+    // make one leaf; more are halved.
+    if (best.axis < 0 && count <= kMaxLeaf) return leaf(node, span);
 
     // The children's references: left ones in order at `first`, right ones in order after the
     // left subtree's budget, each side's straddlers after the rest.
     size_t nl = 0, nr = 0;
     if (best.spatial) {
       decide_spatial(span, box, best, &nl, &nr);
+    } else if (exact && best.axis >= 0) {  // the first best.bin in their sorted order go left
+      nl = (size_t)best.bin, nr = count - nl;
+      std::copy(sorted, sorted + nl, span.begin());
+      std::copy(sorted + nl, sorted + count, scratch + first);
     } else if (best.axis >= 0) {  // left ones in place, right ones to scratch
       const glm::vec3 scale = bin_scale(cbox);
       for (const Ref& r : span) {
