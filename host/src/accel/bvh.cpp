@@ -605,10 +605,11 @@ struct Collapser {
   // triangle spatial splits put there twice, once) and returns the leaf's child entry. Blocks name
   // a triangle by its position in bvh.order.
   uint32_t leaf(uint32_t first, uint32_t count) {
-    uint32_t leaf[kMaxLeaf];
+    uint32_t unique_tris[kMaxLeaf];
     uint32_t unique = 0;
     for (uint32_t i = first; i < first + count; ++i)
-      if (std::find(leaf, leaf + unique, leaf_tris[i]) == leaf + unique) leaf[unique++] = leaf_tris[i];
+      if (std::find(unique_tris, unique_tris + unique, leaf_tris[i]) == unique_tris + unique)
+        unique_tris[unique++] = leaf_tris[i];
     const uint32_t first_block = (uint32_t)bvh.blocks.size(), blocks = (unique + 3) / 4;
     // Spatial splits can make up to twice as many blocks as the triangles' count checked up front.
     if (first_block + blocks > XI_BVH_FIRST_MASK)
@@ -619,7 +620,7 @@ struct Collapser {
       for (uint32_t k = 0; k < 4; ++k) {
         blk.tri[k] = XI_NO_HIT;
         if (4 * b + k >= unique) continue;
-        const uint32_t tri = leaf[4 * b + k];
+        const uint32_t tri = unique_tris[4 * b + k];
         blk.tri[k] = bvh.position[tri];
         for (int j = 0; j < 3; ++j)
           for (int a = 0; a < 3; ++a) blk.coord[a][j][k] = tris[tri].v[j][a];
