@@ -1,38 +1,49 @@
 // Stage 1, generate: one camera ray per (pixel, sample) item of the wave, jittered inside the
 // pixel (box filter) by the sampler's first pair of dimensions; thin lens when compiled with
 // XI_HAS_LENS, the lens point drawn by the concentric disc map from the second pair.
+// Each work item starts XI_LANES consecutive path slots (lanes.h), as shade does: on a CPU the
+// sampler's hashing then runs in vector lanes.
 #include "layout.h"
+#include "lanes.h"
 #include "sampling.h"
 #include "warps.h"
 
 __kernel void generate(XI_PATH_PARAMS __global uint* restrict queue, __global uint* restrict counters,
                        CameraData cam, SamplerParams sampler, WaveParams wave) {
-  uint slot = get_global_id(0);
   uint count = wave.pixels * wave.samples;
-  if (slot == 0u) counters[XI_COUNTER_RAYS(0)] = count;
-  if (slot >= count) return;
-  uint pixel = xi_frame_pixel(wave, slot), sample_index = wave.first_sample + slot / wave.pixels;
-  float px = (float)(pixel % cam.width), py = (float)(pixel / cam.width);
-  float2 u = xi_sample_2d(XI_SAMPLER, sampler, pixel, sample_index, XI_PAIR_PIXEL);
+  if (get_global_id(0) == 0u) counters[XI_COUNTER_RAYS(0)] = count;
+  xuint slot = (uint)get_global_id(0) * XI_LANES + XI_LANE_INDEX;
+  xmask active = slot < count;
+  if (!XI_ANY(active)) return;
+  // The slot's frame pixel (WaveParams): column x of film row film_pixel / width.
+  xuint film_pixel = wave.first_pixel + slot % wave.pixels;
+  xuint x = film_pixel % wave.width, y = wave.first_row + film_pixel / wave.width * wave.row_stride;
+  xuint pixel = y * wave.width + x, sample_index = wave.first_sample + slot / wave.pixels;
+  xfloat2 u = xi_sample_2d(XI_SAMPLER, sampler, pixel, sample_index, XI_PAIR_PIXEL);
   // Film coordinates in [-1, 1]², x to the right, y up; pixel (0, 0) is the top-left corner.
-  float sx = 2.0f * (px + u.x) / (float)cam.width - 1.0f;
-  float sy = 1.0f - 2.0f * (py + u.y) / (float)cam.height;
-  float3 dir = normalize(cam.forward.xyz + sx * cam.right.xyz + sy * cam.up.xyz);
-  float3 org = cam.position.xyz;
+  xfloat sx = 2.0f * (xi_to_float(x) + u.x) / (float)cam.width - 1.0f;
+  xfloat sy = 1.0f - 2.0f * (xi_to_float(y) + u.y) / (float)cam.height;
+  xfloat3 dir = xi_normalize3(xi_add3(xi_add3(xi_splat3(cam.forward.xyz), xi_scale3(xi_splat3(cam.right.xyz), sx)),
+                                      xi_scale3(xi_splat3(cam.up.xyz), sy)));
+  xfloat3 org = xi_splat3(cam.position.xyz);
 #ifdef XI_HAS_LENS
-  float lens_radius = cam.forward.w, focus_distance = cam.right.w;
-  float2 d = xi_square_to_concentric_disc(xi_sample_2d(XI_SAMPLER, sampler, pixel, sample_index, XI_PAIR_LENS));
-  float3 focus = org + dir * (focus_distance / dot(dir, cam.forward.xyz));
-  org += lens_radius * (d.x * normalize(cam.right.xyz) + d.y * normalize(cam.up.xyz));
-  dir = normalize(focus - org);
+  xfloat lens_radius = cam.forward.w, focus_distance = cam.right.w;
+  xfloat2 d = xi_square_to_concentric_disc(xi_sample_2d(XI_SAMPLER, sampler, pixel, sample_index, XI_PAIR_LENS));
+  xfloat3 focus = xi_add3(org, xi_scale3(dir, focus_distance / xi_dot3(dir, xi_splat3(cam.forward.xyz))));
+  org = xi_add3(org, xi_scale3(xi_add3(xi_scale3(xi_splat3(normalize(cam.right.xyz)), d.x),
+                                       xi_scale3(xi_splat3(normalize(cam.up.xyz)), d.y)),
+                               lens_radius));
+  dir = xi_normalize3(xi_sub3(focus, org));
 #endif
-  ray_org[slot] = (float4)(org, 0.0f);
-  ray_dir[slot] = (float4)(dir, 0.0f);
-  throughput[slot] = (float4)(1.0f, 1.0f, 1.0f, 0.0f);
-  radiance[slot] = (float4)(0.0f);
-  item_pixel[slot] = pixel;  // shade draws its samples for them without redoing the divisions
-  item_sample[slot] = sample_index;
-  aov_albedo[slot] = (float4)(0.0f);
-  aov_normal[slot] = (float4)(0.0f);
-  queue[slot] = slot;
+  const xfloat zero = 0.0f;
+  xi_scatter4(ray_org, slot, org, zero, active);
+  xi_scatter4(ray_dir, slot, dir, zero, active);
+  xi_scatter4(throughput, slot, xi_splat3(make_float3(1.0f, 1.0f, 1.0f)), zero, active);
+  const xfloat3 none = xi_splat3(make_float3(0.0f, 0.0f, 0.0f));
+  xi_scatter4(radiance, slot, none, zero, active);
+  xi_scatter_uint(item_pixel, slot, pixel, active);  // shade draws its samples for them without redoing the divisions
+  xi_scatter_uint(item_sample, slot, sample_index, active);
+  xi_scatter4(aov_albedo, slot, none, zero, active);
+  xi_scatter4(aov_normal, slot, none, zero, active);
+  xi_scatter_uint(queue, slot, slot, active);
 }

@@ -516,13 +516,14 @@ TEST(EndToEndDeterminism, SpatialSplitsDoNotChangePixels) {
   EXPECT_TRUE(bitwise_equal(split.variance, plain.variance));
 }
 
-// Shade's lane count (kernels/shared/lanes.h: 8 paths per work item on CPUs, 1 on GPUs) runs the
-// same code on other types, so the images agree but for rounding: with one lane normalize and length
-// are the OpenCL built-ins, with eight 1/sqrt of a dot product. The cases cover every material,
-// shading normals (the spheres), stratified's per-path cycle walk and each strategy's kernel. Now and
+// The lane count of generate and shade (kernels/shared/lanes.h: 8 paths per work item on CPUs, 1 on
+// GPUs) runs the same code on other types, so the images agree but for rounding: with one lane
+// normalize and length are the OpenCL built-ins, with eight 1/sqrt of a dot product. The cases cover
+// every material, shading normals (the spheres), the thin lens, stratified's per-path cycle walk and
+// each strategy's kernel. Now and
 // then rounding may send a path another way at a decision (roulette, Fresnel), which moves its one
 // pixel; a lane whose mask or gather is wrong moves a large share of them.
-TEST(EndToEndDeterminism, ShadeLanesAgree) {
+TEST(EndToEndDeterminism, LanesAgree) {
   struct Case {
     const char* scene;
     const char* sampler;
@@ -532,13 +533,14 @@ TEST(EndToEndDeterminism, ShadeLanesAgree) {
                         Case{"mirror.json", "stratified", xi::Strategy::Mis},
                         Case{"mirror.json", "random", xi::Strategy::Nee},
                         Case{"caustics.json", "sobol", xi::Strategy::Mis},
+                        Case{"depth-of-field.json", "sobol", xi::Strategy::Mis},
                         Case{"cornell-box.json", "grid", xi::Strategy::Bsdf}}) {
     SCOPED_TRACE(testing::Message() << c.scene << ", " << c.sampler << ", " << xi::strategy_name(c.strategy));
     xi::RenderOptions o = options(4, 42, c.sampler, c.strategy);
     const fs::path file = fs::path(XI_SCENE_DIR) / c.scene;
-    o.shade_lanes = 1;
+    o.lanes = 1;
     const Result one = render(kDetW, kDetH, o, file);
-    o.shade_lanes = 8;
+    o.lanes = 8;
     const Result eight = render(kDetW, kDetH, o, file);
     auto largest = [](glm::vec3 v) { return std::max({v.x, v.y, v.z}); };
     size_t lit = 0, differ = 0;

@@ -49,7 +49,8 @@ template <class T>
 bool same_bits(const T& a, const T& b) { return std::memcmp(&a, &b, sizeof(T)) == 0; }
 
 // One program with every stage, built once for the suite, extend and shadow again for 8-wide BVH
-// nodes (the default one traverses 4-wide nodes), and shade again for 8 lanes (the default: 1). Features of the Cornell box (emitters, no
+// nodes (the default one traverses 4-wide nodes), and generate and shade again for 8 lanes (the
+// default: 1). Features of the Cornell box (emitters, no
 // lens), so generate is the pinhole camera.
 class Kernel : public ::testing::Test {
  protected:
@@ -59,13 +60,13 @@ class Kernel : public ::testing::Test {
     std::vector<std::string> defines = xi::kernel_defines(f, XI_SAMPLER_RANDOM, xi::Strategy::Mis);
     program_.emplace(xi::build_program(*device_, {"generate.cl", "extend.cl", "shade.cl", "shadow.cl", "accumulate.cl"},
                                        defines));
-    shade8_.emplace(xi::build_program(*device_, {"shade.cl"}, concat(defines, "XI_LANES=8")));
+    lanes8_.emplace(xi::build_program(*device_, {"generate.cl", "shade.cl"}, concat(defines, "XI_LANES=8")));
     program8_.emplace(xi::build_program(*device_, {"extend.cl", "shadow.cl"}, concat(defines, "XI_BVH_WIDTH=8")));
   }
   static void TearDownTestSuite() {  // release OpenCL objects before the driver unloads
     program_.reset();
     program8_.reset();
-    shade8_.reset();
+    lanes8_.reset();
     device_.reset();
   }
 
@@ -141,10 +142,10 @@ class Kernel : public ::testing::Test {
   }
 
   static std::optional<xi::Device> device_;
-  static std::optional<xi::Program> program_, program8_, shade8_;
+  static std::optional<xi::Program> program_, program8_, lanes8_;
 };
 std::optional<xi::Device> Kernel::device_;
-std::optional<xi::Program> Kernel::program_, Kernel::program8_, Kernel::shade8_;
+std::optional<xi::Program> Kernel::program_, Kernel::program8_, Kernel::lanes8_;
 
 vec3 random_direction(std::mt19937& rng) {
   std::normal_distribution<float> g;
@@ -329,17 +330,20 @@ TEST_F(Kernel, GenerateCameraRays) {
   // Two waves of one sample, the second starting mid-row, as the renderer splits large films; then
   // one wave of two samples of every pixel, as it fills a device with a small film; then a film of
   // every third row from row 2 (one process's share of a distributed render), two samples.
+  // Each with one path per work item and with 8 (counts that are not multiples of 8 leave lanes off).
   const uint32_t share_pixels = W * 7;  // rows 2, 5, ..., 20 of 23
+  for (int lanes : {1, 8})
   for (WaveParams wave : {WaveParams{0, 500, sample, 1, W, 0, 1, 0}, WaveParams{500, pixels - 500, sample, 1, W, 0, 1, 0},
                           WaveParams{0, pixels, sample, 2, W, 0, 1, 0}, WaveParams{0, share_pixels, sample, 2, W, 2, 3, 0}}) {
+    SCOPED_TRACE(testing::Message() << lanes << " lanes");
     const uint32_t count = wave.pixels * wave.samples;
     PathState state(slots);
     PathBuffers b = upload(state);
     cl::Buffer qb = buffer(garbage<uint32_t>(slots));
     cl::Buffer cb = buffer(std::vector<uint32_t>(XI_COUNTER_COUNT(8), 7u));
-    cl::Kernel k = kernel("generate");
+    cl::Kernel k((lanes == 8 ? lanes8_ : program_)->program, "generate");
     bind(k, b, qb, cb, cam, sp, wave);
-    launch(k, count);
+    launch(k, (count + lanes - 1) / lanes);
     PathState out = download(b, slots);
     std::vector<uint32_t> q = read<uint32_t>(qb, slots);
     EXPECT_EQ(read<uint32_t>(cb, XI_COUNTER_COUNT(8))[XI_COUNTER_RAYS(0)], count);  // the first queue's length
@@ -524,7 +528,7 @@ TEST_F(Kernel, ShadeFirstHitsFromTheCamera) {
     cl::Buffer materials = buffer(cs.materials), verts = buffer(cs.tri_verts), tri_material = buffer(cs.tri_material),
                normals = buffer(cs.tri_normals), light_cdf = buffer(cs.light_cdf), light_tri = buffer(cs.light_tri),
                light_pdf = buffer(cs.tri_light_pdf);
-    cl::Kernel k((lanes == 8 ? shade8_ : program_)->program, "shade");
+    cl::Kernel k((lanes == 8 ? lanes8_ : program_)->program, "shade");
     bind(k, b, queue_in, queue_out, shadow_org, shadow_dir, shadow_contrib, cb, 0u, materials, verts, tri_material,
          normals, light_cdf, light_tri, light_pdf, (uint32_t)cs.light_tri.size(), xi_make_sampler_params(3, 16), 8u,
          background);

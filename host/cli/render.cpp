@@ -142,7 +142,7 @@ std::string device_selector(const Args& args, const Team& team) {
 void prepare(Job& job, const std::vector<std::string>& argv, const Team& team) {
   Args args(argv,
             {"-o", "--spp", "--seed", "--device", "--max-depth", "--resolution", "--sampler", "--strategy",
-             "--local-size", "--shade-lanes", "--bvh-width", "--reference", "--convergence", "--trace",
+             "--local-size", "--lanes", "--bvh-width", "--reference", "--convergence", "--trace",
              "--paths-in-flight", "--samples-per-pass",
              "--time", "--snapshot-every", "--checkpoint", "--checkpoint-every", "--resume", "--camera"},
             {"--profile", "--quiet", "--all-features", "--no-spatial-splits"});
@@ -173,7 +173,7 @@ void prepare(Job& job, const std::vector<std::string>& argv, const Team& team) {
   opt.strategy = parse_strategy(args.get("--strategy", "mis"));
   opt.local_size = (size_t)args.get_int("--local-size", (int)opt.local_size, 0, 1024);
   // 0 (the fallback, never a value a user may give): the device's default.
-  opt.shade_lanes = args.get_int("--shade-lanes", 0, 1, 8);
+  opt.lanes = args.get_int("--lanes", 0, 1, 8);
   opt.bvh_width = args.get_int("--bvh-width", 0, 1, 8);
   opt.all_features = args.has("--all-features");
   opt.spatial_splits = !args.has("--no-spatial-splits");

@@ -99,13 +99,6 @@ typedef struct {
   uint pad;
 } WaveParams;
 
-// The frame pixel (y * width + x) of a wave's path slot.
-static inline uint xi_frame_pixel(WaveParams wave, uint slot) {
-  uint film_pixel = wave.first_pixel + slot % wave.pixels;
-  uint row = film_pixel / wave.width;
-  return (wave.first_row + row * wave.row_stride) * wave.width + film_pixel % wave.width;
-}
-
 // Counters in one small device buffer, zeroed per wave but for the non-finite count. Kernels read
 // their queue length from it, so the host launches over an upper bound without waiting for it.
 #define XI_COUNTER_NONFINITE 0

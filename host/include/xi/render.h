@@ -46,9 +46,9 @@ struct RenderOptions {
   // distinct local size, and queue lengths change every bounce.
   size_t local_size = 64;
   bool all_features = false;    // compile every feature in, whatever the scene uses
-  // Paths each shade work item takes, 1 or 8 (kernels/shared/lanes.h); 0: 8 on a CPU device, where
-  // float8 arithmetic across paths is what fills its vector units, 1 elsewhere.
-  int shade_lanes = 0;
+  // Paths each generate and shade work item takes, 1 or 8 (kernels/shared/lanes.h); 0: 8 on a CPU
+  // device, where float8 arithmetic across paths is what fills its vector units, 1 elsewhere.
+  int lanes = 0;
   // Lanes of the BVH's nodes, 4 or 8 (kernels/shared/layout.h); 0: 8 on a CPU device, whose AVX
   // registers test eight child boxes as cheaply as four, 4 elsewhere.
   int bvh_width = 0;
@@ -180,8 +180,8 @@ class Renderer {
   Device& device_;
   RenderOptions options_;
   CompiledScene scene_;
-  Program program_;  // every stage's kernels (shade's are built apart, for their lane count)
-  int shade_lanes_ = 1;
+  Program program_;  // every stage's kernels (generate's and shade's are built apart, for their lane count)
+  int lanes_ = 1;
   bool exact_bounds_ = false;  // RenderOptions::launch_bound, resolved for the device
   size_t pixels_ = 0;
   size_t paths_ = 0;           // path state slots: the most (pixel, sample) items of one wave

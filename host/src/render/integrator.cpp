@@ -13,10 +13,11 @@
 namespace xi {
 namespace {
 
-// The kernel files, one per wavefront stage, built into one program; shade.cl is built apart,
-// with XI_LANES set (its helpers are written for one lane type per program).
-const std::vector<std::string> kStageFiles = {"generate.cl", "extend.cl", "shadow.cl", "accumulate.cl"};
-const std::string kShadeFile = "shade.cl";
+// The kernel files, one per wavefront stage, built into two programs: generate and shade take
+// XI_LANES paths per work item (their helpers are written for one lane type per program), the
+// tracing stages and accumulate one.
+const std::vector<std::string> kStageFiles = {"extend.cl", "shadow.cl", "accumulate.cl"};
+const std::vector<std::string> kLaneFiles = {"generate.cl", "shade.cl"};
 
 template <typename T>
 cl::Buffer upload(cl::Context& ctx, const std::vector<T>& data) {
@@ -123,25 +124,24 @@ Renderer::Renderer(Device& device, const Scene& scene, const RenderOptions& opti
   if (options.max_depth < 1 || options.max_depth > 64) throw Error("max depth must be in 1..64", "--max-depth");
   if (options.samples_per_pass < 0) throw Error("samples per pass must be at least 1 (0: automatic)");
   Features f = options.all_features ? Features::everything() : scene_.features;
-  shade_lanes_ = options.shade_lanes ? options.shade_lanes : (device.info().type == "CPU" ? 8 : 1);
-  if (shade_lanes_ != 1 && shade_lanes_ != 8)
-    throw Error("shade lanes must be 1 or 8, not " + std::to_string(shade_lanes_), "--shade-lanes");
+  lanes_ = options.lanes ? options.lanes : (device.info().type == "CPU" ? 8 : 1);
+  if (lanes_ != 1 && lanes_ != 8) throw Error("lanes must be 1 or 8, not " + std::to_string(lanes_), "--lanes");
   exact_bounds_ = options.launch_bound == RenderOptions::LaunchBound::Auto
                       ? device.info().type == "CPU"
                       : options.launch_bound == RenderOptions::LaunchBound::Exact;
   const std::vector<std::string> defines = kernel_defines(f, options.sampler, options.strategy);
-  std::vector<std::string> shade_defines = defines, stage_defines = defines;
-  shade_defines.push_back("XI_LANES=" + std::to_string(shade_lanes_));
+  std::vector<std::string> lane_defines = defines, stage_defines = defines;
+  lane_defines.push_back("XI_LANES=" + std::to_string(lanes_));
   stage_defines.push_back("XI_BVH_WIDTH=" + std::to_string(scene_.bvh.width));
   program_ = build_program(device, kStageFiles, stage_defines);
-  Program shade_program = build_program(device, {kShadeFile}, shade_defines);
+  Program lane_program = build_program(device, kLaneFiles, lane_defines);
   // One key, build time and cache state for all the kernels (checkpoints and `xi render` use them).
-  program_.key += shade_program.key;
-  program_.build_seconds += shade_program.build_seconds;
-  program_.from_cache = program_.from_cache && shade_program.from_cache;
-  generate_ = cl::Kernel(program_.program, "generate");
+  program_.key += lane_program.key;
+  program_.build_seconds += lane_program.build_seconds;
+  program_.from_cache = program_.from_cache && lane_program.from_cache;
+  generate_ = cl::Kernel(lane_program.program, "generate");
   extend_ = cl::Kernel(program_.program, "extend");
-  shade_ = cl::Kernel(shade_program.program, "shade");
+  shade_ = cl::Kernel(lane_program.program, "shade");
   shadow_ = cl::Kernel(program_.program, "shadow");
   accumulate_ = cl::Kernel(program_.program, "accumulate");
 
@@ -239,7 +239,7 @@ void Renderer::generate(const WaveParams& wave) {
   generate_.setArg(arg++, scene_.camera);
   generate_.setArg(arg++, sampler_params());
   generate_.setArg(arg++, wave);
-  launch(generate_, "generate", -1, (size_t)wave.pixels * wave.samples);
+  launch(generate_, "generate", -1, (size_t)wave.pixels * wave.samples, (size_t)lanes_);
 }
 
 void Renderer::extend(const cl::Buffer& queue, int bounce, size_t global) {
@@ -270,7 +270,7 @@ void Renderer::shade(const cl::Buffer& queue_in, const cl::Buffer& queue_out, in
   shade_.setArg(arg++, sampler_params());
   shade_.setArg(arg++, (uint32_t)options_.max_depth);
   shade_.setArg(arg++, scene_.background);
-  launch(shade_, "shade", bounce, global, (size_t)shade_lanes_);
+  launch(shade_, "shade", bounce, global, (size_t)lanes_);
 }
 
 void Renderer::shadow(int bounce, size_t global) {
