@@ -163,7 +163,7 @@ int main(int argc, char** argv) {
       std::vector<glm::vec4> hits;
       std::vector<int> prim, prim16;
       for (int r = 0; r < runs; ++r) {
-        xi_s.push_back(recorder.trace_closest(rays, &hits));
+        xi_s.push_back(recorder.trace_closest(rays, &hits, bounce));
         em_s.push_back(embree.trace(rays, &prim));
         em16_s.push_back(embree.trace16(rays, bounce == 0, &prim16));
       }

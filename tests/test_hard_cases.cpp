@@ -1016,7 +1016,7 @@ RayTest shoot_from_inside(const std::vector<xi::Triangle>& tris, dvec3 centre, d
       rays.org[i] = glm::vec4(of, 0.0f);
       rays.dir[i] = glm::vec4(vec3(glm::normalize(target - dvec3(of))), 0.0f);
     }
-    out.seconds += renderer.trace_closest(rays, &hits);
+    out.seconds += renderer.trace_closest(rays, &hits, 1);  // one ray per work item: random origins make no packets
     for (size_t i = 0; i < n; ++i) {
       if (hits[i].x < 0.0f) {
         out.escaped++;

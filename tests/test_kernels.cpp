@@ -290,6 +290,133 @@ TEST_F(Kernel, ExtendMatchesBruteForce) {
   EXPECT_LT(ties, (int)n / 1000);  // edge ties are rare for random rays: < 0.1%
 }
 
+// Camera rays in packets (xi_trace_packet8: extend at bounce 0 on an 8-wide tree, eight queue
+// entries per work item) find the hits that one ray per work item finds (extend at any other
+// bounce), bitwise but for ties: where two triangles are hit at the same t (a shared edge), the
+// order of traversal may pick the other. The scene of ExtendMatchesBruteForce; packets of eight
+// rays of five kinds, cycled: camera fans (one origin outside, directions a pixel apart), thin-lens
+// fans (origins on a lens, aimed at one focus), fans from inside the closed icosphere aimed exactly
+// at the vertices and edges of one of its triangles (where a crack would let a ray escape: none
+// may), fans leaving a point on the sphere (whose own triangle the error bound of t must refuse),
+// and two kinds the packet declines, to be traced one ray at a time: random directions
+// (different axis permutations) and fans across the plane x = 0 (different near planes). 4001
+// packets and a last one of five rays, in a queue whose entries past the count point at slots
+// that no work item may touch.
+TEST_F(Kernel, CameraPacketsFindTheHitsOfSingleRays) {
+  xi::Scene scene = xi::parse_scene(R"({
+    "camera": {"position": [0, 0, -5], "look_at": [0, 0, 0], "up": [0, 1, 0], "fov": 40},
+    "materials": {"white": {"type": "diffuse", "albedo": [0.5, 0.5, 0.5]}},
+    "shapes": [{"type": "sphere", "material": "white", "center": [0, 0, 0], "radius": 1, "subdivisions": 5}]})",
+                                    "packets.json", ".");
+  const size_t sphere_tris = scene.triangles.size();
+  add_box(scene.triangles, vec3(0.9f, 0.6f, 0.2f), vec3(0.4f, 0.3f, 0.5f), vec3(0, 0, 1), 0.0f);
+  add_box(scene.triangles, vec3(0.0f, -1.3f, 0.0f), vec3(2.0f, 0.05f, 2.0f), vec3(0, 1, 0), 0.0f);
+  add_box(scene.triangles, vec3(-1.6f, 0.4f, 0.8f), vec3(0.3f, 0.7f, 0.2f), vec3(1, 2, 3), 0.7f);
+  const xi::CompiledScene cs = xi::compile_scene(scene, 8);
+
+  enum Kind { kCamera, kLens, kInside, kSurface, kRandom, kStraddle, kKinds };
+  const uint32_t packets = 4001, n = 8 * packets + 5, extra = 64, slots = n + extra;
+  std::mt19937 rng(29);
+  std::uniform_real_distribution<float> u01(0.0f, 1.0f), jitter(-1e-3f, 1e-3f);
+  std::uniform_real_distribution<float> box(-2.0f, 2.0f);
+  PathState state(slots);
+  std::vector<int> kind(slots, kRandom);
+  for (uint32_t p = 0; p * 8 < n; ++p) {
+    const Kind k = (Kind)(p % kKinds);
+    const vec3 eye(0.0f, 0.0f, -5.0f), target(box(rng), box(rng), box(rng));
+    const vec3 inside = 0.5f * vec3(u01(rng), u01(rng), u01(rng));
+    const xi::Triangle& aim = scene.triangles[(size_t)(u01(rng) * (float)sphere_tris) % sphere_tris];
+    const vec3 origin_random(box(rng), box(rng), box(rng));
+    for (uint32_t lane = 0; lane < 8 && 8 * p + lane < n; ++lane) {
+      const uint32_t i = 8 * p + lane;
+      vec3 o = eye, d;
+      if (k == kCamera) {
+        d = glm::normalize(target - eye) + vec3(lane * 1e-3f, 0.0f, 0.0f);  // a row of pixels
+      } else if (k == kLens) {
+        o = eye + vec3(jitter(rng), jitter(rng), 0.0f) * 50.0f;
+        d = target - o;
+      } else if (k == kInside) {  // the triangle's vertices, its edges' midpoints, two points on an edge
+        o = inside;
+        const vec3 &a = aim.v[0], &b = aim.v[1], &c = aim.v[2];
+        const vec3 points[8] = {a, b, c, 0.5f * (a + b), 0.5f * (b + c), 0.5f * (c + a), a + u01(rng) * (b - a),
+                                b + u01(rng) * (c - b)};
+        d = points[lane] - o;
+      } else if (k == kSurface) {  // from a point of the triangle, outwards
+        o = aim.v[0] + 0.3f * (aim.v[1] - aim.v[0]) + 0.3f * (aim.v[2] - aim.v[0]);
+        d = glm::normalize(glm::cross(aim.v[1] - aim.v[0], aim.v[2] - aim.v[0])) + vec3(lane * 1e-3f, 0.0f, 0.0f);
+        if (glm::dot(d, o) < 0.0f) d = -d;
+      } else if (k == kRandom) {
+        o = origin_random;
+        d = random_direction(rng);
+      } else {  // across x = 0
+        d = vec3((float)lane - 3.5f, 0.0f, 0.0f) * 1e-3f + glm::normalize(vec3(0.0f, target.y, 5.0f));
+      }
+      state.ray_org[i] = vec4(o, 0.0f);
+      state.ray_dir[i] = vec4(glm::normalize(d), 0.0f);
+      kind[i] = k;
+    }
+  }
+  std::vector<uint32_t> q(slots);
+  std::iota(q.begin(), q.end(), 0u);
+
+  // The packets the kernel takes together: one axis permutation and one sign per axis for all eight
+  // rays (as xi_trace_packet8 decides), so that most packets do go through the packet traversal.
+  size_t together = 0;
+  for (uint32_t p = 0; p + 1 < (n + 7) / 8; ++p) {
+    int kz0 = -1;
+    bool same = true;
+    glm::bvec3 back0{};
+    for (uint32_t lane = 0; lane < 8; ++lane) {
+      const vec3 d(state.ray_dir[8 * p + lane]), a = glm::abs(d);
+      const int kz = a.x > a.y ? (a.x > a.z ? 0 : 2) : (a.y > a.z ? 1 : 2);
+      const glm::bvec3 back = glm::lessThan(d, vec3(0.0f));
+      if (lane == 0) kz0 = kz, back0 = back;
+      same = same && kz == kz0 && back == back0;
+    }
+    const int k = kind[8 * p];
+    if (k == kRandom || k == kStraddle) EXPECT_FALSE(same) << "packet " << p << " should be declined";
+    together += same;
+  }
+  EXPECT_GE(together, (size_t)packets / 2);  // most of the four kinds meant to go together
+
+  // Bounce 0: eight rays per work item; bounce 1: one.
+  auto trace = [&](uint32_t bounce) {
+    PathBuffers b = upload(state);
+    std::vector<uint32_t> counters(XI_COUNTER_COUNT(8), 7u);
+    counters[XI_COUNTER_RAYS(bounce)] = n;
+    cl::Buffer qb = buffer(q), cb = buffer(counters), nodes = bvh_nodes(cs.bvh), blocks = buffer(cs.bvh.blocks);
+    cl::Kernel k = kernel("extend", 8);
+    bind(k, b, qb, cb, bounce, nodes, blocks);
+    launch(k, bounce == 0 ? (slots + 7) / 8 : slots);
+    return read<vec4>(b.hit, slots);
+  };
+  const std::vector<vec4> packet = trace(0), single = trace(1);
+  size_t aimed_ties = 0, other_ties = 0, differ = 0, hits = 0, inside = 0;
+  for (uint32_t i = 0; i < n; ++i) {
+    const vec4 a = packet[i], b = single[i];
+    hits += b.x > 0.0f;
+    if (kind[i] == kInside) {
+      inside++;
+      EXPECT_GT(a.x, 0.0f) << "ray " << i << " from inside the sphere escaped its packet";
+      EXPECT_GT(b.x, 0.0f) << "ray " << i << " from inside the sphere escaped";
+    }
+    if (same_bits(a, b)) continue;
+    const bool tie = a.x > 0.0f && b.x > 0.0f && as_uint(a.w) != as_uint(b.w) &&
+                     std::abs(a.x - b.x) <= 1e-5f * std::max(a.x, b.x);
+    (kind[i] == kInside ? aimed_ties : other_ties) += tie;  // rays aimed at edges tie often
+    differ += !tie;
+    if (!tie && differ <= 10)
+      ADD_FAILURE() << "ray " << i << " (kind " << kind[i] << "): packet hit (" << a.x << ", " << as_uint(a.w)
+                    << "), alone (" << b.x << ", " << as_uint(b.w) << ")";
+  }
+  EXPECT_EQ(differ, 0u);
+  EXPECT_LE(other_ties, (size_t)n / 1000) << "ties at shared edges are rare but where rays are aimed at them";
+  EXPECT_LE(aimed_ties, inside / 4);
+  EXPECT_GT(hits, (size_t)n / 2);  // so that agreeing says something
+  EXPECT_GE(inside, (size_t)n / 7);
+  for (uint32_t i = n; i < slots; ++i) EXPECT_EQ(as_uint(packet[i].x), kGarbage) << "slot " << i << " past the count";
+}
+
 // The lane masks the traversal branches on (one movmskps on PoCL with AVX, a portable form on
 // other devices, built here too) name exactly the true lanes of every 8-lane comparison, and of its
 // low four lanes.

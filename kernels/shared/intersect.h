@@ -79,6 +79,26 @@ static inline RayShear xi_ray_shear(float3 o, float3 d) {
                    XI_GAMMA(5) * ((max_x) + (max_z)) * (max_y)) * (max_z) +                       \
            XI_GAMMA(3) * (max_z) * (max_e)))
 
+// The test from the vertices a, b, c relative to the ray's origin, axes permuted as the ray's: the
+// shear that makes the ray the +z axis, the edge functions e0, e1, e2 and t·det. One sequence for
+// one triangle and one ray (xi_intersect_triangle), four or eight triangles and one ray
+// (xi_intersect_block) and one triangle and eight rays (xi_trace_packet8): the same operations in
+// the same order, so all three find bitwise the same hits. Scalars or vector lanes alike.
+#define XI_SHEARED_EDGES(sx, sy, sz, ax, ay, az, bx, by, bz, cx, cy, cz, e0, e1, e2, t_det) \
+  ax = ax - (sx) * az, ay = ay - (sy) * az;                                                 \
+  bx = bx - (sx) * bz, by = by - (sy) * bz;                                                 \
+  cx = cx - (sx) * cz, cy = cy - (sy) * cz;                                                 \
+  e0 = bx * cy - by * cx;                                                                   \
+  e1 = cx * ay - cy * ax;                                                                   \
+  e2 = ax * by - ay * bx;                                                                   \
+  t_det = e0 * (sz) * az + e1 * (sz) * bz + e2 * (sz) * cz
+
+// XI_T_ERROR_DET from the same values, with `maxf` the lane type's max.
+#define XI_T_ERROR_DET_OF(maxf, sz, ax, ay, az, bx, by, bz, cx, cy, cz, e0, e1, e2)              \
+  XI_T_ERROR_DET(maxf(maxf(fabs(ax), fabs(bx)), fabs(cx)), maxf(maxf(fabs(ay), fabs(by)), fabs(cy)), \
+                 maxf(maxf(fabs((sz) * az), fabs((sz) * bz)), fabs((sz) * cz)),                   \
+                 maxf(maxf(fabs(e0), fabs(e1)), fabs(e2)))
+
 // The end of the test, on the edge functions e0, e1, e2, t·det and the error bound of t·|det|: a
 // hit in (t error, tmax) when the edge functions do not differ in sign and do not all vanish.
 static inline bool xi_edge_hit(float e0, float e1, float e2, float t_det, float t_err_det, float tmax, float* t,
@@ -99,17 +119,11 @@ static inline bool xi_intersect_triangle(RayShear s, float3 p0, float3 p1, float
                                          float* u, float* v) {
   float3 a = xi_permute_axes(p0, s.kz) - s.o, b = xi_permute_axes(p1, s.kz) - s.o,
          c = xi_permute_axes(p2, s.kz) - s.o;
-  float ax = a.x - s.sx * a.z, ay = a.y - s.sy * a.z;
-  float bx = b.x - s.sx * b.z, by = b.y - s.sy * b.z;
-  float cx = c.x - s.sx * c.z, cy = c.y - s.sy * c.z;
-  float e0 = bx * cy - by * cx;
-  float e1 = cx * ay - cy * ax;
-  float e2 = ax * by - ay * bx;
-  float max_x = fmax(fmax(fabs(ax), fabs(bx)), fabs(cx)), max_y = fmax(fmax(fabs(ay), fabs(by)), fabs(cy));
-  float max_z = fmax(fmax(fabs(s.sz * a.z), fabs(s.sz * b.z)), fabs(s.sz * c.z));
-  float max_e = fmax(fmax(fabs(e0), fabs(e1)), fabs(e2));
-  return xi_edge_hit(e0, e1, e2, e0 * s.sz * a.z + e1 * s.sz * b.z + e2 * s.sz * c.z,
-                     XI_T_ERROR_DET(max_x, max_y, max_z, max_e), tmax, t, u, v);
+  float ax = a.x, ay = a.y, az = a.z, bx = b.x, by = b.y, bz = b.z, cx = c.x, cy = c.y, cz = c.z;
+  float e0, e1, e2, t_det;
+  XI_SHEARED_EDGES(s.sx, s.sy, s.sz, ax, ay, az, bx, by, bz, cx, cy, cz, e0, e1, e2, t_det);
+  return xi_edge_hit(e0, e1, e2, t_det, XI_T_ERROR_DET_OF(fmax, s.sz, ax, ay, az, bx, by, bz, cx, cy, cz, e0, e1, e2),
+                     tmax, t, u, v);
 }
 
 // The same test on the four triangles of a block at once, or on two blocks' eight where the BVH is
@@ -156,13 +170,7 @@ static inline uint xi_intersect_block(RayShear s, __global const TriBlock* b0, _
   xi_block_vertex(b0, b1, 0, s, &ax, &ay, &az);
   xi_block_vertex(b0, b1, 1, s, &bx, &by, &bz);
   xi_block_vertex(b0, b1, 2, s, &cx, &cy, &cz);
-  ax = ax - s.sx * az, ay = ay - s.sy * az;
-  bx = bx - s.sx * bz, by = by - s.sy * bz;
-  cx = cx - s.sx * cz, cy = cy - s.sy * cz;
-  e->e0 = bx * cy - by * cx;
-  e->e1 = cx * ay - cy * ax;
-  e->e2 = ax * by - ay * bx;
-  e->t_det = e->e0 * s.sz * az + e->e1 * s.sz * bz + e->e2 * s.sz * cz;
+  XI_SHEARED_EDGES(s.sx, s.sy, s.sz, ax, ay, az, bx, by, bz, cx, cy, cz, e->e0, e->e1, e->e2, e->t_det);
   const BlockFloat zero = (BlockFloat)(0.0f);
   BlockMask mixed = (xi_less4(e->e0, zero) | xi_less4(e->e1, zero) | xi_less4(e->e2, zero)) &
                     (xi_greater4(e->e0, zero) | xi_greater4(e->e1, zero) | xi_greater4(e->e2, zero));
@@ -173,10 +181,7 @@ static inline uint xi_intersect_block(RayShear s, __global const TriBlock* b0, _
   if (xi_block_lane_bits(candidate) == 0u) return 0u;
 #endif
   // (An unused lane's NaNs make its bound NaN, or not: its t is NaN, which fails either way.)
-  BlockFloat max_x = xi_max(xi_max(fabs(ax), fabs(bx)), fabs(cx)), max_y = xi_max(xi_max(fabs(ay), fabs(by)), fabs(cy));
-  BlockFloat max_z = xi_max(xi_max(fabs(s.sz * az), fabs(s.sz * bz)), fabs(s.sz * cz));
-  BlockFloat max_e = xi_max(xi_max(fabs(e->e0), fabs(e->e1)), fabs(e->e2));
-  e->t_err_det = XI_T_ERROR_DET(max_x, max_y, max_z, max_e);
+  e->t_err_det = XI_T_ERROR_DET_OF(xi_max, s.sz, ax, ay, az, bx, by, bz, cx, cy, cz, e->e0, e->e1, e->e2);
   return xi_block_lane_bits(candidate & xi_greater4(t, e->t_err_det / fabs(det)));
 }
 
@@ -308,6 +313,137 @@ static inline uint xi_trace(__global const TraceNode* nodes, __global const TriB
     entry = stack[sp].x;
   }
 }
+
+
+#if XI_BVH_WIDTH == 8
+// Camera rays in packets of eight (an 8-wide tree; the extend kernel at bounce 0). Eight rays that
+// start together, neighbouring pixels of one sample, go through the tree together: a node's eight
+// child boxes are each tested against the eight rays, and a leaf's triangles each against the eight
+// rays at once, so a node's loads, its stack entries and its branches serve eight rays, and a leaf of
+// two triangles no longer costs each ray a whole eight-lane block test. A node is entered when any
+// of the rays enters it, so the packet does the union of its rays' work, which for neighbouring
+// camera rays is little more than each one's. Each ray's hit is the one xi_trace finds, bitwise
+// (the same box and triangle arithmetic per lane; where two triangles are hit at exactly the same t,
+// the order of traversal may pick the other). The watertight test needs one axis permutation and
+// the slab test one near plane per axis for the whole packet: a packet whose rays differ in either
+// returns false, to be traced one ray at a time.
+static inline float xi_lanes_min8(float8 v) {
+  float4 a = xi_min(v.lo, v.hi);
+  float2 b = xi_min(a.lo, a.hi);
+  return b.x < b.y ? b.x : b.y;
+}
+static inline float xi_lanes_max8(float8 v) {
+  float4 a = xi_max(v.lo, v.hi);
+  float2 b = xi_max(a.lo, a.hi);
+  return b.x > b.y ? b.x : b.y;
+}
+static inline float8 xi_axis8(float8 x, float8 y, float8 z, int axis) { return axis == 0 ? x : axis == 1 ? y : z; }
+
+// Child `k` (lane `c`: s0 … s7) of node n against the packet, as xi_trace's slab test per ray; sets
+// bit k of `hits` and the nearest entry distance of the rays that enter it.
+#define XI_PACKET_CHILD(k, c)                                                                                 \
+  {                                                                                                           \
+    float8 tn = xi_max(xi_max((n->bounds[near_x].c - ox) * inv_x, (n->bounds[near_y].c - oy) * inv_y),        \
+                       xi_max((n->bounds[near_z].c - oz) * inv_z, (float8)0.0f));                             \
+    float8 tf = xi_min(xi_min((n->bounds[near_x ^ 1].c - ox) * inv_x, (n->bounds[near_y ^ 1].c - oy) * inv_y), \
+                       xi_min((n->bounds[near_z ^ 1].c - oz) * inv_z, best));                                 \
+    int8 enter = xi_less_equal(tn, tf * XI_BOX_SLACK);                                                        \
+    if (xi_lane_bits8(enter)) {                                                                               \
+      hits |= 1u << (k);                                                                                      \
+      t_enter[k] = xi_lanes_min8(select((float8)INFINITY, tn, enter));                                       \
+    }                                                                                                         \
+  }
+
+// Closest hits of eight rays (origins o, unit directions d, lane k = ray k) in (0, ∞): sets *t, *u,
+// *v and *tri per lane as xi_trace would (tri XI_NO_HIT for a miss) and returns true; false, with
+// nothing set, for a packet that does not share its permutation and near planes.
+static inline bool xi_trace_packet8(__global const BvhNode8* nodes, __global const TriBlock* blocks, float8 ox,
+                                    float8 oy, float8 oz, float8 dx, float8 dy, float8 dz, float8* t, float8* u,
+                                    float8* v, uint8* tri) {
+  // The permutation and the slab test's planes, per ray as xi_ray_shear and xi_trace choose them.
+  const float8 adx = fabs(dx), ady = fabs(dy), adz = fabs(dz);
+  const int8 kz_lanes = select(select((int8)2, (int8)1, ady > adz), select((int8)2, (int8)0, adx > adz), adx > ady);
+  const int kz = kz_lanes.s0;
+  if (xi_lane_bits8(kz_lanes != (int8)kz)) return false;
+  const float8 inv_x = select((float8)1e30f, 1.0f / dx, dx != 0.0f), inv_y = select((float8)1e30f, 1.0f / dy, dy != 0.0f),
+               inv_z = select((float8)1e30f, 1.0f / dz, dz != 0.0f);
+  const uint back_x = xi_lane_bits8(inv_x < 0.0f), back_y = xi_lane_bits8(inv_y < 0.0f),
+             back_z = xi_lane_bits8(inv_z < 0.0f);
+  if ((back_x != 0u && back_x != 0xffu) || (back_y != 0u && back_y != 0xffu) || (back_z != 0u && back_z != 0xffu))
+    return false;
+  const int near_x = back_x ? 1 : 0, near_y = back_y ? 3 : 2, near_z = back_z ? 5 : 4;
+  const int to_x = xi_axis_to_x(kz), to_y = xi_axis_to_y(kz);
+  const float8 o_x = xi_axis8(ox, oy, oz, to_x), o_y = xi_axis8(ox, oy, oz, to_y), o_z = xi_axis8(ox, oy, oz, kz);
+  const float8 sz = 1.0f / xi_axis8(dx, dy, dz, kz);
+  const float8 sx = xi_axis8(dx, dy, dz, to_x) * sz, sy = xi_axis8(dx, dy, dz, to_y) * sz;
+
+  uint2 stack[XI_BVH_STACK];  // (entry, the nearest distance at which a ray enters it)
+  uint sp = 0u, entry = 0u;
+  float8 best = (float8)INFINITY, best_u = 0.0f, best_v = 0.0f;
+  uint8 found = (uint8)XI_NO_HIT;
+  for (;;) {
+    if (entry & XI_BVH_LEAF) {
+      const uint first = entry & XI_BVH_FIRST_MASK, end = first + 1u + ((entry >> 27) & 15u);
+      for (uint k = first; k < end; ++k) {
+        __global const float* coord = (__global const float*)blocks[k].coord;  // [axis][vertex][triangle]
+        for (uint j = 0u; j < 4u && blocks[k].tri[j] != XI_NO_HIT; ++j) {  // unused lanes come last
+#define XI_VERTEX(axis, vertex) (coord[((axis) * 3 + (vertex)) * 4 + j])
+          float8 ax = XI_VERTEX(to_x, 0) - o_x, ay = XI_VERTEX(to_y, 0) - o_y, az = XI_VERTEX(kz, 0) - o_z;
+          float8 bx = XI_VERTEX(to_x, 1) - o_x, by = XI_VERTEX(to_y, 1) - o_y, bz = XI_VERTEX(kz, 1) - o_z;
+          float8 cx = XI_VERTEX(to_x, 2) - o_x, cy = XI_VERTEX(to_y, 2) - o_y, cz = XI_VERTEX(kz, 2) - o_z;
+#undef XI_VERTEX
+          float8 e0, e1, e2, t_det;
+          XI_SHEARED_EDGES(sx, sy, sz, ax, ay, az, bx, by, bz, cx, cy, cz, e0, e1, e2, t_det);
+          // xi_intersect_block's candidate test, then xi_edge_hit's, per ray.
+          const float8 zero = 0.0f;
+          int8 mixed = (xi_less4(e0, zero) | xi_less4(e1, zero) | xi_less4(e2, zero)) &
+                       (xi_greater4(e0, zero) | xi_greater4(e1, zero) | xi_greater4(e2, zero));
+          float8 det = e0 + e1 + e2;
+          float8 tt = t_det / det;
+          int8 hit = xi_greater4(tt, zero) & xi_less4(tt, best) & ~mixed;
+          if (xi_lane_bits8(hit) == 0u) continue;
+          float8 t_err_det = XI_T_ERROR_DET_OF(xi_max, sz, ax, ay, az, bx, by, bz, cx, cy, cz, e0, e1, e2);
+          hit &= xi_greater4(tt, t_err_det / fabs(det));
+          best = select(best, tt, hit);
+          best_u = select(best_u, e1 / det, hit);
+          best_v = select(best_v, e2 / det, hit);
+          found = select(found, (uint8)blocks[k].tri[j], hit);
+        }
+      }
+    } else {
+      __global const BvhNode8* n = nodes + entry;
+      uint hits = 0u;
+      float t_enter[8];
+      XI_PACKET_CHILD(0, s0) XI_PACKET_CHILD(1, s1) XI_PACKET_CHILD(2, s2) XI_PACKET_CHILD(3, s3)
+      XI_PACKET_CHILD(4, s4) XI_PACKET_CHILD(5, s5) XI_PACKET_CHILD(6, s6) XI_PACKET_CHILD(7, s7)
+      if (hits != 0u && (hits & (hits - 1u)) == 0u) {  // one child: go there
+        entry = n->child[31 - clz(hits)];
+        continue;
+      }
+      // Nearest on top, as xi_trace pushes.
+      const uint base = sp;
+      for (uint k = 0u; k < 8u; ++k) {
+        if (!(hits & (1u << k))) continue;
+        uint j = sp++;
+        for (; j > base && as_float(stack[j - 1u].y) < t_enter[k]; --j) stack[j] = stack[j - 1u];
+        stack[j] = make_uint2(n->child[k], as_uint(t_enter[k]));
+      }
+    }
+    // Pop the nearest entry that some ray enters before its best hit so far.
+    const float farthest = xi_lanes_max8(best) * XI_BOX_SLACK;
+    for (;;) {
+      if (sp == 0u) {
+        *t = best, *u = best_u, *v = best_v, *tri = found;
+        return true;
+      }
+      --sp;
+      if (as_float(stack[sp].y) <= farthest) break;
+    }
+    entry = stack[sp].x;
+  }
+}
+#undef XI_PACKET_CHILD
+#endif
 
 #ifdef __OPENCL_VERSION__
 #pragma OPENCL FP_CONTRACT DEFAULT

@@ -25,6 +25,9 @@ typedef struct {
 #define XI_BVH_LEAF_MAX 16u       // triangle blocks in one leaf, at most
 #define XI_BVH_FIRST_MASK 0x07ffffffu
 #define XI_BVH_EMPTY 0xffffffffu
+// Rays per extend work item at bounce 0 (camera rays), by the BVH's width: packets of 8 through an
+// 8-wide tree (extend.cl), one ray through a 4-wide one. The host launches extend accordingly.
+#define XI_CAMERA_PACKET(bvh_width) ((bvh_width) == 8 ? 8 : 1)
 typedef struct {
   float4 bounds[6];  // child boxes, lane k = child k: lo x, hi x, lo y, hi y, lo z, hi z
   uint child[4];     // interior child: its node index; leaf: see above

@@ -152,9 +152,11 @@ class Renderer {
   const RenderOptions& options() const { return options_; }
   uint64_t extend_rays() const { return extend_rays_; }
   const RayBatch& recorded_rays() const { return recorded_; }
-  // Runs the extend stage alone on the given rays (at most wave size); returns the kernel's time in
-  // seconds and the hits (t or −1, u, v, triangle in BVH order as float bits).
-  double trace_closest(const RayBatch& rays, std::vector<glm::vec4>* hits);
+  // Runs the extend stage alone on the given rays (at most wave size) as it runs at `bounce`: 0
+  // traces them as camera rays (in packets of 8 consecutive rays where the tree is 8 wide), any
+  // other bounce one by one. Returns the kernel's time in seconds and the hits (t or −1, u, v,
+  // triangle in BVH order as float bits).
+  double trace_closest(const RayBatch& rays, std::vector<glm::vec4>* hits, int bounce);
   uint64_t shadow_rays() const { return shadow_rays_; }
 
  private:

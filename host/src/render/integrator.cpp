@@ -249,7 +249,7 @@ void Renderer::extend(const cl::Buffer& queue, int bounce, size_t global) {
   extend_.setArg(arg++, (uint32_t)bounce);
   extend_.setArg(arg++, nodes_);
   extend_.setArg(arg++, tri_blocks_);
-  launch(extend_, "extend", bounce, global);
+  launch(extend_, "extend", bounce, global, bounce == 0 ? XI_CAMERA_PACKET(scene_.bvh.width) : 1);
 }
 
 void Renderer::shade(const cl::Buffer& queue_in, const cl::Buffer& queue_out, int bounce, size_t global) {
@@ -409,7 +409,7 @@ void Renderer::record(const cl::Buffer& queue, int bounce) {
   }
 }
 
-double Renderer::trace_closest(const RayBatch& rays, std::vector<glm::vec4>* hits) {
+double Renderer::trace_closest(const RayBatch& rays, std::vector<glm::vec4>* hits, int bounce) {
   const size_t n = rays.org.size();
   if (n > paths_ || rays.dir.size() != n) throw Error("ray batch larger than the paths in flight or malformed");
   cl::CommandQueue& q = device_.queue();
@@ -419,9 +419,10 @@ double Renderer::trace_closest(const RayBatch& rays, std::vector<glm::vec4>* hit
   q.enqueueWriteBuffer(ray_org_, CL_TRUE, 0, sizeof(glm::vec4) * n, rays.org.data());
   q.enqueueWriteBuffer(ray_dir_, CL_TRUE, 0, sizeof(glm::vec4) * n, rays.dir.data());
   q.enqueueWriteBuffer(queue_a_, CL_TRUE, 0, sizeof(uint32_t) * n, identity.data());
-  q.enqueueWriteBuffer(counters_, CL_TRUE, sizeof(uint32_t) * XI_COUNTER_RAYS(0), sizeof count, &count);
+  if (bounce < 0 || bounce > options_.max_depth) throw Error("trace_closest: no bounce " + std::to_string(bounce));
+  q.enqueueWriteBuffer(counters_, CL_TRUE, sizeof(uint32_t) * XI_COUNTER_RAYS(bounce), sizeof count, &count);
   auto start = std::chrono::steady_clock::now();
-  extend(queue_a_, 0, n);
+  extend(queue_a_, bounce, n);
   q.finish();
   double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   hits->resize(n);
