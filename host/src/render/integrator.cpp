@@ -412,6 +412,7 @@ void Renderer::record(const cl::Buffer& queue, int bounce) {
 double Renderer::trace_closest(const RayBatch& rays, std::vector<glm::vec4>* hits, int bounce) {
   const size_t n = rays.org.size();
   if (n > paths_ || rays.dir.size() != n) throw Error("ray batch larger than the paths in flight or malformed");
+  if (bounce < 0 || bounce > options_.max_depth) throw Error("trace_closest: no bounce " + std::to_string(bounce));
   cl::CommandQueue& q = device_.queue();
   std::vector<uint32_t> identity(n);
   for (size_t i = 0; i < n; ++i) identity[i] = (uint32_t)i;
@@ -419,7 +420,6 @@ double Renderer::trace_closest(const RayBatch& rays, std::vector<glm::vec4>* hit
   q.enqueueWriteBuffer(ray_org_, CL_TRUE, 0, sizeof(glm::vec4) * n, rays.org.data());
   q.enqueueWriteBuffer(ray_dir_, CL_TRUE, 0, sizeof(glm::vec4) * n, rays.dir.data());
   q.enqueueWriteBuffer(queue_a_, CL_TRUE, 0, sizeof(uint32_t) * n, identity.data());
-  if (bounce < 0 || bounce > options_.max_depth) throw Error("trace_closest: no bounce " + std::to_string(bounce));
   q.enqueueWriteBuffer(counters_, CL_TRUE, sizeof(uint32_t) * XI_COUNTER_RAYS(bounce), sizeof count, &count);
   auto start = std::chrono::steady_clock::now();
   extend(queue_a_, bounce, n);
