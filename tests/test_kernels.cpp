@@ -170,12 +170,10 @@ void add_box(std::vector<xi::Triangle>& out, vec3 center, vec3 half, vec3 axis, 
     }
 }
 
-// --- extend --------------------------------------------------------------------------------------
-
-// 10^5 random rays against an icosphere of 20480 triangles and three boxes (one cutting into the
-// sphere, one thin slab under it, one rotated), in a shuffled queue; hits over 4- and 8-wide BVHs
-// against brute force.
-TEST_F(Kernel, ExtendMatchesBruteForce) {
+// The extend tests' scene: an icosphere of radius 1 at the origin (its kSphereTriangles triangles
+// first) and three boxes: one cutting into the sphere, one thin slab under it, one rotated.
+constexpr size_t kSphereTriangles = 20480;
+xi::Scene sphere_and_boxes() {
   xi::Scene scene = xi::parse_scene(R"({
     "camera": {"position": [0, 0, -5], "look_at": [0, 0, 0], "up": [0, 1, 0], "fov": 40},
     "materials": {"white": {"type": "diffuse", "albedo": [0.5, 0.5, 0.5]}},
@@ -184,7 +182,16 @@ TEST_F(Kernel, ExtendMatchesBruteForce) {
   add_box(scene.triangles, vec3(0.9f, 0.6f, 0.2f), vec3(0.4f, 0.3f, 0.5f), vec3(0, 0, 1), 0.0f);
   add_box(scene.triangles, vec3(0.0f, -1.3f, 0.0f), vec3(2.0f, 0.05f, 2.0f), vec3(0, 1, 0), 0.0f);
   add_box(scene.triangles, vec3(-1.6f, 0.4f, 0.8f), vec3(0.3f, 0.7f, 0.2f), vec3(1, 2, 3), 0.7f);
-  ASSERT_EQ(scene.triangles.size(), 20480u + 36u);
+  return scene;
+}
+
+// --- extend --------------------------------------------------------------------------------------
+
+// 10^5 random rays against sphere_and_boxes(), in a shuffled queue; hits over 4- and 8-wide BVHs
+// against brute force.
+TEST_F(Kernel, ExtendMatchesBruteForce) {
+  const xi::Scene scene = sphere_and_boxes();
+  ASSERT_EQ(scene.triangles.size(), kSphereTriangles + 36u);
 
   const uint32_t n = 100000, extra = 64, slots = n + extra;
   std::mt19937 rng(11);
@@ -293,7 +300,7 @@ TEST_F(Kernel, ExtendMatchesBruteForce) {
 // Camera rays in packets (xi_trace_packet8: extend at bounce 0 on an 8-wide tree, eight queue
 // entries per work item) find the hits that one ray per work item finds (extend at any other
 // bounce), bitwise but for ties: where two triangles are hit at the same t (a shared edge), the
-// order of traversal may pick the other. The scene of ExtendMatchesBruteForce; packets of eight
+// order of traversal may pick the other. The scene sphere_and_boxes(); packets of eight
 // rays of five kinds, cycled: camera fans (one origin outside, directions a pixel apart), thin-lens
 // fans (origins on a lens, aimed at one focus), fans from inside the closed icosphere aimed exactly
 // at the vertices and edges of one of its triangles (where a crack would let a ray escape: none
@@ -303,15 +310,9 @@ TEST_F(Kernel, ExtendMatchesBruteForce) {
 // packets and a last one of five rays, in a queue whose entries past the count point at slots
 // that no work item may touch.
 TEST_F(Kernel, CameraPacketsFindTheHitsOfSingleRays) {
-  xi::Scene scene = xi::parse_scene(R"({
-    "camera": {"position": [0, 0, -5], "look_at": [0, 0, 0], "up": [0, 1, 0], "fov": 40},
-    "materials": {"white": {"type": "diffuse", "albedo": [0.5, 0.5, 0.5]}},
-    "shapes": [{"type": "sphere", "material": "white", "center": [0, 0, 0], "radius": 1, "subdivisions": 5}]})",
-                                    "packets.json", ".");
-  const size_t sphere_tris = scene.triangles.size();
-  add_box(scene.triangles, vec3(0.9f, 0.6f, 0.2f), vec3(0.4f, 0.3f, 0.5f), vec3(0, 0, 1), 0.0f);
-  add_box(scene.triangles, vec3(0.0f, -1.3f, 0.0f), vec3(2.0f, 0.05f, 2.0f), vec3(0, 1, 0), 0.0f);
-  add_box(scene.triangles, vec3(-1.6f, 0.4f, 0.8f), vec3(0.3f, 0.7f, 0.2f), vec3(1, 2, 3), 0.7f);
+  const xi::Scene scene = sphere_and_boxes();
+  const size_t sphere_tris = kSphereTriangles;
+  ASSERT_EQ(scene.triangles.size(), kSphereTriangles + 36u);
   const xi::CompiledScene cs = xi::compile_scene(scene, 8);
 
   enum Kind { kCamera, kLens, kInside, kSurface, kRandom, kStraddle, kKinds };
