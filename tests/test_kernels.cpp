@@ -49,8 +49,8 @@ template <class T>
 bool same_bits(const T& a, const T& b) { return std::memcmp(&a, &b, sizeof(T)) == 0; }
 
 // One program with every stage, built once for the suite, extend and shadow again for 8-wide BVH
-// nodes (the default one traverses 4-wide nodes), and generate and shade again for 8 lanes (the
-// default: 1). Features of the Cornell box (emitters, no
+// nodes (the default one traverses 4-wide nodes), extend once more with bounce rays in packets
+// (XI_BOUNCE_PACKETS), and generate and shade again for 8 lanes (the default: 1). Features of the Cornell box (emitters, no
 // lens), so generate is the pinhole camera.
 class Kernel : public ::testing::Test {
  protected:
@@ -62,10 +62,13 @@ class Kernel : public ::testing::Test {
                                        defines));
     lanes8_.emplace(xi::build_program(*device_, {"generate.cl", "shade.cl"}, concat(defines, "XI_LANES=8")));
     program8_.emplace(xi::build_program(*device_, {"extend.cl", "shadow.cl"}, concat(defines, "XI_BVH_WIDTH=8")));
+    bounce_packets8_.emplace(
+        xi::build_program(*device_, {"extend.cl"}, concat(concat(defines, "XI_BVH_WIDTH=8"), "XI_BOUNCE_PACKETS=1")));
   }
   static void TearDownTestSuite() {  // release OpenCL objects before the driver unloads
     program_.reset();
     program8_.reset();
+    bounce_packets8_.reset();
     lanes8_.reset();
     device_.reset();
   }
@@ -142,10 +145,10 @@ class Kernel : public ::testing::Test {
   }
 
   static std::optional<xi::Device> device_;
-  static std::optional<xi::Program> program_, program8_, lanes8_;
+  static std::optional<xi::Program> program_, program8_, bounce_packets8_, lanes8_;
 };
 std::optional<xi::Device> Kernel::device_;
-std::optional<xi::Program> Kernel::program_, Kernel::program8_, Kernel::lanes8_;
+std::optional<xi::Program> Kernel::program_, Kernel::program8_, Kernel::bounce_packets8_, Kernel::lanes8_;
 
 vec3 random_direction(std::mt19937& rng) {
   std::normal_distribution<float> g;
@@ -297,19 +300,20 @@ TEST_F(Kernel, ExtendMatchesBruteForce) {
   EXPECT_LT(ties, (int)n / 1000);  // edge ties are rare for random rays: < 0.1%
 }
 
-// Camera rays in packets (xi_trace_packet8: extend at bounce 0 on an 8-wide tree, eight queue
-// entries per work item) find the hits that one ray per work item finds (extend at any other
-// bounce), bitwise but for ties: where two triangles are hit at the same t (a shared edge), the
-// order of traversal may pick the other. The scene sphere_and_boxes(); packets of eight
-// rays of five kinds, cycled: camera fans (one origin outside, directions a pixel apart), thin-lens
-// fans (origins on a lens, aimed at one focus), fans from inside the closed icosphere aimed exactly
-// at the vertices and edges of one of its triangles (where a crack would let a ray escape: none
-// may), fans leaving a point on the sphere (whose own triangle the error bound of t must refuse),
-// and two kinds the packet declines, to be traced one ray at a time: random directions
-// (different axis permutations) and fans across the plane x = 0 (different near planes). 4001
-// packets and a last one of five rays, in a queue whose entries past the count point at slots
-// that no work item may touch.
-TEST_F(Kernel, CameraPacketsFindTheHitsOfSingleRays) {
+// Rays in packets (xi_trace_packet8: extend at bounce 0 on an 8-wide tree, and at any bounce with
+// XI_BOUNCE_PACKETS, eight queue entries per work item) find the hits that one ray per work item
+// finds (extend at bounce 1 without it), bitwise but for ties: where two triangles are hit at the
+// same t (a shared edge), the order of traversal may pick the other. The scene sphere_and_boxes();
+// packets of eight rays of six kinds, cycled: camera fans (one origin outside, directions a pixel
+// apart), thin-lens fans (origins on a lens, aimed at one focus), fans from inside the closed
+// icosphere aimed exactly at the vertices and edges of one of its triangles (where a crack would
+// let a ray escape: none may), fans leaving a point on the sphere (whose own triangle the error
+// bound of t must refuse), all of which share one axis permutation and near planes (the packet's
+// shared path), and two kinds that do not, as bounce rays do not (its per-ray path): random
+// directions (different axis permutations) and fans across the plane x = 0 (different near
+// planes). 4001 packets and a last one of five rays, traced one at a time, in a queue whose entries
+// past the count point at slots that no work item may touch.
+TEST_F(Kernel, PacketsFindTheHitsOfSingleRays) {
   const xi::Scene scene = sphere_and_boxes();
   const size_t sphere_tris = kSphereTriangles;
   ASSERT_EQ(scene.triangles.size(), kSphereTriangles + 36u);
@@ -360,8 +364,8 @@ TEST_F(Kernel, CameraPacketsFindTheHitsOfSingleRays) {
   std::vector<uint32_t> q(slots);
   std::iota(q.begin(), q.end(), 0u);
 
-  // The packets the kernel takes together: one axis permutation and one sign per axis for all eight
-  // rays (as xi_trace_packet8 decides), so that most packets do go through the packet traversal.
+  // Which packets share one axis permutation and one sign per axis (as xi_trace_packet8 decides):
+  // the four kinds meant to, mostly, and never random or straddling rays, so both paths are taken.
   size_t together = 0;
   for (uint32_t p = 0; p + 1 < (n + 7) / 8; ++p) {
     int kz0 = -1;
@@ -375,23 +379,26 @@ TEST_F(Kernel, CameraPacketsFindTheHitsOfSingleRays) {
       same = same && kz == kz0 && back == back0;
     }
     const int k = kind[8 * p];
-    if (k == kRandom || k == kStraddle) EXPECT_FALSE(same) << "packet " << p << " should be declined";
+    if (k == kRandom || k == kStraddle) EXPECT_FALSE(same) << "packet " << p << " should take the per-ray path";
     together += same;
   }
-  EXPECT_GE(together, (size_t)packets / 2);  // most of the four kinds meant to go together
+  EXPECT_GE(together, (size_t)packets / 2);  // most of the four kinds meant to share
 
-  // Bounce 0: eight rays per work item; bounce 1: one.
-  auto trace = [&](uint32_t bounce) {
+  // Eight rays per work item at bounce 0, and at bounce 3 with bounce packets; one at bounce 1 without.
+  auto trace = [&](uint32_t bounce, bool bounce_packets) {
     PathBuffers b = upload(state);
     std::vector<uint32_t> counters(XI_COUNTER_COUNT(8), 7u);
     counters[XI_COUNTER_RAYS(bounce)] = n;
     cl::Buffer qb = buffer(q), cb = buffer(counters), nodes = bvh_nodes(cs.bvh), blocks = buffer(cs.bvh.blocks);
-    cl::Kernel k = kernel("extend", 8);
+    cl::Kernel k = bounce_packets ? cl::Kernel(bounce_packets8_->program, "extend") : kernel("extend", 8);
     bind(k, b, qb, cb, bounce, nodes, blocks);
-    launch(k, bounce == 0 ? (slots + 7) / 8 : slots);
+    launch(k, slots / XI_RAY_PACKET(8, bounce, bounce_packets ? 1 : 0) + 1);
     return read<vec4>(b.hit, slots);
   };
-  const std::vector<vec4> packet = trace(0), single = trace(1);
+  const std::vector<vec4> packet = trace(0, false), single = trace(1, false), bounce_packet = trace(3, true);
+  for (uint32_t i = 0; i < slots; ++i)
+    if (!same_bits(packet[i], bounce_packet[i]))
+      ADD_FAILURE() << "slot " << i << ": a bounce packet's hit is not the camera packet's";
   size_t aimed_ties = 0, other_ties = 0, differ = 0, hits = 0, inside = 0;
   for (uint32_t i = 0; i < n; ++i) {
     const vec4 a = packet[i], b = single[i];

@@ -117,6 +117,8 @@ static const char* kUsage =
     "                            a CPU, 1 on a GPU)\n"
     "      --bvh-width N         children per BVH node, 4 or 8 (default: 8 on a CPU, 4 on a\n"
     "                            GPU)\n"
+    "      --bounce-packets M    auto | on | off: bounce rays in packets of 8 through an 8-wide\n"
+    "                            BVH, as camera rays go (default auto: on for small trees)\n"
     "      --no-spatial-splits   a BVH whose triangles are never split between subtrees: a\n"
     "                            faster build, slower rays where long triangles overlap\n"
     "      --paths-in-flight N   most (pixel, sample) paths in one wave (default: sized for the\n"

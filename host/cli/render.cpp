@@ -142,7 +142,7 @@ std::string device_selector(const Args& args, const Team& team) {
 void prepare(Job& job, const std::vector<std::string>& argv, const Team& team) {
   Args args(argv,
             {"-o", "--spp", "--seed", "--device", "--max-depth", "--resolution", "--sampler", "--strategy",
-             "--local-size", "--lanes", "--bvh-width", "--reference", "--convergence", "--trace",
+             "--local-size", "--lanes", "--bvh-width", "--bounce-packets", "--reference", "--convergence", "--trace",
              "--paths-in-flight", "--samples-per-pass",
              "--time", "--snapshot-every", "--checkpoint", "--checkpoint-every", "--resume", "--camera"},
             {"--profile", "--quiet", "--all-features", "--no-spatial-splits"});
@@ -175,6 +175,11 @@ void prepare(Job& job, const std::vector<std::string>& argv, const Team& team) {
   // 0 (the fallback, never a value a user may give): the device's default.
   opt.lanes = args.get_int("--lanes", 0, 1, 8);
   opt.bvh_width = args.get_int("--bvh-width", 0, 1, 8);
+  const std::string packets = args.get("--bounce-packets", "auto");
+  if (packets == "auto") opt.bounce_packets = RenderOptions::BouncePackets::Auto;
+  else if (packets == "on") opt.bounce_packets = RenderOptions::BouncePackets::On;
+  else if (packets == "off") opt.bounce_packets = RenderOptions::BouncePackets::Off;
+  else throw Error("expected auto, on or off", "--bounce-packets " + packets);
   opt.all_features = args.has("--all-features");
   opt.spatial_splits = !args.has("--no-spatial-splits");
   opt.paths_in_flight = (size_t)args.get_int("--paths-in-flight", 0, 1, 1 << 30);
@@ -265,10 +270,13 @@ void print_setup(const Job& job, const Team& team, const std::vector<std::string
     std::printf("film: %dx%d (%s)\n", job.scene.width, job.scene.height,
                 job.resolution_given ? "--resolution" : "height 512, width from the camera's aspect ratio");
   std::printf("bvh: %zu %d-wide nodes, %zu leaves, %zu triangle references, depth %d, stack %zu, built in %.2f ms "
-              "on %zu thread%s\n",
+              "on %zu thread%s%s\n",
               cs.bvh.stats.nodes, cs.bvh.width, cs.bvh.stats.leaves, cs.bvh.stats.references, cs.bvh.stats.depth,
               cs.bvh.stats.stack, cs.bvh.stats.build_seconds * 1e3, cs.bvh.stats.threads,
-              cs.bvh.stats.threads == 1 ? "" : "s");
+              cs.bvh.stats.threads == 1 ? "" : "s",
+              renderer.bounce_packets() ? "; camera and bounce rays in packets of 8"
+              : cs.bvh.width == 8       ? "; camera rays in packets of 8"
+                                        : "");
   std::printf("kernels: %s in %.3f s\n", renderer.program().from_cache ? "loaded from cache" : "compiled",
               renderer.program().build_seconds);
   std::printf("paths in flight: %zu, %d spp per pass%s\n", renderer.paths_in_flight(), renderer.samples_per_pass(),

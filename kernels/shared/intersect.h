@@ -316,17 +316,19 @@ static inline uint xi_trace(__global const TraceNode* nodes, __global const TriB
 
 
 #if XI_BVH_WIDTH == 8
-// Camera rays in packets of eight (an 8-wide tree; the extend kernel at bounce 0). Eight rays that
-// start together, neighbouring pixels of one sample, go through the tree together: a node's eight
+// Rays in packets of eight (an 8-wide tree; the extend kernel's camera rays, and its bounce rays in
+// a small tree, layout.h's XI_RAY_PACKET). Eight rays go through the tree together: a node's eight
 // child boxes are each tested against the eight rays, and a leaf's triangles each against the eight
 // rays at once, so a node's loads, its stack entries and its branches serve eight rays, and a leaf of
 // two triangles no longer costs each ray a whole eight-lane block test. A node is entered when any
-// of the rays enters it, so the packet does the union of its rays' work, which for neighbouring
-// camera rays is little more than each one's. Each ray's hit is the one xi_trace finds, bitwise
-// (the same box and triangle arithmetic per lane; where two triangles are hit at exactly the same t,
-// the order of traversal may pick the other). The watertight test needs one axis permutation and
-// the slab test one near plane per axis for the whole packet: a packet whose rays differ in either
-// returns false, to be traced one ray at a time.
+// of the rays enters it, so the packet does the union of its rays' work: for neighbouring camera
+// rays little more than each one's; for bounce rays, which part ways, little more only where each
+// ray visits most of the tree anyway. Each ray's hit is the one xi_trace finds, bitwise (the same
+// box and triangle arithmetic per lane; where two triangles are hit at exactly the same t, the order
+// of traversal may pick the other). Each ray has its own axis permutation (watertight test) and near
+// planes (slab test), chosen per lane by selects; where all eight share them, as neighbouring camera
+// rays do, the packet's one permutation and planes are indices, as in xi_trace (engine camera rays
+// 16% slower with the selects).
 static inline float xi_lanes_min8(float8 v) {
   float4 a = xi_min(v.lo, v.hi);
   float2 b = xi_min(a.lo, a.hi);
@@ -337,45 +339,58 @@ static inline float xi_lanes_max8(float8 v) {
   float2 b = xi_max(a.lo, a.hi);
   return b.x > b.y ? b.x : b.y;
 }
-static inline float8 xi_axis8(float8 x, float8 y, float8 z, int axis) { return axis == 0 ? x : axis == 1 ? y : z; }
 
+// Each ray's permuted axes (xi_permute_axes): kz 0: (x, y, z) → (y, z, x); 1: → (z, x, y); 2: as is.
+#define XI_PX(x, y, z) select(select(x, z, kz1), y, kz0)
+#define XI_PY(x, y, z) select(select(y, x, kz1), z, kz0)
+#define XI_PZ(x, y, z) select(select(z, y, kz1), x, kz0)
+// Lane c of node n's bound `lo` (lo x: 0, lo y: 2, lo z: 4) or of the one across (lo + 1), the
+// nearer per ray by `back` (its direction is negative on that axis), or the farther; `near` is the
+// packet's near plane where its rays share it.
+#define XI_NEAR_PLANE(c, lo, back, near) \
+  (shared ? (float8)n->bounds[near].c : select((float8)n->bounds[lo].c, (float8)n->bounds[(lo) + 1].c, back))
+#define XI_FAR_PLANE(c, lo, back, near) \
+  (shared ? (float8)n->bounds[(near) ^ 1].c : select((float8)n->bounds[(lo) + 1].c, (float8)n->bounds[lo].c, back))
 // Child `k` (lane `c`: s0 … s7) of node n against the packet, as xi_trace's slab test per ray; sets
 // bit k of `hits` and the nearest entry distance of the rays that enter it.
-#define XI_PACKET_CHILD(k, c)                                                                                 \
-  {                                                                                                           \
-    float8 tn = xi_max(xi_max((n->bounds[near_x].c - ox) * inv_x, (n->bounds[near_y].c - oy) * inv_y),        \
-                       xi_max((n->bounds[near_z].c - oz) * inv_z, (float8)0.0f));                             \
-    float8 tf = xi_min(xi_min((n->bounds[near_x ^ 1].c - ox) * inv_x, (n->bounds[near_y ^ 1].c - oy) * inv_y), \
-                       xi_min((n->bounds[near_z ^ 1].c - oz) * inv_z, best));                                 \
-    int8 enter = xi_less_equal(tn, tf * XI_BOX_SLACK);                                                        \
-    if (xi_lane_bits8(enter)) {                                                                               \
-      hits |= 1u << (k);                                                                                      \
-      t_enter[k] = xi_lanes_min8(select((float8)INFINITY, tn, enter));                                       \
-    }                                                                                                         \
+#define XI_PACKET_CHILD(k, c)                                                                             \
+  {                                                                                                       \
+    float8 tn = xi_max(xi_max((XI_NEAR_PLANE(c, 0, back_x, near_x) - ox) * inv_x,                         \
+                              (XI_NEAR_PLANE(c, 2, back_y, near_y) - oy) * inv_y),                        \
+                       xi_max((XI_NEAR_PLANE(c, 4, back_z, near_z) - oz) * inv_z, (float8)0.0f));         \
+    float8 tf = xi_min(xi_min((XI_FAR_PLANE(c, 0, back_x, near_x) - ox) * inv_x,                          \
+                              (XI_FAR_PLANE(c, 2, back_y, near_y) - oy) * inv_y),                         \
+                       xi_min((XI_FAR_PLANE(c, 4, back_z, near_z) - oz) * inv_z, best));                  \
+    int8 enter = xi_less_equal(tn, tf * XI_BOX_SLACK);                                                    \
+    if (xi_lane_bits8(enter)) {                                                                           \
+      hits |= 1u << (k);                                                                                  \
+      t_enter[k] = xi_lanes_min8(select((float8)INFINITY, tn, enter));                                   \
+    }                                                                                                     \
   }
+// Vertex `vertex` of triangle j of the block at `coord`, axes permuted as each ray's (with `shared`,
+// the packet's permutation to_x, to_y, kz) and relative to its origin.
+#define XI_VERTEX(axis, vertex) ((float8)coord[((axis) * 3 + (vertex)) * 4 + j])
+#define XI_PACKET_VERTEX(vertex, px, py, pz)                                                                  \
+  float8 px = (shared ? XI_VERTEX(to_x, vertex)                                                         \
+                            : XI_PX(XI_VERTEX(0, vertex), XI_VERTEX(1, vertex), XI_VERTEX(2, vertex))) - o_x; \
+  float8 py = (shared ? XI_VERTEX(to_y, vertex)                                                         \
+                            : XI_PY(XI_VERTEX(0, vertex), XI_VERTEX(1, vertex), XI_VERTEX(2, vertex))) - o_y; \
+  float8 pz = (shared ? XI_VERTEX(kz_shared, vertex)                                                    \
+                            : XI_PZ(XI_VERTEX(0, vertex), XI_VERTEX(1, vertex), XI_VERTEX(2, vertex))) - o_z
 
-// Closest hits of eight rays (origins o, unit directions d, lane k = ray k) in (0, ∞): sets *t, *u,
-// *v and *tri per lane as xi_trace would (tri XI_NO_HIT for a miss) and returns true; false, with
-// nothing set, for a packet that does not share its permutation and near planes.
-static inline bool xi_trace_packet8(__global const BvhNode8* nodes, __global const TriBlock* blocks, float8 ox,
-                                    float8 oy, float8 oz, float8 dx, float8 dy, float8 dz, float8* t, float8* u,
-                                    float8* v, uint8* tri) {
-  // The permutation and the slab test's planes, per ray as xi_ray_shear and xi_trace choose them.
-  const float8 adx = fabs(dx), ady = fabs(dy), adz = fabs(dz);
-  const int8 kz_lanes = select(select((int8)2, (int8)1, ady > adz), select((int8)2, (int8)0, adx > adz), adx > ady);
-  const int kz = kz_lanes.s0;
-  if (xi_lane_bits8(kz_lanes != (int8)kz)) return false;
+// The traversal, built twice: `shared` says the eight rays share their permutation and near planes.
+static inline XI_INLINE void xi_trace_packet8_as(__global const BvhNode8* nodes, __global const TriBlock* blocks,
+                                                 float8 ox, float8 oy, float8 oz, float8 dx, float8 dy, float8 dz,
+                                                 int8 kz, bool shared, float8* t, float8* u, float8* v, uint8* tri) {
+  const int8 kz0 = kz == (int8)0, kz1 = kz == (int8)1;
+  const int kz_shared = kz.s0, to_x = xi_axis_to_x(kz_shared), to_y = xi_axis_to_y(kz_shared);
   const float8 inv_x = select((float8)1e30f, 1.0f / dx, dx != 0.0f), inv_y = select((float8)1e30f, 1.0f / dy, dy != 0.0f),
                inv_z = select((float8)1e30f, 1.0f / dz, dz != 0.0f);
-  const uint back_x = xi_lane_bits8(inv_x < 0.0f), back_y = xi_lane_bits8(inv_y < 0.0f),
-             back_z = xi_lane_bits8(inv_z < 0.0f);
-  if ((back_x != 0u && back_x != 0xffu) || (back_y != 0u && back_y != 0xffu) || (back_z != 0u && back_z != 0xffu))
-    return false;
-  const int near_x = back_x ? 1 : 0, near_y = back_y ? 3 : 2, near_z = back_z ? 5 : 4;
-  const int to_x = xi_axis_to_x(kz), to_y = xi_axis_to_y(kz);
-  const float8 o_x = xi_axis8(ox, oy, oz, to_x), o_y = xi_axis8(ox, oy, oz, to_y), o_z = xi_axis8(ox, oy, oz, kz);
-  const float8 sz = 1.0f / xi_axis8(dx, dy, dz, kz);
-  const float8 sx = xi_axis8(dx, dy, dz, to_x) * sz, sy = xi_axis8(dx, dy, dz, to_y) * sz;
+  const int8 back_x = inv_x < 0.0f, back_y = inv_y < 0.0f, back_z = inv_z < 0.0f;
+  const int near_x = back_x.s0 ? 1 : 0, near_y = back_y.s0 ? 3 : 2, near_z = back_z.s0 ? 5 : 4;
+  const float8 o_x = XI_PX(ox, oy, oz), o_y = XI_PY(ox, oy, oz), o_z = XI_PZ(ox, oy, oz);
+  const float8 sz = 1.0f / XI_PZ(dx, dy, dz);
+  const float8 sx = XI_PX(dx, dy, dz) * sz, sy = XI_PY(dx, dy, dz) * sz;
 
   uint2 stack[XI_BVH_STACK];  // (entry, the nearest distance at which a ray enters it)
   uint sp = 0u, entry = 0u;
@@ -387,11 +402,9 @@ static inline bool xi_trace_packet8(__global const BvhNode8* nodes, __global con
       for (uint k = first; k < end; ++k) {
         __global const float* coord = (__global const float*)blocks[k].coord;  // [axis][vertex][triangle]
         for (uint j = 0u; j < 4u && blocks[k].tri[j] != XI_NO_HIT; ++j) {  // unused lanes come last
-#define XI_VERTEX(axis, vertex) (coord[((axis) * 3 + (vertex)) * 4 + j])
-          float8 ax = XI_VERTEX(to_x, 0) - o_x, ay = XI_VERTEX(to_y, 0) - o_y, az = XI_VERTEX(kz, 0) - o_z;
-          float8 bx = XI_VERTEX(to_x, 1) - o_x, by = XI_VERTEX(to_y, 1) - o_y, bz = XI_VERTEX(kz, 1) - o_z;
-          float8 cx = XI_VERTEX(to_x, 2) - o_x, cy = XI_VERTEX(to_y, 2) - o_y, cz = XI_VERTEX(kz, 2) - o_z;
-#undef XI_VERTEX
+          XI_PACKET_VERTEX(0, ax, ay, az);
+          XI_PACKET_VERTEX(1, bx, by, bz);
+          XI_PACKET_VERTEX(2, cx, cy, cz);
           float8 e0, e1, e2, t_det;
           XI_SHEARED_EDGES(sx, sy, sz, ax, ay, az, bx, by, bz, cx, cy, cz, e0, e1, e2, t_det);
           // xi_intersect_block's candidate test, then xi_edge_hit's, per ray.
@@ -434,7 +447,7 @@ static inline bool xi_trace_packet8(__global const BvhNode8* nodes, __global con
     for (;;) {
       if (sp == 0u) {
         *t = best, *u = best_u, *v = best_v, *tri = found;
-        return true;
+        return;
       }
       --sp;
       if (as_float(stack[sp].y) <= farthest) break;
@@ -442,7 +455,31 @@ static inline bool xi_trace_packet8(__global const BvhNode8* nodes, __global con
     entry = stack[sp].x;
   }
 }
+#undef XI_PACKET_VERTEX
+#undef XI_VERTEX
 #undef XI_PACKET_CHILD
+#undef XI_FAR_PLANE
+#undef XI_NEAR_PLANE
+#undef XI_PZ
+#undef XI_PY
+#undef XI_PX
+
+// Closest hits of eight rays (origins o, unit directions d, lane k = ray k) in (0, ∞): sets *t, *u,
+// *v and *tri per lane as xi_trace would (tri XI_NO_HIT for a miss).
+static inline void xi_trace_packet8(__global const BvhNode8* nodes, __global const TriBlock* blocks, float8 ox,
+                                    float8 oy, float8 oz, float8 dx, float8 dy, float8 dz, float8* t, float8* u,
+                                    float8* v, uint8* tri) {
+  // Each ray's permutation as xi_ray_shear chooses it, and whether all eight share it and the signs
+  // of their directions (xi_trace's near planes).
+  const float8 adx = fabs(dx), ady = fabs(dy), adz = fabs(dz);
+  const int8 kz = select(select((int8)2, (int8)1, ady > adz), select((int8)2, (int8)0, adx > adz), adx > ady);
+  const uint back_x = xi_lane_bits8(dx < 0.0f), back_y = xi_lane_bits8(dy < 0.0f), back_z = xi_lane_bits8(dz < 0.0f);
+  if (xi_lane_bits8(kz != (int8)kz.s0) == 0u && (back_x == 0u || back_x == 0xffu) &&
+      (back_y == 0u || back_y == 0xffu) && (back_z == 0u || back_z == 0xffu))
+    xi_trace_packet8_as(nodes, blocks, ox, oy, oz, dx, dy, dz, kz, true, t, u, v, tri);
+  else
+    xi_trace_packet8_as(nodes, blocks, ox, oy, oz, dx, dy, dz, kz, false, t, u, v, tri);
+}
 #endif
 
 #ifdef __OPENCL_VERSION__

@@ -25,9 +25,13 @@ typedef struct {
 #define XI_BVH_LEAF_MAX 16u       // triangle blocks in one leaf, at most
 #define XI_BVH_FIRST_MASK 0x07ffffffu
 #define XI_BVH_EMPTY 0xffffffffu
-// Rays per extend work item at bounce 0 (camera rays), by the BVH's width: packets of 8 through an
-// 8-wide tree (extend.cl), one ray through a 4-wide one. The host launches extend accordingly.
-#define XI_CAMERA_PACKET(bvh_width) ((bvh_width) == 8 ? 8 : 1)
+// Rays per extend work item (extend.cl): packets of 8 through an 8-wide tree for camera rays
+// (bounce 0), and for bounce rays too where the host chose bounce packets (XI_BOUNCE_PACKETS: a
+// small tree, RenderOptions::bounce_packets); otherwise one. The host launches extend accordingly.
+#ifndef XI_BOUNCE_PACKETS
+#define XI_BOUNCE_PACKETS 0
+#endif
+#define XI_RAY_PACKET(bvh_width, bounce, bounce_packets) ((bvh_width) == 8 && ((bounce) == 0 || (bounce_packets)) ? 8 : 1)
 typedef struct {
   float4 bounds[6];  // child boxes, lane k = child k: lo x, hi x, lo y, hi y, lo z, hi z
   uint child[4];     // interior child: its node index; leaf: see above
