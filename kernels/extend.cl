@@ -1,7 +1,7 @@
 // Stage 2, extend: the closest hit of every queued ray against the BVH. Through an 8-wide tree,
 // camera rays (bounce 0) go in packets of eight, one packet per work item (intersect.h,
 // xi_trace_packet8), and so do bounce rays where the host chose it for a small tree
-// (XI_BOUNCE_PACKETS, layout.h's XI_RAY_PACKET); every other ray alone, one per work item.
+// (XI_RAY_PACKETS, layout.h's XI_EXTEND_PACKET); every other ray alone, one per work item.
 #include "intersect.h"
 #include "layout.h"
 
@@ -57,7 +57,7 @@ __kernel void extend(XI_PATH_PARAMS __global const uint* restrict queue, __globa
                      uint bounce, __global const TraceNode* restrict nodes, __global const TriBlock* restrict tri_blocks) {
   uint count = counters[XI_COUNTER_RAYS(bounce)];
 #if XI_BVH_WIDTH == 8
-  if (XI_RAY_PACKET(XI_BVH_WIDTH, bounce, XI_BOUNCE_PACKETS) == 8) {
+  if (XI_EXTEND_PACKET(XI_BVH_WIDTH, bounce, XI_RAY_PACKETS) == 8) {
     xi_extend_packet(ray_org, ray_dir, hit, queue, count, nodes, tri_blocks);
     return;
   }

@@ -1,12 +1,58 @@
 // Stage 4, shadow: any-hit test of every queued shadow ray; an unoccluded ray adds its
 // contribution to its path. A path queues at most one shadow ray per bounce, so the add is safe.
+// Through a small 8-wide tree (XI_RAY_PACKETS, layout.h's XI_SHADOW_PACKET) eight rays go
+// together, one packet per work item (intersect.h, xi_occluded_packet8); else one per work item.
 #include "intersect.h"
 #include "layout.h"
 
+static inline void xi_add_unoccluded(__global float4* radiance, float4 contrib) {
+  radiance[as_uint(contrib.w)] += (float4)(contrib.xyz, 0.0f);
+}
+
+#if XI_BVH_WIDTH == 8
+// Shadow rays 8i to 8i + 7; a last packet of fewer than eight goes one ray at a time.
+static inline void xi_shadow_packet(__global float4* radiance, __global const float4* shadow_org,
+                                    __global const float4* shadow_dir, __global const float4* shadow_contrib,
+                                    uint count, __global const TraceNode* nodes, __global const TriBlock* tri_blocks) {
+  const uint first = (uint)get_global_id(0) * 8u;
+  if (first >= count) return;
+  if (count - first < 8u) {
+    for (uint i = first; i < count; ++i) {
+      float t, u, v;
+      const float4 o = shadow_org[i];
+      if (xi_trace(nodes, tri_blocks, o.xyz, shadow_dir[i].xyz, o.w, true, &t, &u, &v) == XI_NO_HIT)
+        xi_add_unoccluded(radiance, shadow_contrib[i]);
+    }
+    return;
+  }
+  const float4 o0 = shadow_org[first], o1 = shadow_org[first + 1u], o2 = shadow_org[first + 2u],
+               o3 = shadow_org[first + 3u], o4 = shadow_org[first + 4u], o5 = shadow_org[first + 5u],
+               o6 = shadow_org[first + 6u], o7 = shadow_org[first + 7u];
+  const float4 d0 = shadow_dir[first], d1 = shadow_dir[first + 1u], d2 = shadow_dir[first + 2u],
+               d3 = shadow_dir[first + 3u], d4 = shadow_dir[first + 4u], d5 = shadow_dir[first + 5u],
+               d6 = shadow_dir[first + 6u], d7 = shadow_dir[first + 7u];
+  const uint occluded = xi_occluded_packet8(nodes, tri_blocks, (float8)(o0.x, o1.x, o2.x, o3.x, o4.x, o5.x, o6.x, o7.x),
+                                            (float8)(o0.y, o1.y, o2.y, o3.y, o4.y, o5.y, o6.y, o7.y),
+                                            (float8)(o0.z, o1.z, o2.z, o3.z, o4.z, o5.z, o6.z, o7.z),
+                                            (float8)(d0.x, d1.x, d2.x, d3.x, d4.x, d5.x, d6.x, d7.x),
+                                            (float8)(d0.y, d1.y, d2.y, d3.y, d4.y, d5.y, d6.y, d7.y),
+                                            (float8)(d0.z, d1.z, d2.z, d3.z, d4.z, d5.z, d6.z, d7.z),
+                                            (float8)(o0.w, o1.w, o2.w, o3.w, o4.w, o5.w, o6.w, o7.w));
+  for (uint k = 0u; k < 8u; ++k)
+    if (!(occluded & (1u << k))) xi_add_unoccluded(radiance, shadow_contrib[first + k]);
+}
+#endif
+
 __kernel void shadow(XI_PATH_PARAMS XI_SHADOW_PARAMS __global const uint* restrict counters, uint bounce,
                      __global const TraceNode* restrict nodes, __global const TriBlock* restrict tri_blocks) {
-  uint i = get_global_id(0);
   uint count = counters[XI_COUNTER_SHADOW(bounce)];
+#if XI_BVH_WIDTH == 8
+  if (XI_SHADOW_PACKET(XI_BVH_WIDTH, XI_RAY_PACKETS) == 8) {
+    xi_shadow_packet(radiance, shadow_org, shadow_dir, shadow_contrib, count, nodes, tri_blocks);
+    return;
+  }
+#endif
+  uint i = get_global_id(0);
   if (i >= count) return;  // launched over an upper bound
 #if XI_HAS_PREFETCH
   // The radiance of the path 4 entries on, which its ray adds to if unoccluded (as extend does):
@@ -16,7 +62,5 @@ __kernel void shadow(XI_PATH_PARAMS XI_SHADOW_PARAMS __global const uint* restri
   float4 o = shadow_org[i];
   float t, u, v;
   if (xi_trace(nodes, tri_blocks, o.xyz, shadow_dir[i].xyz, o.w, true, &t, &u, &v) != XI_NO_HIT) return;
-  float4 c = shadow_contrib[i];
-  uint slot = as_uint(c.w);
-  radiance[slot] += (float4)(c.xyz, 0.0f);
+  xi_add_unoccluded(radiance, shadow_contrib[i]);
 }

@@ -581,13 +581,13 @@ TEST(EndToEndDeterminism, BvhWidthsAgree) {
   }
 }
 
-// Bounce rays in packets (extend.cl, xi_trace_packet8) find each ray's hit bitwise but for ties, as
-// one ray at a time does, so the images agree bit for bit but where two triangles are hit at exactly
-// the same t. The automatic choice takes packets for the Cornell box's tree of 2 nodes and not for
-// mirror.json's hundreds; mirror.json is rendered with them forced on too (per-ray axis permutations
-// and near planes in a deep tree, mirror and glass bounces).
-TEST(EndToEndDeterminism, BouncePacketsAgree) {
-  using Packets = xi::RenderOptions::BouncePackets;
+// Bounce and shadow rays in packets (extend.cl, shadow.cl, xi_packet8) find each ray's hit (or
+// occluder) as one ray at a time does, bitwise but for ties, so the images agree bit for bit but
+// where two triangles are hit at exactly the same t. The automatic choice takes packets for the
+// Cornell box's tree of 2 nodes and not for mirror.json's hundreds; mirror.json is rendered with
+// them forced on too (per-ray axis permutations and near planes in a deep tree, mirror and glass).
+TEST(EndToEndDeterminism, RayPacketsAgree) {
+  using Packets = xi::RenderOptions::RayPackets;
   for (const char* scene : {"cornell-box.json", "mirror.json"}) {
     SCOPED_TRACE(scene);
     const fs::path file = fs::path(XI_SCENE_DIR) / scene;
@@ -596,10 +596,10 @@ TEST(EndToEndDeterminism, BouncePacketsAgree) {
     s.height = kDetH;
     xi::RenderOptions o = options(4, 11);
     o.bvh_width = 8;
-    EXPECT_EQ(xi::Renderer(device(), s, o).bounce_packets(), std::string(scene) == "cornell-box.json");
-    o.bounce_packets = Packets::Off;
+    EXPECT_EQ(xi::Renderer(device(), s, o).ray_packets(), std::string(scene) == "cornell-box.json");
+    o.ray_packets = Packets::Off;
     const Result off = render(kDetW, kDetH, o, file);
-    o.bounce_packets = Packets::On;
+    o.ray_packets = Packets::On;
     const Result on = render(kDetW, kDetH, o, file);
     size_t lit = 0, differ = 0;
     for (size_t i = 0; i < off.mean.pixels.size(); ++i) {

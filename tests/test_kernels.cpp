@@ -49,9 +49,9 @@ template <class T>
 bool same_bits(const T& a, const T& b) { return std::memcmp(&a, &b, sizeof(T)) == 0; }
 
 // One program with every stage, built once for the suite, extend and shadow again for 8-wide BVH
-// nodes (the default one traverses 4-wide nodes), extend once more with bounce rays in packets
-// (XI_BOUNCE_PACKETS), and generate and shade again for 8 lanes (the default: 1). Features of the Cornell box (emitters, no
-// lens), so generate is the pinhole camera.
+// nodes (the default one traverses 4-wide nodes), once more with bounce and shadow rays in packets
+// (XI_RAY_PACKETS), and generate and shade again for 8 lanes (the default: 1). Features of the
+// Cornell box (emitters, no lens), so generate is the pinhole camera.
 class Kernel : public ::testing::Test {
  protected:
   static void SetUpTestSuite() {
@@ -62,13 +62,13 @@ class Kernel : public ::testing::Test {
                                        defines));
     lanes8_.emplace(xi::build_program(*device_, {"generate.cl", "shade.cl"}, concat(defines, "XI_LANES=8")));
     program8_.emplace(xi::build_program(*device_, {"extend.cl", "shadow.cl"}, concat(defines, "XI_BVH_WIDTH=8")));
-    bounce_packets8_.emplace(
-        xi::build_program(*device_, {"extend.cl"}, concat(concat(defines, "XI_BVH_WIDTH=8"), "XI_BOUNCE_PACKETS=1")));
+    ray_packets8_.emplace(
+        xi::build_program(*device_, {"extend.cl", "shadow.cl"}, concat(concat(defines, "XI_BVH_WIDTH=8"), "XI_RAY_PACKETS=1")));
   }
   static void TearDownTestSuite() {  // release OpenCL objects before the driver unloads
     program_.reset();
     program8_.reset();
-    bounce_packets8_.reset();
+    ray_packets8_.reset();
     lanes8_.reset();
     device_.reset();
   }
@@ -145,10 +145,10 @@ class Kernel : public ::testing::Test {
   }
 
   static std::optional<xi::Device> device_;
-  static std::optional<xi::Program> program_, program8_, bounce_packets8_, lanes8_;
+  static std::optional<xi::Program> program_, program8_, ray_packets8_, lanes8_;
 };
 std::optional<xi::Device> Kernel::device_;
-std::optional<xi::Program> Kernel::program_, Kernel::program8_, Kernel::bounce_packets8_, Kernel::lanes8_;
+std::optional<xi::Program> Kernel::program_, Kernel::program8_, Kernel::ray_packets8_, Kernel::lanes8_;
 
 vec3 random_direction(std::mt19937& rng) {
   std::normal_distribution<float> g;
@@ -301,7 +301,7 @@ TEST_F(Kernel, ExtendMatchesBruteForce) {
 }
 
 // Rays in packets (xi_trace_packet8: extend at bounce 0 on an 8-wide tree, and at any bounce with
-// XI_BOUNCE_PACKETS, eight queue entries per work item) find the hits that one ray per work item
+// XI_RAY_PACKETS, eight queue entries per work item) find the hits that one ray per work item
 // finds (extend at bounce 1 without it), bitwise but for ties: where two triangles are hit at the
 // same t (a shared edge), the order of traversal may pick the other. The scene sphere_and_boxes();
 // packets of eight rays of six kinds, cycled: camera fans (one origin outside, directions a pixel
@@ -384,15 +384,15 @@ TEST_F(Kernel, PacketsFindTheHitsOfSingleRays) {
   }
   EXPECT_GE(together, (size_t)packets / 2);  // most of the four kinds meant to share
 
-  // Eight rays per work item at bounce 0, and at bounce 3 with bounce packets; one at bounce 1 without.
-  auto trace = [&](uint32_t bounce, bool bounce_packets) {
+  // Eight rays per work item at bounce 0, and at bounce 3 with ray packets; one at bounce 1 without.
+  auto trace = [&](uint32_t bounce, bool ray_packets) {
     PathBuffers b = upload(state);
     std::vector<uint32_t> counters(XI_COUNTER_COUNT(8), 7u);
     counters[XI_COUNTER_RAYS(bounce)] = n;
     cl::Buffer qb = buffer(q), cb = buffer(counters), nodes = bvh_nodes(cs.bvh), blocks = buffer(cs.bvh.blocks);
-    cl::Kernel k = bounce_packets ? cl::Kernel(bounce_packets8_->program, "extend") : kernel("extend", 8);
+    cl::Kernel k = ray_packets ? cl::Kernel(ray_packets8_->program, "extend") : kernel("extend", 8);
     bind(k, b, qb, cb, bounce, nodes, blocks);
-    launch(k, slots / XI_RAY_PACKET(8, bounce, bounce_packets ? 1 : 0) + 1);
+    launch(k, slots / XI_EXTEND_PACKET(8, bounce, ray_packets ? 1 : 0) + 1);
     return read<vec4>(b.hit, slots);
   };
   const std::vector<vec4> packet = trace(0, false), single = trace(1, false), bounce_packet = trace(3, true);
@@ -706,16 +706,22 @@ TEST_F(Kernel, ShadeFirstHitsFromTheCamera) {
 // --- shadow --------------------------------------------------------------------------------------
 
 // Shadow rays between random points of the Cornell box's interior, occlusion known from brute
-// force: only unoccluded rays add their contribution to their path's radiance (4- and 8-wide BVHs).
+// force: only unoccluded rays add their contribution to their path's radiance (4- and 8-wide BVHs,
+// and 8 wide with rays in packets, XI_RAY_PACKETS). Every other group of eight rays is a fan
+// between two small neighbourhoods, which share their axis permutation and signs, so packets take
+// both paths of xi_trace_packet8_as; 500 rays leave a last packet of four, traced one by one.
 TEST_F(Kernel, ShadowAddsOnlyUnoccluded) {
   xi::Scene scene = xi::load_scene(XI_SCENE_DIR "/cornell-box.json");
-  for (int width : {4, 8}) {
-    SCOPED_TRACE(testing::Message() << width << "-wide BVH");
+  for (int config : {4, 8, 80}) {
+    const int width = config == 4 ? 4 : 8;
+    const bool packets = config == 80;
+    SCOPED_TRACE(testing::Message() << width << "-wide BVH" << (packets ? ", packets" : ""));
     xi::CompiledScene cs = xi::compile_scene(scene, width);
     BruteForce brute(scene.triangles);
     const uint32_t n = 500, slots = 1024, extra = 64;
     std::mt19937 rng(31);
     std::uniform_real_distribution<float> x(1.0f, 555.0f), y(1.0f, 548.0f), z(1.0f, 558.0f), value(0.0f, 5.0f);
+    std::uniform_real_distribution<float> near(-2.0f, 2.0f);
 
     PathState state(slots);
     for (auto& r : state.radiance) r = vec4(value(rng), value(rng), value(rng), value(rng));
@@ -726,9 +732,12 @@ TEST_F(Kernel, ShadowAddsOnlyUnoccluded) {
     std::vector<vec4> org(n + extra), dir(n + extra), contrib(n + extra);
     std::vector<bool> occluded(n + extra);
     int blocked = 0;
+    vec3 fan_from, fan_to;
     for (uint32_t i = 0; i < n + extra; ++i) {
+      if (i % 16 == 8) fan_from = vec3(x(rng), y(rng), z(rng)), fan_to = vec3(x(rng), y(rng), z(rng));
       for (;;) {
         vec3 a(x(rng), y(rng), z(rng)), b(x(rng), y(rng), z(rng));
+        if (i % 16 >= 8) a = fan_from + vec3(near(rng), near(rng), near(rng)), b = fan_to + vec3(near(rng), near(rng), near(rng));
         float tmax = glm::length(b - a);
         vec3 d = glm::normalize(b - a);
         auto hits = brute.hits(a, d, INFINITY);
@@ -753,9 +762,9 @@ TEST_F(Kernel, ShadowAddsOnlyUnoccluded) {
     std::vector<uint32_t> counters(XI_COUNTER_COUNT(8), 3u);
     counters[XI_COUNTER_SHADOW(bounce)] = n;  // the entries past n must be ignored
     cl::Buffer cb = buffer(counters);
-    cl::Kernel k = kernel("shadow", width);
+    cl::Kernel k = packets ? cl::Kernel(ray_packets8_->program, "shadow") : kernel("shadow", width);
     bind(k, b, org_b, dir_b, contrib_b, cb, bounce, nodes, blocks);
-    launch(k, n + extra);  // over an upper bound, as the renderer launches
+    launch(k, (n + extra) / XI_SHADOW_PACKET(width, packets ? 1 : 0));  // over an upper bound, as the renderer launches
     std::vector<vec4> got = read<vec4>(b.radiance, slots);
 
     std::vector<vec4> want = state.radiance;

@@ -142,7 +142,7 @@ std::string device_selector(const Args& args, const Team& team) {
 void prepare(Job& job, const std::vector<std::string>& argv, const Team& team) {
   Args args(argv,
             {"-o", "--spp", "--seed", "--device", "--max-depth", "--resolution", "--sampler", "--strategy",
-             "--local-size", "--lanes", "--bvh-width", "--bounce-packets", "--reference", "--convergence", "--trace",
+             "--local-size", "--lanes", "--bvh-width", "--ray-packets", "--reference", "--convergence", "--trace",
              "--paths-in-flight", "--samples-per-pass",
              "--time", "--snapshot-every", "--checkpoint", "--checkpoint-every", "--resume", "--camera"},
             {"--profile", "--quiet", "--all-features", "--no-spatial-splits"});
@@ -175,11 +175,11 @@ void prepare(Job& job, const std::vector<std::string>& argv, const Team& team) {
   // 0 (the fallback, never a value a user may give): the device's default.
   opt.lanes = args.get_int("--lanes", 0, 1, 8);
   opt.bvh_width = args.get_int("--bvh-width", 0, 1, 8);
-  const std::string packets = args.get("--bounce-packets", "auto");
-  if (packets == "auto") opt.bounce_packets = RenderOptions::BouncePackets::Auto;
-  else if (packets == "on") opt.bounce_packets = RenderOptions::BouncePackets::On;
-  else if (packets == "off") opt.bounce_packets = RenderOptions::BouncePackets::Off;
-  else throw Error("expected auto, on or off", "--bounce-packets " + packets);
+  const std::string packets = args.get("--ray-packets", "auto");
+  if (packets == "auto") opt.ray_packets = RenderOptions::RayPackets::Auto;
+  else if (packets == "on") opt.ray_packets = RenderOptions::RayPackets::On;
+  else if (packets == "off") opt.ray_packets = RenderOptions::RayPackets::Off;
+  else throw Error("expected auto, on or off", "--ray-packets " + packets);
   opt.all_features = args.has("--all-features");
   opt.spatial_splits = !args.has("--no-spatial-splits");
   opt.paths_in_flight = (size_t)args.get_int("--paths-in-flight", 0, 1, 1 << 30);
@@ -274,7 +274,7 @@ void print_setup(const Job& job, const Team& team, const std::vector<std::string
               cs.bvh.stats.nodes, cs.bvh.width, cs.bvh.stats.leaves, cs.bvh.stats.references, cs.bvh.stats.depth,
               cs.bvh.stats.stack, cs.bvh.stats.build_seconds * 1e3, cs.bvh.stats.threads,
               cs.bvh.stats.threads == 1 ? "" : "s",
-              renderer.bounce_packets() ? "; camera and bounce rays in packets of 8"
+              renderer.ray_packets() ? "; camera, bounce and shadow rays in packets of 8"
               : cs.bvh.width == 8       ? "; camera rays in packets of 8"
                                         : "");
   std::printf("kernels: %s in %.3f s\n", renderer.program().from_cache ? "loaded from cache" : "compiled",

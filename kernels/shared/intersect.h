@@ -378,10 +378,12 @@ static inline float xi_lanes_max8(float8 v) {
   float8 pz = (shared ? XI_VERTEX(kz_shared, vertex)                                                    \
                             : XI_PZ(XI_VERTEX(0, vertex), XI_VERTEX(1, vertex), XI_VERTEX(2, vertex))) - o_z
 
-// The traversal, built twice: `shared` says the eight rays share their permutation and near planes.
+// The traversal, built four times: `shared` says the eight rays share their permutation and near
+// planes; `any_hit`, as xi_trace's, that a ray is done at its first hit before its tmax.
 static inline XI_INLINE void xi_trace_packet8_as(__global const BvhNode8* nodes, __global const TriBlock* blocks,
                                                  float8 ox, float8 oy, float8 oz, float8 dx, float8 dy, float8 dz,
-                                                 int8 kz, bool shared, float8* t, float8* u, float8* v, uint8* tri) {
+                                                 float8 tmax, int8 kz, bool shared, bool any_hit, float8* t,
+                                                 float8* u, float8* v, uint8* tri) {
   const int8 kz0 = kz == (int8)0, kz1 = kz == (int8)1;
   const int kz_shared = kz.s0, to_x = xi_axis_to_x(kz_shared), to_y = xi_axis_to_y(kz_shared);
   const float8 inv_x = select((float8)1e30f, 1.0f / dx, dx != 0.0f), inv_y = select((float8)1e30f, 1.0f / dy, dy != 0.0f),
@@ -394,7 +396,7 @@ static inline XI_INLINE void xi_trace_packet8_as(__global const BvhNode8* nodes,
 
   uint2 stack[XI_BVH_STACK];  // (entry, the nearest distance at which a ray enters it)
   uint sp = 0u, entry = 0u;
-  float8 best = (float8)INFINITY, best_u = 0.0f, best_v = 0.0f;
+  float8 best = tmax, best_u = 0.0f, best_v = 0.0f;
   uint8 found = (uint8)XI_NO_HIT;
   for (;;) {
     if (entry & XI_BVH_LEAF) {
@@ -421,6 +423,13 @@ static inline XI_INLINE void xi_trace_packet8_as(__global const BvhNode8* nodes,
           best_u = select(best_u, e1 / det, hit);
           best_v = select(best_v, e2 / det, hit);
           found = select(found, (uint8)blocks[k].tri[j], hit);
+          if (any_hit) {  // a ray that is done enters no box and hits no triangle again
+            best = select(best, (float8)(-INFINITY), hit);
+            if (xi_lane_bits8(found != (uint8)XI_NO_HIT) == 0xffu) {
+              *tri = found;
+              return;
+            }
+          }
         }
       }
     } else {
@@ -464,21 +473,38 @@ static inline XI_INLINE void xi_trace_packet8_as(__global const BvhNode8* nodes,
 #undef XI_PY
 #undef XI_PX
 
-// Closest hits of eight rays (origins o, unit directions d, lane k = ray k) in (0, ∞): sets *t, *u,
-// *v and *tri per lane as xi_trace would (tri XI_NO_HIT for a miss).
-static inline void xi_trace_packet8(__global const BvhNode8* nodes, __global const TriBlock* blocks, float8 ox,
-                                    float8 oy, float8 oz, float8 dx, float8 dy, float8 dz, float8* t, float8* u,
-                                    float8* v, uint8* tri) {
-  // Each ray's permutation as xi_ray_shear chooses it, and whether all eight share it and the signs
-  // of their directions (xi_trace's near planes).
+// Eight rays (origins o, unit directions d, lane k = ray k) as xi_trace takes one: closest hits in
+// (0, tmax) or, with any_hit, whether there is one. Chooses the traversal for the rays' permutations
+// (as xi_ray_shear chooses them) and the signs of their directions (xi_trace's near planes).
+static inline XI_INLINE void xi_packet8(__global const BvhNode8* nodes, __global const TriBlock* blocks, float8 ox,
+                                        float8 oy, float8 oz, float8 dx, float8 dy, float8 dz, float8 tmax,
+                                        bool any_hit, float8* t, float8* u, float8* v, uint8* tri) {
   const float8 adx = fabs(dx), ady = fabs(dy), adz = fabs(dz);
   const int8 kz = select(select((int8)2, (int8)1, ady > adz), select((int8)2, (int8)0, adx > adz), adx > ady);
   const uint back_x = xi_lane_bits8(dx < 0.0f), back_y = xi_lane_bits8(dy < 0.0f), back_z = xi_lane_bits8(dz < 0.0f);
   if (xi_lane_bits8(kz != (int8)kz.s0) == 0u && (back_x == 0u || back_x == 0xffu) &&
       (back_y == 0u || back_y == 0xffu) && (back_z == 0u || back_z == 0xffu))
-    xi_trace_packet8_as(nodes, blocks, ox, oy, oz, dx, dy, dz, kz, true, t, u, v, tri);
+    xi_trace_packet8_as(nodes, blocks, ox, oy, oz, dx, dy, dz, tmax, kz, true, any_hit, t, u, v, tri);
   else
-    xi_trace_packet8_as(nodes, blocks, ox, oy, oz, dx, dy, dz, kz, false, t, u, v, tri);
+    xi_trace_packet8_as(nodes, blocks, ox, oy, oz, dx, dy, dz, tmax, kz, false, any_hit, t, u, v, tri);
+}
+
+// Closest hits of eight rays in (0, ∞): sets *t, *u, *v and *tri per lane as xi_trace would (tri
+// XI_NO_HIT for a miss).
+static inline void xi_trace_packet8(__global const BvhNode8* nodes, __global const TriBlock* blocks, float8 ox,
+                                    float8 oy, float8 oz, float8 dx, float8 dy, float8 dz, float8* t, float8* u,
+                                    float8* v, uint8* tri) {
+  xi_packet8(nodes, blocks, ox, oy, oz, dx, dy, dz, (float8)INFINITY, false, t, u, v, tri);
+}
+
+// The rays of eight (tmax per ray) that hit something before their tmax, as bits (lane k: bit k),
+// each as xi_trace's any-hit query finds.
+static inline uint xi_occluded_packet8(__global const BvhNode8* nodes, __global const TriBlock* blocks, float8 ox,
+                                       float8 oy, float8 oz, float8 dx, float8 dy, float8 dz, float8 tmax) {
+  float8 t, u, v;
+  uint8 tri;
+  xi_packet8(nodes, blocks, ox, oy, oz, dx, dy, dz, tmax, true, &t, &u, &v, &tri);
+  return xi_lane_bits8(tri != (uint8)XI_NO_HIT);
 }
 #endif
 

@@ -26,12 +26,14 @@ typedef struct {
 #define XI_BVH_FIRST_MASK 0x07ffffffu
 #define XI_BVH_EMPTY 0xffffffffu
 // Rays per extend work item (extend.cl): packets of 8 through an 8-wide tree for camera rays
-// (bounce 0), and for bounce rays too where the host chose bounce packets (XI_BOUNCE_PACKETS: a
-// small tree, RenderOptions::bounce_packets); otherwise one. The host launches extend accordingly.
-#ifndef XI_BOUNCE_PACKETS
-#define XI_BOUNCE_PACKETS 0
+// (bounce 0), and for bounce rays too where the host chose ray packets (XI_RAY_PACKETS: a small
+// tree, RenderOptions::ray_packets); otherwise one. The host launches extend accordingly.
+#ifndef XI_RAY_PACKETS
+#define XI_RAY_PACKETS 0
 #endif
-#define XI_RAY_PACKET(bvh_width, bounce, bounce_packets) ((bvh_width) == 8 && ((bounce) == 0 || (bounce_packets)) ? 8 : 1)
+#define XI_EXTEND_PACKET(bvh_width, bounce, ray_packets) ((bvh_width) == 8 && ((bounce) == 0 || (ray_packets)) ? 8 : 1)
+// Shadow rays per shadow work item (shadow.cl): packets of 8 with ray packets, else one.
+#define XI_SHADOW_PACKET(bvh_width, ray_packets) ((bvh_width) == 8 && (ray_packets) ? 8 : 1)
 typedef struct {
   float4 bounds[6];  // child boxes, lane k = child k: lo x, hi x, lo y, hi y, lo z, hi z
   uint child[4];     // interior child: its node index; leaf: see above

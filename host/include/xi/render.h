@@ -71,12 +71,13 @@ struct RenderOptions {
   // counted it. Auto: exact on a CPU device, lagged elsewhere (Renderer::run_wave says why).
   enum class LaunchBound { Auto, Exact, Lagged };
   LaunchBound launch_bound = LaunchBound::Auto;
-  // Bounce rays through an 8-wide tree in packets of eight, as camera rays always go (kernels/
-  // extend.cl); the image does not depend on it. Auto: where the tree is small enough that each ray
-  // visits most of it anyway (Renderer::Renderer says how small), so a packet of rays in different
-  // directions does little more than each ray alone; in a larger tree such rays part ways.
-  enum class BouncePackets { Auto, On, Off };
-  BouncePackets bounce_packets = BouncePackets::Auto;
+  // Bounce and shadow rays through an 8-wide tree in packets of eight, as camera rays always go
+  // (kernels/extend.cl, shadow.cl); the image does not depend on it. Auto: where the tree is small
+  // enough that each ray visits most of it anyway (kRayPacketNodes in integrator.cpp), so a packet
+  // of rays in different directions does little more than each ray alone; in a larger tree such
+  // rays part ways.
+  enum class RayPackets { Auto, On, Off };
+  RayPackets ray_packets = RayPackets::Auto;
   bool profile = false;         // time every launch with OpenCL events (launches())
   int record_bounce = -1;       // if >= 0, keep the rays entering extend at this bounce (bench/)
 };
@@ -139,8 +140,8 @@ class Renderer {
   int spp_done() const { return spp_done_; }
   int samples_per_pass() const { return samples_per_pass_; }
   size_t paths_in_flight() const { return paths_; }
-  // Whether extend traces bounce rays in packets (RenderOptions::bounce_packets, resolved).
-  bool bounce_packets() const { return bounce_packets_; }
+  // Whether bounce and shadow rays go in packets (RenderOptions::ray_packets, resolved).
+  bool ray_packets() const { return ray_packets_; }
 
   // The film (options().rows of the frame) resolved to images.
   Film film() const;
@@ -161,8 +162,8 @@ class Renderer {
   uint64_t extend_rays() const { return extend_rays_; }
   const RayBatch& recorded_rays() const { return recorded_; }
   // Runs the extend stage alone on the given rays (at most wave size) as it runs at `bounce`: in
-  // packets of 8 consecutive rays where XI_RAY_PACKET says so (camera rays, bounce 0, through an
-  // 8-wide tree; other bounces with bounce packets), else one by one. Returns the kernel's time in seconds and the hits (t or −1, u, v,
+  // packets of 8 consecutive rays where XI_EXTEND_PACKET says so (camera rays, bounce 0, through an
+  // 8-wide tree; other bounces with ray packets), else one by one. Returns the kernel's time in seconds and the hits (t or −1, u, v,
   // triangle in BVH order as float bits).
   double trace_closest(const RayBatch& rays, std::vector<glm::vec4>* hits, int bounce);
   uint64_t shadow_rays() const { return shadow_rays_; }
@@ -193,7 +194,7 @@ class Renderer {
   Program program_;  // every stage's kernels (generate's and shade's are built apart, for their lane count)
   int lanes_ = 1;
   bool exact_bounds_ = false;  // RenderOptions::launch_bound, resolved for the device
-  bool bounce_packets_ = false;  // RenderOptions::bounce_packets, resolved for the tree
+  bool ray_packets_ = false;  // RenderOptions::ray_packets, resolved for the tree
   size_t pixels_ = 0;
   size_t paths_ = 0;           // path state slots: the most (pixel, sample) items of one wave
   int samples_per_pass_ = 1;
