@@ -316,8 +316,9 @@ static inline uint xi_trace(__global const TraceNode* nodes, __global const TriB
 
 
 #if XI_BVH_WIDTH == 8
-// Rays in packets of eight (an 8-wide tree; the extend kernel's camera rays, and its bounce rays in
-// a small tree, layout.h's XI_RAY_PACKET). Eight rays go through the tree together: a node's eight
+// Rays in packets of eight (an 8-wide tree; the extend kernel's camera rays, and in a small tree its
+// bounce rays and the shadow kernel's rays too: layout.h's XI_EXTEND_PACKET and XI_SHADOW_PACKET).
+// Eight rays go through the tree together: a node's eight
 // child boxes are each tested against the eight rays, and a leaf's triangles each against the eight
 // rays at once, so a node's loads, its stack entries and its branches serve eight rays, and a leaf of
 // two triangles no longer costs each ray a whole eight-lane block test. A node is entered when any
@@ -370,13 +371,13 @@ static inline float xi_lanes_max8(float8 v) {
 // Vertex `vertex` of triangle j of the block at `coord`, axes permuted as each ray's (with `shared`,
 // the packet's permutation to_x, to_y, kz) and relative to its origin.
 #define XI_VERTEX(axis, vertex) ((float8)coord[((axis) * 3 + (vertex)) * 4 + j])
-#define XI_PACKET_VERTEX(vertex, px, py, pz)                                                                  \
-  float8 px = (shared ? XI_VERTEX(to_x, vertex)                                                         \
-                            : XI_PX(XI_VERTEX(0, vertex), XI_VERTEX(1, vertex), XI_VERTEX(2, vertex))) - o_x; \
-  float8 py = (shared ? XI_VERTEX(to_y, vertex)                                                         \
-                            : XI_PY(XI_VERTEX(0, vertex), XI_VERTEX(1, vertex), XI_VERTEX(2, vertex))) - o_y; \
-  float8 pz = (shared ? XI_VERTEX(kz_shared, vertex)                                                    \
-                            : XI_PZ(XI_VERTEX(0, vertex), XI_VERTEX(1, vertex), XI_VERTEX(2, vertex))) - o_z
+#define XI_PACKET_VERTEX(vertex, px, py, pz)                                                              \
+  float8 px = (shared ? XI_VERTEX(to_x, vertex)                                                           \
+                      : XI_PX(XI_VERTEX(0, vertex), XI_VERTEX(1, vertex), XI_VERTEX(2, vertex))) - o_x;   \
+  float8 py = (shared ? XI_VERTEX(to_y, vertex)                                                           \
+                      : XI_PY(XI_VERTEX(0, vertex), XI_VERTEX(1, vertex), XI_VERTEX(2, vertex))) - o_y;   \
+  float8 pz = (shared ? XI_VERTEX(kz_shared, vertex)                                                      \
+                      : XI_PZ(XI_VERTEX(0, vertex), XI_VERTEX(1, vertex), XI_VERTEX(2, vertex))) - o_z
 
 // The traversal, built four times: `shared` says the eight rays share their permutation and near
 // planes; `any_hit`, as xi_trace's, that a ray is done at its first hit before its tmax.
@@ -419,11 +420,12 @@ static inline XI_INLINE void xi_trace_packet8_as(__global const BvhNode8* nodes,
           if (xi_lane_bits8(hit) == 0u) continue;
           float8 t_err_det = XI_T_ERROR_DET_OF(xi_max, sz, ax, ay, az, bx, by, bz, cx, cy, cz, e0, e1, e2);
           hit &= xi_greater4(tt, t_err_det / fabs(det));
-          best = select(best, tt, hit);
-          best_u = select(best_u, e1 / det, hit);
-          best_v = select(best_v, e2 / det, hit);
           found = select(found, (uint8)blocks[k].tri[j], hit);
-          if (any_hit) {  // a ray that is done enters no box and hits no triangle again
+          if (!any_hit) {
+            best = select(best, tt, hit);
+            best_u = select(best_u, e1 / det, hit);
+            best_v = select(best_v, e2 / det, hit);
+          } else {  // a ray that is done enters no box and hits no triangle again
             best = select(best, (float8)(-INFINITY), hit);
             if (xi_lane_bits8(found != (uint8)XI_NO_HIT) == 0xffu) {
               *tri = found;
@@ -442,12 +444,12 @@ static inline XI_INLINE void xi_trace_packet8_as(__global const BvhNode8* nodes,
         entry = n->child[31 - clz(hits)];
         continue;
       }
-      // Nearest on top, as xi_trace pushes.
+      // Nearest on top for closest hits, any order for any hits, as xi_trace pushes.
       const uint base = sp;
       for (uint k = 0u; k < 8u; ++k) {
         if (!(hits & (1u << k))) continue;
         uint j = sp++;
-        for (; j > base && as_float(stack[j - 1u].y) < t_enter[k]; --j) stack[j] = stack[j - 1u];
+        for (; !any_hit && j > base && as_float(stack[j - 1u].y) < t_enter[k]; --j) stack[j] = stack[j - 1u];
         stack[j] = make_uint2(n->child[k], as_uint(t_enter[k]));
       }
     }
