@@ -9,6 +9,16 @@ static inline void xi_add_unoccluded(__global float4* radiance, float4 contrib) 
   radiance[as_uint(contrib.w)] += (float4)(contrib.xyz, 0.0f);
 }
 
+// Shadow ray i alone.
+static inline void xi_shadow_one(__global float4* radiance, __global const float4* shadow_org,
+                                 __global const float4* shadow_dir, __global const float4* shadow_contrib, uint i,
+                                 __global const TraceNode* nodes, __global const TriBlock* tri_blocks) {
+  const float4 o = shadow_org[i];
+  float t, u, v;
+  if (xi_trace(nodes, tri_blocks, o.xyz, shadow_dir[i].xyz, o.w, true, &t, &u, &v) == XI_NO_HIT)
+    xi_add_unoccluded(radiance, shadow_contrib[i]);
+}
+
 #if XI_BVH_WIDTH == 8
 // Shadow rays 8i to 8i + 7; a last packet of fewer than eight goes one ray at a time.
 static inline void xi_shadow_packet(__global float4* radiance, __global const float4* shadow_org,
@@ -17,12 +27,8 @@ static inline void xi_shadow_packet(__global float4* radiance, __global const fl
   const uint first = (uint)get_global_id(0) * 8u;
   if (first >= count) return;
   if (count - first < 8u) {
-    for (uint i = first; i < count; ++i) {
-      float t, u, v;
-      const float4 o = shadow_org[i];
-      if (xi_trace(nodes, tri_blocks, o.xyz, shadow_dir[i].xyz, o.w, true, &t, &u, &v) == XI_NO_HIT)
-        xi_add_unoccluded(radiance, shadow_contrib[i]);
-    }
+    for (uint i = first; i < count; ++i)
+      xi_shadow_one(radiance, shadow_org, shadow_dir, shadow_contrib, i, nodes, tri_blocks);
     return;
   }
   const float4 o0 = shadow_org[first], o1 = shadow_org[first + 1u], o2 = shadow_org[first + 2u],
@@ -59,8 +65,5 @@ __kernel void shadow(XI_PATH_PARAMS XI_SHADOW_PARAMS __global const uint* restri
   // shadow up to 8% faster on PoCL.
   if (i + 4u < count) XI_PREFETCH(&radiance[as_uint(shadow_contrib[i + 4u].w)], 1);
 #endif
-  float4 o = shadow_org[i];
-  float t, u, v;
-  if (xi_trace(nodes, tri_blocks, o.xyz, shadow_dir[i].xyz, o.w, true, &t, &u, &v) != XI_NO_HIT) return;
-  xi_add_unoccluded(radiance, shadow_contrib[i]);
+  xi_shadow_one(radiance, shadow_org, shadow_dir, shadow_contrib, i, nodes, tri_blocks);
 }

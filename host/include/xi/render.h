@@ -163,8 +163,8 @@ class Renderer {
   const RayBatch& recorded_rays() const { return recorded_; }
   // Runs the extend stage alone on the given rays (at most wave size) as it runs at `bounce`: in
   // packets of 8 consecutive rays where XI_EXTEND_PACKET says so (camera rays, bounce 0, through an
-  // 8-wide tree; other bounces with ray packets), else one by one. Returns the kernel's time in seconds and the hits (t or −1, u, v,
-  // triangle in BVH order as float bits).
+  // 8-wide tree; other bounces with ray packets), else one by one. Returns the kernel's time in
+  // seconds and the hits (t or −1, u, v, triangle in BVH order as float bits).
   double trace_closest(const RayBatch& rays, std::vector<glm::vec4>* hits, int bounce);
   uint64_t shadow_rays() const { return shadow_rays_; }
 
