@@ -62,8 +62,8 @@ class Kernel : public ::testing::Test {
                                        defines));
     lanes8_.emplace(xi::build_program(*device_, {"generate.cl", "shade.cl"}, concat(defines, "XI_LANES=8")));
     program8_.emplace(xi::build_program(*device_, {"extend.cl", "shadow.cl"}, concat(defines, "XI_BVH_WIDTH=8")));
-    ray_packets8_.emplace(
-        xi::build_program(*device_, {"extend.cl", "shadow.cl"}, concat(concat(defines, "XI_BVH_WIDTH=8"), "XI_RAY_PACKETS=1")));
+    ray_packets8_.emplace(xi::build_program(*device_, {"extend.cl", "shadow.cl"},
+                                            concat(concat(defines, "XI_BVH_WIDTH=8"), "XI_RAY_PACKETS=1")));
   }
   static void TearDownTestSuite() {  // release OpenCL objects before the driver unloads
     program_.reset();
@@ -737,7 +737,10 @@ TEST_F(Kernel, ShadowAddsOnlyUnoccluded) {
       if (i % 16 == 8) fan_from = vec3(x(rng), y(rng), z(rng)), fan_to = vec3(x(rng), y(rng), z(rng));
       for (;;) {
         vec3 a(x(rng), y(rng), z(rng)), b(x(rng), y(rng), z(rng));
-        if (i % 16 >= 8) a = fan_from + vec3(near(rng), near(rng), near(rng)), b = fan_to + vec3(near(rng), near(rng), near(rng));
+        if (i % 16 >= 8) {
+          a = fan_from + vec3(near(rng), near(rng), near(rng));
+          b = fan_to + vec3(near(rng), near(rng), near(rng));
+        }
         float tmax = glm::length(b - a);
         vec3 d = glm::normalize(b - a);
         auto hits = brute.hits(a, d, INFINITY);
