@@ -15,7 +15,8 @@
 #include <vector>
 
 #include "xi/error.h"
-#include "xi/render.h"
+#include "render/ray_probe.h"
+#include "xi/renderer.h"
 
 namespace {
 
@@ -153,17 +154,18 @@ int main(int argc, char** argv) {
     for (int bounce : {0, 1}) {
       xi::RenderOptions opt;
       opt.spp = 1;
-      opt.record_bounce = bounce;
       opt.paths_in_flight = (size_t)scene.width * scene.height;  // one wave: trace_closest takes them all
       xi::Renderer recorder(device, scene, opt);
+      xi::RayProbe probe(recorder);
+      probe.record(bounce);
       recorder.run_pass();
-      const xi::RayBatch& rays = recorder.recorded_rays();
+      const xi::RayBatch& rays = probe.recorded();
       Embree embree(recorder.compiled().tri_verts, embree_quality);
       std::vector<double> xi_s, em_s, em16_s;
       std::vector<glm::vec4> hits;
       std::vector<int> prim, prim16;
       for (int r = 0; r < runs; ++r) {
-        xi_s.push_back(recorder.trace_closest(rays, &hits, bounce));
+        xi_s.push_back(probe.trace_closest(rays, &hits, bounce));
         em_s.push_back(embree.trace(rays, &prim));
         em16_s.push_back(embree.trace16(rays, bounce == 0, &prim16));
       }

@@ -21,7 +21,8 @@
 #include <vector>
 
 #include "xi/error.h"
-#include "xi/render.h"
+#include "render/ray_probe.h"
+#include "xi/renderer.h"
 
 namespace {
 
@@ -75,18 +76,19 @@ int main(int argc, char** argv) {
     for (int bounce : {0, 1}) {
       xi::RenderOptions opt;
       opt.spp = 1;
-      opt.record_bounce = bounce;
       opt.paths_in_flight = (size_t)scene.width * scene.height;  // one wave: trace_closest takes them all
       std::unique_ptr<xi::Renderer> r[2];
       for (int k = 0; k < 2; ++k) r[k] = make_renderer(device, scene, side[k], opt);
+      xi::RayProbe probe[2] = {xi::RayProbe(*r[0]), xi::RayProbe(*r[1])};
+      probe[0].record(bounce);
       r[0]->run_pass();
-      const xi::RayBatch& rays = r[0]->recorded_rays();
+      const xi::RayBatch& rays = probe[0].recorded();
       std::vector<double> seconds[2], ratio;
       std::vector<glm::vec4> hits[2];
       for (int i = 0; i < runs; ++i) {
         for (int j = 0; j < 2; ++j) {
           const int k = i % 2 ? 1 - j : j;
-          seconds[k].push_back(r[k]->trace_closest(rays, &hits[k], bounce));
+          seconds[k].push_back(probe[k].trace_closest(rays, &hits[k], bounce));
         }
         ratio.push_back(seconds[1].back() / seconds[0].back());
       }

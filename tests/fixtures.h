@@ -2,7 +2,7 @@
 #pragma once
 #include "xi/device.h"
 #include "xi/image.h"
-#include "xi/render.h"
+#include "xi/renderer.h"
 #include "xi/scene.h"
 
 namespace xi::test {

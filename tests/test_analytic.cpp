@@ -20,7 +20,7 @@
 #include "stats.h"
 #include "xi/compiled_scene.h"
 #include "xi/device.h"
-#include "xi/render.h"
+#include "xi/renderer.h"
 #include "xi/scene.h"
 #include "fixtures.h"
 

@@ -27,7 +27,7 @@
 #include "cli_test.h"
 #include "xi/device.h"
 #include "xi/image.h"
-#include "xi/render.h"
+#include "xi/renderer.h"
 #include "xi/scene.h"
 #include "fixtures.h"
 

@@ -10,6 +10,7 @@
 
 #include "xi/compiled_scene.h"
 #include "xi/device.h"
+#include "xi/kernel_config.h"
 #include "xi/error.h"
 
 namespace fs = std::filesystem;
@@ -34,7 +35,9 @@ struct TempEnv {
 const std::vector<std::string> kStages = {"generate.cl", "extend.cl", "shade.cl", "shadow.cl", "accumulate.cl"};
 
 std::vector<std::string> cornell_defines() {
-  return xi::kernel_defines(xi::Features{}, XI_SAMPLER_RANDOM, xi::Strategy::Mis);
+  xi::KernelConfig c;
+  c.sampler = XI_SAMPLER_RANDOM;
+  return c.defines();
 }
 
 }  // namespace
@@ -91,7 +94,7 @@ TEST(Device, SecondBuildComesFromTheCache) {
   EXPECT_TRUE(second.from_cache);
   EXPECT_EQ(second.cache_file, first.cache_file);
   // Other options are another binary.
-  xi::Program other = xi::build_program(device, kStages, xi::kernel_defines(xi::Features{}, XI_SAMPLER_SOBOL, xi::Strategy::Mis));
+  xi::Program other = xi::build_program(device, kStages, xi::KernelConfig{}.defines());
   EXPECT_FALSE(other.from_cache);
   EXPECT_NE(other.cache_file, first.cache_file);
   cl::Kernel k(second.program, "extend");  // the cached binary is a working program

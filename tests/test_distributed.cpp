@@ -7,7 +7,7 @@
 
 #include "fixtures.h"
 #include "xi/error.h"
-#include "xi/render.h"
+#include "xi/renderer.h"
 #include "xi/scene.h"
 
 namespace {

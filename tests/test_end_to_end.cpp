@@ -31,7 +31,7 @@
 #include "xi/device.h"
 #include "xi/error.h"
 #include "xi/image.h"
-#include "xi/render.h"
+#include "xi/renderer.h"
 #include "xi/scene.h"
 #include "fixtures.h"
 
@@ -602,7 +602,7 @@ TEST(EndToEndDeterminism, RayPacketsAgree) {
     s.height = kDetH;
     xi::RenderOptions o = options(4, 11);
     o.bvh_width = 8;
-    EXPECT_EQ(xi::Renderer(device(), s, o).ray_packets(), std::string(scene) == "cornell-box.json");
+    EXPECT_EQ(xi::Renderer(device(), s, o).kernels().ray_packets, std::string(scene) == "cornell-box.json");
     o.ray_packets = Packets::Off;
     const Result off = render(kDetW, kDetH, o, file);
     o.ray_packets = Packets::On;

@@ -24,7 +24,8 @@
 
 #include "stats.h"
 #include "xi/device.h"
-#include "xi/render.h"
+#include "render/ray_probe.h"
+#include "xi/renderer.h"
 #include "xi/scene.h"
 #include "fixtures.h"
 
@@ -1016,7 +1017,7 @@ RayTest shoot_from_inside(const std::vector<xi::Triangle>& tris, dvec3 centre, d
       rays.org[i] = glm::vec4(of, 0.0f);
       rays.dir[i] = glm::vec4(vec3(glm::normalize(target - dvec3(of))), 0.0f);
     }
-    out.seconds += renderer.trace_closest(rays, &hits, 1);  // one ray per work item: random origins make no packets
+    out.seconds += xi::RayProbe(renderer).trace_closest(rays, &hits, 1);  // one ray per work item: random origins make no packets
     for (size_t i = 0; i < n; ++i) {
       if (hits[i].x < 0.0f) {
         out.escaped++;

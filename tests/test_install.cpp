@@ -75,7 +75,7 @@ TEST(Install, PackageBuildsAProgramThatRendersWithTheInstalledKernels) {
   ASSERT_EQ(run(cmake + " --install " + quote(XI_BUILD_DIR) + " --prefix " + quote(staged.string()), log), 0)
       << read_text(log);
   fs::rename(staged, prefix);
-  for (const char* file : {"bin/xi", "lib/libxi.a", "include/xi/render.h", "include/xi/device.h",
+  for (const char* file : {"bin/xi", "lib/libxi.a", "include/xi/renderer.h", "include/xi/device.h",
                            "include/xi/layout.h", "include/xi/sampling.h", "include/xi/compat.h",
                            "lib/cmake/xi/xiConfig.cmake", "lib/cmake/xi/xiConfigVersion.cmake",
                            "lib/cmake/xi/xiTargets.cmake", "share/xi/kernels/shade.cl",

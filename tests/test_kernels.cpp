@@ -20,6 +20,7 @@
 #include "sampling.h"
 #include "xi/compiled_scene.h"
 #include "xi/device.h"
+#include "xi/kernel_config.h"
 #include "xi/scene.h"
 
 #include "brute_force.h"
@@ -56,14 +57,19 @@ class Kernel : public ::testing::Test {
  protected:
   static void SetUpTestSuite() {
     device_.emplace(xi::Device::open(""));
-    xi::Features f = xi::compile_scene(xi::load_scene(XI_SCENE_DIR "/cornell-box.json")).features;
-    std::vector<std::string> defines = xi::kernel_defines(f, XI_SAMPLER_RANDOM, xi::Strategy::Mis);
+    xi::KernelConfig c;
+    c.features = xi::compile_scene(xi::load_scene(XI_SCENE_DIR "/cornell-box.json")).features;
+    c.sampler = XI_SAMPLER_RANDOM;
+    c.cpu_device = device_->info().type == "CPU";
     program_.emplace(xi::build_program(*device_, {"generate.cl", "extend.cl", "shade.cl", "shadow.cl", "accumulate.cl"},
-                                       defines));
-    lanes8_.emplace(xi::build_program(*device_, {"generate.cl", "shade.cl"}, concat(defines, "XI_LANES=8")));
-    program8_.emplace(xi::build_program(*device_, {"extend.cl", "shadow.cl"}, concat(defines, "XI_BVH_WIDTH=8")));
-    ray_packets8_.emplace(xi::build_program(*device_, {"extend.cl", "shadow.cl"},
-                                            concat(concat(defines, "XI_BVH_WIDTH=8"), "XI_RAY_PACKETS=1")));
+                                       c.defines()));
+    xi::KernelConfig lanes8 = c, width8 = c, packets8 = c;
+    lanes8.lanes = 8;
+    width8.bvh_width = packets8.bvh_width = 8;
+    packets8.ray_packets = true;
+    lanes8_.emplace(xi::build_program(*device_, {"generate.cl", "shade.cl"}, lanes8.defines()));
+    program8_.emplace(xi::build_program(*device_, {"extend.cl", "shadow.cl"}, width8.defines()));
+    ray_packets8_.emplace(xi::build_program(*device_, {"extend.cl", "shadow.cl"}, packets8.defines()));
   }
   static void TearDownTestSuite() {  // release OpenCL objects before the driver unloads
     program_.reset();
@@ -137,11 +143,6 @@ class Kernel : public ::testing::Test {
     XI_PATH_STATE(XI_READ)
 #undef XI_READ
     return s;
-  }
-
-  static std::vector<std::string> concat(std::vector<std::string> defines, const std::string& more) {
-    defines.push_back(more);
-    return defines;
   }
 
   static std::optional<xi::Device> device_;

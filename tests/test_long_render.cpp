@@ -13,7 +13,7 @@
 #include "xi/device.h"
 #include "xi/error.h"
 #include "xi/image.h"
-#include "xi/render.h"
+#include "xi/renderer.h"
 #include "xi/scene.h"
 #include "fixtures.h"
 

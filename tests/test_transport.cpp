@@ -22,7 +22,9 @@
 #include "stats.h"
 #include "xi/compiled_scene.h"
 #include "xi/device.h"
-#include "xi/render.h"
+#include "xi/error.h"
+#include "xi/kernel_config.h"
+#include "xi/renderer.h"
 #include "xi/scene.h"
 #include "fixtures.h"
 
@@ -672,7 +674,10 @@ bool has(const std::vector<std::string>& defines, const std::string& d) {
 
 TEST(TransportFeatures, KernelDefinesFollowTheScene) {
   auto defines = [](const char* name, xi::Strategy s = xi::Strategy::Mis) {
-    return xi::kernel_defines(xi::compile_scene(xi::load_scene(kScenes / name)).features, XI_SAMPLER_SOBOL, s);
+    xi::KernelConfig c;
+    c.features = xi::compile_scene(xi::load_scene(kScenes / name)).features;
+    c.strategy = s;
+    return c.defines();
   };
   auto cornell = defines("cornell-box.json");
   EXPECT_FALSE(has(cornell, "XI_HAS_DIELECTRIC"));
@@ -694,6 +699,82 @@ TEST(TransportFeatures, KernelDefinesFollowTheScene) {
   EXPECT_FALSE(has(bsdf, "XI_NEE"));
   EXPECT_FALSE(has(bsdf, "XI_MIS"));
   EXPECT_TRUE(has(bsdf, "XI_HAS_EMITTERS"));
+}
+
+// KernelConfig::make chooses for the device where the options leave it open, and follows the options
+// where they do not; a tree too large for packets of bounce rays gets none under Auto.
+TEST(TransportFeatures, KernelConfigFollowsDeviceSceneAndOptions) {
+  xi::DeviceInfo cpu, gpu;
+  cpu.type = "CPU";
+  gpu.type = "GPU";
+  const xi::Scene cornell = xi::load_scene(kScenes / "cornell-box.json");
+  xi::RenderOptions opt;
+  ASSERT_EQ(xi::KernelConfig::bvh_width_for(cpu, opt), 8);
+  ASSERT_EQ(xi::KernelConfig::bvh_width_for(gpu, opt), 4);
+  const xi::CompiledScene wide = xi::compile_scene(cornell, 8), narrow = xi::compile_scene(cornell, 4);
+  const xi::KernelConfig on_cpu = xi::KernelConfig::make(cpu, wide, opt);
+  EXPECT_EQ(on_cpu.lanes, 8);
+  EXPECT_EQ(on_cpu.bvh_width, 8);
+  EXPECT_TRUE(on_cpu.cpu_device);
+  EXPECT_TRUE(on_cpu.ray_packets);  // the Cornell box's tree is one or two nodes
+  EXPECT_EQ(on_cpu.features, wide.features);
+  const xi::KernelConfig on_gpu = xi::KernelConfig::make(gpu, narrow, opt);
+  EXPECT_EQ(on_gpu.lanes, 1);
+  EXPECT_EQ(on_gpu.bvh_width, 4);
+  EXPECT_FALSE(on_gpu.cpu_device);
+  EXPECT_FALSE(on_gpu.ray_packets);  // packets need an 8-wide tree
+
+  opt.lanes = 1;
+  opt.bvh_width = 4;
+  opt.ray_packets = xi::RenderOptions::RayPackets::Off;
+  opt.all_features = true;
+  opt.sampler = XI_SAMPLER_STRATIFIED;
+  opt.strategy = xi::Strategy::Nee;
+  const xi::KernelConfig chosen = xi::KernelConfig::make(cpu, narrow, opt);
+  EXPECT_EQ(chosen.lanes, 1);
+  EXPECT_EQ(chosen.bvh_width, 4);
+  EXPECT_FALSE(chosen.ray_packets);
+  EXPECT_EQ(chosen.features, xi::Features::everything());
+  EXPECT_EQ(chosen.sampler, XI_SAMPLER_STRATIFIED);
+  EXPECT_EQ(chosen.strategy, xi::Strategy::Nee);
+
+  const xi::Scene engine = xi::load_scene(fs::path(XI_SCENE_DIR).parent_path() / "bench/scenes/engine.json");
+  opt = xi::RenderOptions{};
+  EXPECT_FALSE(xi::KernelConfig::make(cpu, xi::compile_scene(engine, 8), opt).ray_packets);
+  opt.ray_packets = xi::RenderOptions::RayPackets::On;
+  EXPECT_TRUE(xi::KernelConfig::make(cpu, xi::compile_scene(engine, 8), opt).ray_packets);
+
+  opt = xi::RenderOptions{};
+  opt.lanes = 4;
+  EXPECT_THROW(xi::KernelConfig::make(cpu, wide, opt), xi::Error);
+  opt = xi::RenderOptions{};
+  opt.bvh_width = 2;
+  EXPECT_THROW(xi::KernelConfig::bvh_width_for(cpu, opt), xi::Error);
+}
+
+// Every field of the configuration reaches the flags, so that no two configurations share a cached
+// binary (build_program hashes the flags), and describe() names every field's value.
+TEST(TransportFeatures, EveryKernelOptionChangesTheFlags) {
+  const xi::KernelConfig base;
+  std::vector<xi::KernelConfig> variants(8, base);
+  variants[0].features.mirror = true;
+  variants[1].features.lens = true;
+  variants[2].sampler = XI_SAMPLER_RANDOM;
+  variants[3].strategy = xi::Strategy::Bsdf;
+  variants[3].features.emitters = variants[4].features.emitters = true;  // strategies matter with lights
+  variants[5].lanes = 8;
+  variants[6].bvh_width = 8;
+  variants[7].ray_packets = true;
+  std::vector<std::vector<std::string>> flags{base.defines()};
+  for (const xi::KernelConfig& v : variants) flags.push_back(v.defines());
+  for (size_t i = 0; i < flags.size(); ++i)
+    for (size_t j = i + 1; j < flags.size(); ++j) EXPECT_NE(flags[i], flags[j]) << i << " and " << j;
+  xi::KernelConfig cpu = base;
+  cpu.cpu_device = true;
+  EXPECT_TRUE(has(cpu.defines(), "XI_CPU_DEVICE"));
+  EXPECT_FALSE(has(base.defines(), "XI_CPU_DEVICE"));
+  EXPECT_EQ(variants[7].describe(), "diffuse; sampler sobol; strategy mis; lanes 1; bvh 4-wide; ray packets on");
+  EXPECT_EQ(cpu.describe(), "diffuse; sampler sobol; strategy mis; lanes 1; bvh 4-wide; ray packets off; cpu device");
 }
 
 // Features a scene does not use must change nothing: the Cornell box built with every feature

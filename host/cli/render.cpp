@@ -20,7 +20,7 @@
 #include "xi/image.h"
 #include "xi/metrics.h"
 #include "xi/profile.h"
-#include "xi/render.h"
+#include "xi/renderer.h"
 #include "team.h"
 
 namespace xi::cli {
@@ -264,7 +264,7 @@ void print_setup(const Job& job, const Team& team, const std::vector<std::string
   }
   std::printf("scene: %s, %zu triangles, %zu lights, features: %s\n", job.scene_path.string().c_str(),
               job.scene.triangles.size(), cs.features.emitters ? cs.light_tri.size() : 0,
-              (job.opt.all_features ? Features::everything() : cs.features).describe().c_str());
+              renderer.kernels().features.describe().c_str());
   for (const std::string& note : job.scene.notes) std::printf("%s\n", note.c_str());
   if (job.asset)
     std::printf("film: %dx%d (%s)\n", job.scene.width, job.scene.height,
@@ -274,11 +274,13 @@ void print_setup(const Job& job, const Team& team, const std::vector<std::string
               cs.bvh.stats.nodes, cs.bvh.width, cs.bvh.stats.leaves, cs.bvh.stats.references, cs.bvh.stats.depth,
               cs.bvh.stats.stack, cs.bvh.stats.build_seconds * 1e3, cs.bvh.stats.threads,
               cs.bvh.stats.threads == 1 ? "" : "s",
-              renderer.ray_packets() ? "; camera, bounce and shadow rays in packets of 8"
+              renderer.kernels().ray_packets ? "; camera, bounce and shadow rays in packets of 8"
               : cs.bvh.width == 8       ? "; camera rays in packets of 8"
                                         : "");
   std::printf("kernels: %s in %.3f s\n", renderer.program().from_cache ? "loaded from cache" : "compiled",
               renderer.program().build_seconds);
+  if (job.opt.profile)
+    std::printf("kernel options: %s (key %s)\n", renderer.kernels().describe().c_str(), renderer.program().key.c_str());
   std::printf("paths in flight: %zu, %d spp per pass%s\n", renderer.paths_in_flight(), renderer.samples_per_pass(),
               team.size() > 1 ? " (rank 0)" : "");
   if (!job.resume.empty())

@@ -10,7 +10,7 @@
 
 #include <glm/glm.hpp>
 
-#include "xi/render.h"
+#include "xi/renderer.h"
 
 namespace xi::cli {
 

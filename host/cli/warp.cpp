@@ -9,7 +9,7 @@
 #include "cli.h"
 #include "sampling.h"
 #include "warps.h"
-#include "xi/compiled_scene.h"
+#include "xi/kernel_config.h"
 #include "xi/error.h"
 #include "xi/image.h"
 #include "xi/warp.h"

@@ -5,7 +5,7 @@
 
 #include <xi/error.h>
 #include <xi/image.h>
-#include <xi/render.h>
+#include <xi/renderer.h>
 #include <xi/scene.h>
 
 int main(int argc, char** argv) {

@@ -3,7 +3,7 @@
 #include <filesystem>
 #include <string>
 
-#include "xi/render.h"
+#include "xi/renderer.h"
 
 namespace xi {
 

@@ -24,20 +24,6 @@ struct Features {
   bool operator==(const Features&) const = default;
 };
 
-// Light transport strategies: MIS combines light and BSDF sampling; nee uses light sampling alone
-// for direct light; bsdf uses BSDF sampling alone.
-enum class Strategy { Mis, Nee, Bsdf };
-Strategy parse_strategy(const std::string& name);   // throws xi::Error
-const char* strategy_name(Strategy s);
-int parse_sampler(const std::string& name);         // XI_SAMPLER_*; throws xi::Error
-const char* sampler_name(int sampler);
-// Whether every prefix of a render is a render with fewer spp (random, sobol); grid and stratified
-// patterns are only complete at the spp they were made for.
-bool sampler_is_progressive(int sampler);
-
-// The -D flags for a feature set, sampler and strategy.
-std::vector<std::string> kernel_defines(const Features& f, int sampler, Strategy strategy);
-
 struct CompiledScene {
   Bvh bvh;
   std::vector<glm::vec4> tri_verts;    // 3 per triangle, BVH order

@@ -5,7 +5,7 @@
 #include <filesystem>
 #include <vector>
 
-#include "xi/render.h"
+#include "xi/renderer.h"
 
 namespace xi {
 

@@ -33,49 +33,6 @@ std::string Features::describe() const {
   return s;
 }
 
-Strategy parse_strategy(const std::string& name) {
-  if (name == "mis") return Strategy::Mis;
-  if (name == "nee") return Strategy::Nee;
-  if (name == "bsdf") return Strategy::Bsdf;
-  throw Error("unknown strategy '" + name + "'", "expected mis, nee or bsdf");
-}
-
-const char* strategy_name(Strategy s) {
-  return s == Strategy::Mis ? "mis" : s == Strategy::Nee ? "nee" : "bsdf";
-}
-
-int parse_sampler(const std::string& name) {
-  for (int s = XI_SAMPLER_RANDOM; s <= XI_SAMPLER_SOBOL; ++s)
-    if (name == sampler_name(s)) return s;
-  throw Error("unknown sampler '" + name + "'", "expected random, grid, stratified or sobol");
-}
-
-const char* sampler_name(int sampler) {
-  switch (sampler) {
-    case XI_SAMPLER_RANDOM: return "random";
-    case XI_SAMPLER_GRID: return "grid";
-    case XI_SAMPLER_STRATIFIED: return "stratified";
-    case XI_SAMPLER_SOBOL: return "sobol";
-  }
-  return "?";
-}
-
-bool sampler_is_progressive(int sampler) { return sampler == XI_SAMPLER_RANDOM || sampler == XI_SAMPLER_SOBOL; }
-
-std::vector<std::string> kernel_defines(const Features& f, int sampler, Strategy strategy) {
-  std::vector<std::string> d{"XI_SAMPLER=" + std::to_string(sampler)};
-  if (f.mirror) d.push_back("XI_HAS_MIRROR");
-  if (f.dielectric) d.push_back("XI_HAS_DIELECTRIC");
-  if (f.normals) d.push_back("XI_HAS_NORMALS");
-  if (f.lens) d.push_back("XI_HAS_LENS");
-  if (f.emitters) {
-    d.push_back("XI_HAS_EMITTERS");
-    if (strategy != Strategy::Bsdf) d.push_back("XI_NEE");
-    if (strategy == Strategy::Mis) d.push_back("XI_MIS");
-  }
-  return d;
-}
-
 CompiledScene compile_scene(const Scene& scene, int bvh_width, bool spatial_splits, unsigned build_threads) {
   check_scene_limits(scene);  // a scene built in code has not met the loaders' checks
   CompiledScene cs;

@@ -1,92 +1,25 @@
-#include <sys/resource.h>
+#include "xi/renderer.h"
 
 #include <algorithm>
 #include <chrono>
-#include <cmath>
-#include <cstdio>
-#include <fstream>
 #include <string>
 
+#include "memory.h"
+#include "ray_probe.h"
 #include "xi/error.h"
-#include "xi/render.h"
 
 namespace xi {
 namespace {
 
-// The kernel files, one per wavefront stage, built into two programs: generate and shade take
-// XI_LANES paths per work item (their helpers are written for one lane type per program), the
-// tracing stages and accumulate one.
-const std::vector<std::string> kStageFiles = {"extend.cl", "shadow.cl", "accumulate.cl"};
+// The kernel files, one per wavefront stage, built as two programs: generate and shade take
+// XI_LANES paths per work item (kernels/shared/lanes.h), the tracing stages and accumulate one.
+const std::vector<std::string> kTraceFiles = {"extend.cl", "shadow.cl", "accumulate.cl"};
 const std::vector<std::string> kLaneFiles = {"generate.cl", "shade.cl"};
-
-// The largest 8-wide tree whose bounce and shadow rays go in packets when RenderOptions::ray_packets
-// is Auto.
-constexpr size_t kRayPacketNodes = 8;
 
 template <typename T>
 cl::Buffer upload(cl::Context& ctx, const std::vector<T>& data) {
   return cl::Buffer(ctx, CL_MEM_READ_ONLY | CL_MEM_COPY_HOST_PTR, sizeof(T) * data.size(),
                     const_cast<T*>(data.data()));
-}
-
-std::string gigabytes(double bytes) {
-  char buf[32];
-  std::snprintf(buf, sizeof buf, "%.2f GB", bytes * 1e-9);
-  return buf;
-}
-
-// A "Key: value kB" line of a /proc file, in bytes; NaN if absent.
-double proc_bytes(const char* file, const std::string& wanted) {
-  std::ifstream in(file);
-  for (std::string key; in >> key;) {
-    double kb = 0;
-    in >> kb;
-    if (key == wanted) return kb * 1024.0;
-    in.ignore(256, '\n');
-  }
-  return NAN;
-}
-
-// Host memory this process can still take: what the system has available, and what is left of
-// an address-space limit (ulimit -v) after what is mapped already, whichever is less.
-double host_bytes_available() {
-  double available = proc_bytes("/proc/meminfo", "MemAvailable:");
-  if (std::isnan(available)) available = INFINITY;
-  rlimit limit{};
-  if (getrlimit(RLIMIT_AS, &limit) == 0 && limit.rlim_cur != RLIM_INFINITY) {
-    const double used = proc_bytes("/proc/self/status", "VmSize:");
-    available = std::min(available, (double)limit.rlim_cur - (std::isnan(used) ? 0.0 : used));
-  }
-  return available;
-}
-
-// Checked before anything is allocated, so a frame too large stops with one error naming what it
-// needs and what there is, rather than in the driver (PoCL aborts on a failed allocation).
-void check_memory(Device& device, size_t pixels, size_t paths, size_t scene_bytes, size_t largest_scene_buffer) {
-  const double film = 4.0 * sizeof(glm::vec4) * pixels;  // sum, sum of squares, albedo, normal
-  const double needed = film + (double)paths * path_bytes() + (double)scene_bytes;
-  const std::string what = " (film " + gigabytes(film) + " for " + std::to_string(pixels) + " pixels, " +
-                           std::to_string(paths) + " paths in flight " + gigabytes((double)paths * path_bytes()) +
-                           ", scene " + gigabytes((double)scene_bytes) + ")";
-  const std::string where = device.info().name + "; lower --resolution or --paths-in-flight";
-  const double device_memory = (double)device.device().getInfo<CL_DEVICE_GLOBAL_MEM_SIZE>();
-  if (needed > device_memory)
-    throw Error("the render needs " + gigabytes(needed) + " of device memory" + what + ", the device has " +
-                    gigabytes(device_memory), where);
-  const double largest = std::max({sizeof(glm::vec4) * (double)pixels, sizeof(glm::vec4) * (double)paths,
-                                   (double)largest_scene_buffer});
-  const double max_alloc = (double)device.device().getInfo<CL_DEVICE_MAX_MEM_ALLOC_SIZE>();
-  if (largest > max_alloc)
-    throw Error("the render needs a buffer of " + gigabytes(largest) + what + ", the device allocates at most " +
-                    gigabytes(max_alloc) + " at once", where);
-  // The host reads the film back and resolves it (four vec4 and four vec3 images per pixel); a
-  // device that shares host memory (a CPU) takes its buffers from there too.
-  const bool shared = device.device().getInfo<CL_DEVICE_HOST_UNIFIED_MEMORY>();
-  const double host = (4.0 * sizeof(glm::vec4) + 4.0 * sizeof(glm::vec3)) * pixels + (shared ? needed : 0.0);
-  const double available = host_bytes_available();
-  if (host > available)
-    throw Error("the render needs " + gigabytes(host) + " of host memory" + what + ", " + gigabytes(available) +
-                    " is available", where);
 }
 
 }  // namespace
@@ -101,11 +34,9 @@ size_t path_bytes() {
 }
 
 size_t default_paths_in_flight(Device& device) {
-  // A CPU: 2^20 paths, so a 512×512 frame takes 4 spp per pass, in a quarter of the launches of 2^18
-  // (the Cornell box at 64 spp 7% faster on 2 PoCL cores; 2^21 and 2^22 no faster again).
-  // A GPU needs hundreds of thousands of paths to hide its memory latency, and tens of millions so
-  // that the gaps between launches (tens of microseconds each on NVIDIA's driver) are a small part of
-  // a pass: on an H200 at 1080p, 2^25 paths ran 8–9% faster than 2^23 (README, "On a GPU").
+  // A CPU: 2^20 paths, so a 512×512 frame takes 4 spp per pass in few launches. A GPU needs
+  // hundreds of thousands of paths to hide its memory latency, and tens of millions so that the gaps
+  // between launches (tens of microseconds each) are a small part of a pass.
   size_t paths = device.info().type == "GPU" ? (size_t)1 << 25 : (size_t)1 << 20;
   // At most a quarter of the device memory, and no buffer over the device's largest allocation.
   const size_t bytes = path_bytes();
@@ -115,37 +46,31 @@ size_t default_paths_in_flight(Device& device) {
   return std::max<size_t>(paths, 1024);
 }
 
-// The BVH width the kernels will traverse: the option, or the device's default.
-static int bvh_width(Device& device, const RenderOptions& options) {
-  return options.bvh_width ? options.bvh_width : (device.info().type == "CPU" ? 8 : 4);
-}
-
 Renderer::Renderer(Device& device, const Scene& scene, const RenderOptions& options)
     : device_(device),
       options_(options),
-      scene_(compile_scene(scene, bvh_width(device, options), options.spatial_splits, options.build_threads)) {
+      scene_(compile_scene(scene, KernelConfig::bvh_width_for(device.info(), options), options.spatial_splits,
+                           options.build_threads)),
+      kernels_(KernelConfig::make(device.info(), scene_, options)) {
   if (options.spp < 1) throw Error("spp must be at least 1", "--spp");
   if (options.max_depth < 1 || options.max_depth > 64) throw Error("max depth must be in 1..64", "--max-depth");
   if (options.samples_per_pass < 0) throw Error("samples per pass must be at least 1 (0: automatic)");
-  Features f = options.all_features ? Features::everything() : scene_.features;
-  lanes_ = options.lanes ? options.lanes : (device.info().type == "CPU" ? 8 : 1);
-  if (lanes_ != 1 && lanes_ != 8) throw Error("lanes must be 1 or 8, not " + std::to_string(lanes_), "--lanes");
   exact_bounds_ = options.launch_bound == RenderOptions::LaunchBound::Auto
                       ? device.info().type == "CPU"
                       : options.launch_bound == RenderOptions::LaunchBound::Exact;
-  const std::vector<std::string> defines = kernel_defines(f, options.sampler, options.strategy);
-  std::vector<std::string> lane_defines = defines, stage_defines = defines;
-  lane_defines.push_back("XI_LANES=" + std::to_string(lanes_));
-  stage_defines.push_back("XI_BVH_WIDTH=" + std::to_string(scene_.bvh.width));
-  // Packets of rays that part ways pay where each ray visits most of the tree anyway (README, "Bounce
-  // and shadow rays in packets"): the Cornell box's 2 nodes, extend 20% and shadow 25% faster; the
-  // engine's 5406, extend half again as slow.
-  ray_packets_ = scene_.bvh.width == 8 && (options.ray_packets == RenderOptions::RayPackets::Auto
-                                               ? scene_.bvh.nodes8.size() <= kRayPacketNodes
-                                               : options.ray_packets == RenderOptions::RayPackets::On);
-  stage_defines.push_back(std::string("XI_RAY_PACKETS=") + (ray_packets_ ? "1" : "0"));
-  program_ = build_program(device, kStageFiles, stage_defines);
-  Program lane_program = build_program(device, kLaneFiles, lane_defines);
+  build_kernels();
+  size_waves();
+  check_memory();
+  allocate();
+  auto start = std::chrono::steady_clock::now();
+  warm_up();
+  program_.build_seconds += std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+}
+
+void Renderer::build_kernels() {
+  const std::vector<std::string> defines = kernels_.defines();
+  program_ = build_program(device_, kTraceFiles, defines);
+  Program lane_program = build_program(device_, kLaneFiles, defines);
   // One key, build time and cache state for all the kernels (checkpoints and `xi render` use them).
   program_.key += lane_program.key;
   program_.build_seconds += lane_program.build_seconds;
@@ -155,37 +80,46 @@ Renderer::Renderer(Device& device, const Scene& scene, const RenderOptions& opti
   shade_ = cl::Kernel(lane_program.program, "shade");
   shadow_ = cl::Kernel(program_.program, "shadow");
   accumulate_ = cl::Kernel(program_.program, "accumulate");
+}
 
-  // Paths in flight: a wave holds several samples of every pixel when the budget allows it.
-  if (options.rows.first < 0 || options.rows.stride < 1 || options.rows.count(scene.height) < 1)
-    throw Error("the film's rows start at " + std::to_string(options.rows.first) + " every " +
-                std::to_string(options.rows.stride) + ": no row of a frame " + std::to_string(scene.height) + " high");
-  pixels_ = (size_t)scene.width * options.rows.count(scene.height);
-  const size_t budget = options.paths_in_flight ? options.paths_in_flight : default_paths_in_flight(device);
-  const int fits = (int)std::clamp<size_t>(budget / pixels_, 1, (size_t)options.spp);
-  samples_per_pass_ = options.samples_per_pass > 0 ? std::min(options.samples_per_pass, fits) : fits;
+// Paths in flight: a wave holds several samples of every pixel when the budget allows it.
+void Renderer::size_waves() {
+  const FilmRows rows = options_.rows;
+  const int height = (int)scene_.camera.height;
+  if (rows.first < 0 || rows.stride < 1 || rows.count(height) < 1)
+    throw Error("the film's rows start at " + std::to_string(rows.first) + " every " + std::to_string(rows.stride) +
+                ": no row of a frame " + std::to_string(height) + " high");
+  pixels_ = (size_t)scene_.camera.width * rows.count(height);
+  const size_t budget = options_.paths_in_flight ? options_.paths_in_flight : default_paths_in_flight(device_);
+  const int fits = (int)std::clamp<size_t>(budget / pixels_, 1, (size_t)options_.spp);
+  samples_per_pass_ = options_.samples_per_pass > 0 ? std::min(options_.samples_per_pass, fits) : fits;
   paths_ = std::min(budget, pixels_ * samples_per_pass_);
   if (paths_ > UINT32_MAX / 2) throw Error("too many paths in flight", std::to_string(paths_));
-  size_t scene_bytes = 0, largest_scene_buffer = 0;
-  for (size_t b : {sizeof(BvhNode) * scene_.bvh.nodes.size() + sizeof(BvhNode8) * scene_.bvh.nodes8.size(),
-                   sizeof(TriBlock) * scene_.bvh.blocks.size(),
-                   sizeof(glm::vec4) * scene_.tri_verts.size(), sizeof(glm::vec4) * scene_.tri_normals.size(),
-                   sizeof(uint32_t) * scene_.tri_material.size(), sizeof(MaterialData) * scene_.materials.size(),
-                   sizeof(float) * scene_.light_cdf.size(), sizeof(uint32_t) * scene_.light_tri.size(),
-                   sizeof(float) * scene_.tri_light_pdf.size()}) {
-    scene_bytes += b;
-    largest_scene_buffer = std::max(largest_scene_buffer, b);
-  }
-  check_memory(device, pixels_, paths_, scene_bytes, largest_scene_buffer);
+}
 
-  cl::Context& ctx = device.context();
+void Renderer::check_memory() const {
+  MemoryNeeds needs{pixels_, paths_, path_bytes()};
+  const Bvh& bvh = scene_.bvh;
+  for (size_t b : {sizeof(BvhNode) * bvh.nodes.size() + sizeof(BvhNode8) * bvh.nodes8.size(),
+                   sizeof(TriBlock) * bvh.blocks.size(), sizeof(glm::vec4) * scene_.tri_verts.size(),
+                   sizeof(glm::vec4) * scene_.tri_normals.size(), sizeof(uint32_t) * scene_.tri_material.size(),
+                   sizeof(MaterialData) * scene_.materials.size(), sizeof(float) * scene_.light_cdf.size(),
+                   sizeof(uint32_t) * scene_.light_tri.size(), sizeof(float) * scene_.tri_light_pdf.size()}) {
+    needs.scene_bytes += b;
+    needs.largest_scene_buffer = std::max(needs.largest_scene_buffer, b);
+  }
+  xi::check_memory(device_, needs);
+}
+
+void Renderer::allocate() {
+  cl::Context& ctx = device_.context();
 #define XI_ALLOCATE_BUFFER(type, name) name##_ = cl::Buffer(ctx, CL_MEM_READ_WRITE, sizeof(type) * paths_);
   XI_PATH_STATE(XI_ALLOCATE_BUFFER)
   XI_SHADOW_STATE(XI_ALLOCATE_BUFFER)
 #undef XI_ALLOCATE_BUFFER
   queue_a_ = cl::Buffer(ctx, CL_MEM_READ_WRITE, sizeof(uint32_t) * paths_);
   queue_b_ = cl::Buffer(ctx, CL_MEM_READ_WRITE, sizeof(uint32_t) * paths_);
-  counter_count_ = XI_COUNTER_COUNT(options.max_depth);
+  counter_count_ = XI_COUNTER_COUNT(options_.max_depth);
   counters_ = cl::Buffer(ctx, CL_MEM_READ_WRITE, sizeof(uint32_t) * counter_count_);
   queue_counts_.assign(counter_count_, 0);
   nodes_ = scene_.bvh.width == 8 ? upload(ctx, scene_.bvh.nodes8) : upload(ctx, scene_.bvh.nodes);
@@ -201,14 +135,11 @@ Renderer::Renderer(Device& device, const Scene& scene, const RenderOptions& opti
   film_sum_sq_ = cl::Buffer(ctx, CL_MEM_READ_WRITE, sizeof(glm::vec4) * pixels_);
   film_albedo_ = cl::Buffer(ctx, CL_MEM_READ_WRITE, sizeof(glm::vec4) * pixels_);
   film_normal_ = cl::Buffer(ctx, CL_MEM_READ_WRITE, sizeof(glm::vec4) * pixels_);
-  cl::CommandQueue& q = device.queue();
+  cl::CommandQueue& q = device_.queue();
   for (cl::Buffer* b : {&film_sum_, &film_sum_sq_, &film_albedo_, &film_normal_})
     q.enqueueFillBuffer(*b, 0.0f, 0, sizeof(glm::vec4) * pixels_);
   q.enqueueFillBuffer(counters_, 0u, 0, sizeof(uint32_t) * counter_count_);
   q.finish();
-  auto start = std::chrono::steady_clock::now();
-  warm_up();
-  program_.build_seconds += std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
 }
 
 int Renderer::bind_path_state(cl::Kernel& kernel) {
@@ -250,7 +181,7 @@ void Renderer::generate(const WaveParams& wave) {
   generate_.setArg(arg++, scene_.camera);
   generate_.setArg(arg++, sampler_params());
   generate_.setArg(arg++, wave);
-  launch(generate_, "generate", -1, (size_t)wave.pixels * wave.samples, (size_t)lanes_);
+  launch(generate_, "generate", -1, (size_t)wave.pixels * wave.samples, (size_t)kernels_.lanes);
 }
 
 void Renderer::extend(const cl::Buffer& queue, int bounce, size_t global) {
@@ -260,7 +191,7 @@ void Renderer::extend(const cl::Buffer& queue, int bounce, size_t global) {
   extend_.setArg(arg++, (uint32_t)bounce);
   extend_.setArg(arg++, nodes_);
   extend_.setArg(arg++, tri_blocks_);
-  launch(extend_, "extend", bounce, global, XI_EXTEND_PACKET(scene_.bvh.width, bounce, ray_packets_));
+  launch(extend_, "extend", bounce, global, XI_EXTEND_PACKET(kernels_.bvh_width, bounce, kernels_.ray_packets));
 }
 
 void Renderer::shade(const cl::Buffer& queue_in, const cl::Buffer& queue_out, int bounce, size_t global) {
@@ -281,7 +212,7 @@ void Renderer::shade(const cl::Buffer& queue_in, const cl::Buffer& queue_out, in
   shade_.setArg(arg++, sampler_params());
   shade_.setArg(arg++, (uint32_t)options_.max_depth);
   shade_.setArg(arg++, scene_.background);
-  launch(shade_, "shade", bounce, global, (size_t)lanes_);
+  launch(shade_, "shade", bounce, global, (size_t)kernels_.lanes);
 }
 
 void Renderer::shadow(int bounce, size_t global) {
@@ -290,7 +221,7 @@ void Renderer::shadow(int bounce, size_t global) {
   shadow_.setArg(arg++, (uint32_t)bounce);
   shadow_.setArg(arg++, nodes_);
   shadow_.setArg(arg++, tri_blocks_);
-  launch(shadow_, "shadow", bounce, global, XI_SHADOW_PACKET(scene_.bvh.width, ray_packets_));
+  launch(shadow_, "shadow", bounce, global, XI_SHADOW_PACKET(kernels_.bvh_width, kernels_.ray_packets));
 }
 
 void Renderer::accumulate(const WaveParams& wave) {
@@ -328,7 +259,7 @@ void Renderer::run_wave(const WaveParams& wave) {
   const cl::Buffer* out = &queue_b_;
   size_t bound = (size_t)wave.pixels * wave.samples;
   for (int bounce = 0; bounce <= options_.max_depth && bound > 0; ++bounce) {
-    if (bounce == options_.record_bounce) record(*in, bounce);
+    if (probe_) probe_->entering_extend(*in, bounce);
     extend(*in, bounce, bound);
     shade(*in, *out, bounce, bound);
     static_assert(XI_COUNTER_RAYS(1) == XI_COUNTER_SHADOW(0) + 1, "shade's two counts are adjacent");
@@ -404,45 +335,6 @@ void Renderer::finish_pass() {
   wave_first_launch_.clear();
 }
 
-// Bench only: waits for the queue of this bounce and keeps its rays.
-void Renderer::record(const cl::Buffer& queue, int bounce) {
-  cl::CommandQueue& q = device_.queue();
-  uint32_t count = 0;
-  q.enqueueReadBuffer(counters_, CL_TRUE, sizeof(uint32_t) * XI_COUNTER_RAYS(bounce), sizeof count, &count);
-  std::vector<uint32_t> slots(count);
-  std::vector<glm::vec4> org(paths_), dir(paths_);
-  if (count > 0) q.enqueueReadBuffer(queue, CL_TRUE, 0, sizeof(uint32_t) * count, slots.data());
-  q.enqueueReadBuffer(ray_org_, CL_TRUE, 0, sizeof(glm::vec4) * paths_, org.data());
-  q.enqueueReadBuffer(ray_dir_, CL_TRUE, 0, sizeof(glm::vec4) * paths_, dir.data());
-  for (uint32_t s : slots) {
-    recorded_.org.push_back(org[s]);
-    recorded_.dir.push_back(dir[s]);
-  }
-}
-
-double Renderer::trace_closest(const RayBatch& rays, std::vector<glm::vec4>* hits, int bounce) {
-  const size_t n = rays.org.size();
-  if (n > paths_ || rays.dir.size() != n) throw Error("ray batch larger than the paths in flight or malformed");
-  if (bounce < 0 || bounce > options_.max_depth) throw Error("trace_closest: no bounce " + std::to_string(bounce));
-  cl::CommandQueue& q = device_.queue();
-  std::vector<uint32_t> identity(n);
-  for (size_t i = 0; i < n; ++i) identity[i] = (uint32_t)i;
-  const uint32_t count = (uint32_t)n;
-  q.enqueueWriteBuffer(ray_org_, CL_TRUE, 0, sizeof(glm::vec4) * n, rays.org.data());
-  q.enqueueWriteBuffer(ray_dir_, CL_TRUE, 0, sizeof(glm::vec4) * n, rays.dir.data());
-  q.enqueueWriteBuffer(queue_a_, CL_TRUE, 0, sizeof(uint32_t) * n, identity.data());
-  q.enqueueWriteBuffer(counters_, CL_TRUE, sizeof(uint32_t) * XI_COUNTER_RAYS(bounce), sizeof count, &count);
-  auto start = std::chrono::steady_clock::now();
-  extend(queue_a_, bounce, n);
-  q.finish();
-  double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
-  hits->resize(n);
-  q.enqueueReadBuffer(hit_, CL_TRUE, 0, sizeof(glm::vec4) * n, hits->data());
-  launches_.clear();
-  launch_events_.clear();
-  return seconds;
-}
-
 // Launches every stage once with no work, over the whole path state, so a driver that compiles per
 // launch configuration (PoCL) does it now, counted in the kernel build, not in the first pass.
 void Renderer::warm_up() {
@@ -473,57 +365,6 @@ Image Renderer::mean() const {
 
 Film Renderer::film() const { return resolve_film(state(), film_width(), film_height()); }
 
-namespace {
-// The film buffers of a state, one vec4 per pixel each.
-constexpr std::vector<glm::vec4> RenderState::*kFilmBuffers[] = {&RenderState::sum, &RenderState::sum_sq,
-                                                                  &RenderState::albedo, &RenderState::normal};
-
-void check_pixels(const RenderState& st, size_t pixels, const char* what) {
-  for (auto buffer : kFilmBuffers)
-    if ((st.*buffer).size() != pixels)
-      throw Error(std::string(what) + " holds " + std::to_string((st.*buffer).size()) + " pixels, not " +
-                  std::to_string(pixels));
-}
-}  // namespace
-
-Film resolve_film(const RenderState& st, int w, int h) {
-  const size_t pixels = (size_t)w * h;
-  check_pixels(st, pixels, "the render state");
-  Film f{Image(w, h), Image(w, h), Image(w, h), Image(w, h)};
-  for (size_t i = 0; i < pixels; ++i) {
-    float n = st.sum[i].w;
-    if (n <= 0.0f) continue;
-    glm::vec3 m = glm::vec3(st.sum[i]) / n;
-    f.mean.pixels[i] = m;
-    f.albedo.pixels[i] = glm::vec3(st.albedo[i]) / n;
-    glm::vec3 nn = glm::vec3(st.normal[i]);
-    f.normal.pixels[i] = glm::length(nn) > 0.0f ? glm::normalize(nn) : nn;
-    if (n >= 2.0f)
-      f.variance.pixels[i] = glm::max((glm::vec3(st.sum_sq[i]) - n * m * m) / (n - 1.0f), glm::vec3(0.0f)) / n;
-  }
-  return f;
-}
-
-
-RenderState select_rows(const RenderState& frame, FilmRows rows, int width, int height) {
-  check_pixels(frame, (size_t)width * height, "the frame's render state");
-  RenderState share;
-  share.spp_done = frame.spp_done;
-  share.passes = frame.passes;
-  share.seconds = frame.seconds;
-  share.extend_rays = frame.extend_rays;
-  share.shadow_rays = frame.shadow_rays;
-  share.nonfinite = frame.nonfinite;
-  for (auto buffer : kFilmBuffers) share.*buffer = rows.select(frame.*buffer, width, height);
-  return share;
-}
-
-void insert_rows(RenderState* frame, const RenderState& share, FilmRows rows, int width, int height) {
-  check_pixels(*frame, (size_t)width * height, "the frame's render state");
-  check_pixels(share, (size_t)width * rows.count(height), "the share's render state");
-  for (auto buffer : kFilmBuffers) rows.insert(share.*buffer, &((*frame).*buffer), width, height);
-}
-
 RenderState Renderer::state() const {
   RenderState st;
   st.spp_done = spp_done_;
@@ -539,7 +380,7 @@ RenderState Renderer::state() const {
 }
 
 void Renderer::restore(const RenderState& st) {
-  check_pixels(st, pixels_, "the render state");
+  check_film_pixels(st, pixels_, "the render state");
   if (st.spp_done < 0 || st.spp_done > options_.spp)
     throw Error("render state has " + std::to_string(st.spp_done) + " spp, the render " + std::to_string(options_.spp));
   cl::CommandQueue& q = device_.queue();

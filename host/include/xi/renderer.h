@@ -1,40 +1,19 @@
-// The wavefront integrator: path state in device buffers, stage launches, the progressive loop.
+// The wavefront renderer: path state in device buffers, one launch per stage, the progressive loop.
 #pragma once
-#include <algorithm>
 #include <cstdint>
 #include <string>
 #include <vector>
 
 #include "xi/compiled_scene.h"
 #include "xi/device.h"
+#include "xi/film.h"
 #include "xi/image.h"
+#include "xi/kernel_config.h"
 #include "xi/scene.h"
 
 namespace xi {
 
-// A share of a frame's rows: first, first + stride, first + 2 stride, ... below its height. One
-// process of a distributed render takes rows {rank, ranks}; every pixel's samples are the same
-// whichever share holds it, so the shares' films put together equal the whole frame's bitwise.
-struct FilmRows {
-  int first = 0, stride = 1;
-  int count(int height) const { return first < height ? (height - first + stride - 1) / stride : 0; }
-  int frame_row(int k) const { return first + k * stride; }
-
-  // A share's pixels (its row k is frame row frame_row(k)) taken out of a frame's, or put back:
-  // the one place that knows how rows interleave, for render states and images alike.
-  template <class T>
-  std::vector<T> select(const std::vector<T>& frame, int width, int height) const {
-    std::vector<T> share((size_t)width * count(height));
-    for (int k = 0; k < count(height); ++k)
-      std::copy_n(frame.begin() + (size_t)frame_row(k) * width, width, share.begin() + (size_t)k * width);
-    return share;
-  }
-  template <class T>
-  void insert(const std::vector<T>& share, std::vector<T>* frame, int width, int height) const {
-    for (int k = 0; k < count(height); ++k)
-      std::copy_n(share.begin() + (size_t)k * width, width, frame->begin() + (size_t)frame_row(k) * width);
-  }
-};
+class RayProbe;
 
 struct RenderOptions {
   int spp = 64;
@@ -46,11 +25,9 @@ struct RenderOptions {
   // distinct local size, and queue lengths change every bounce.
   size_t local_size = 64;
   bool all_features = false;    // compile every feature in, whatever the scene uses
-  // Paths each generate and shade work item takes, 1 or 8 (kernels/shared/lanes.h); 0: 8 on a CPU
-  // device, where float8 arithmetic across paths is what fills its vector units, 1 elsewhere.
+  // Paths each generate and shade work item takes, 1 or 8; 0: the device's default (KernelConfig).
   int lanes = 0;
-  // Lanes of the BVH's nodes, 4 or 8 (kernels/shared/layout.h); 0: 8 on a CPU device, whose AVX
-  // registers test eight child boxes as cheaply as four, 4 elsewhere.
+  // Children per BVH node, 4 or 8; 0: the device's default (KernelConfig::bvh_width_for).
   int bvh_width = 0;
   // Spatial splits in the BVH build (xi::build_bvh): faster rays where long triangles overlap,
   // a slower build. Off: every triangle in one leaf, the build as fast as plain binned SAH.
@@ -73,13 +50,10 @@ struct RenderOptions {
   LaunchBound launch_bound = LaunchBound::Auto;
   // Bounce and shadow rays through an 8-wide tree in packets of eight, as camera rays always go
   // (kernels/extend.cl, shadow.cl); the image does not depend on it. Auto: where the tree is small
-  // enough that each ray visits most of it anyway (kRayPacketNodes in integrator.cpp), so a packet
-  // of rays in different directions does little more than each ray alone; in a larger tree such
-  // rays part ways.
+  // enough that each ray visits most of it anyway (KernelConfig::make decides).
   enum class RayPackets { Auto, On, Off };
   RayPackets ray_packets = RayPackets::Auto;
   bool profile = false;         // time every launch with OpenCL events (launches())
-  int record_bounce = -1;       // if >= 0, keep the rays entering extend at this bounce (bench/)
 };
 
 // The paths-in-flight budget for a device when RenderOptions::paths_in_flight is 0: enough to
@@ -87,10 +61,6 @@ struct RenderOptions {
 size_t default_paths_in_flight(Device& device);
 // Device bytes per path in flight: path state, shadow rays and the two queues.
 size_t path_bytes();
-
-struct RayBatch {
-  std::vector<glm::vec4> org, dir;  // xyz used
-};
 
 // One kernel launch, timed by OpenCL profiling events (nanoseconds on the device clock).
 struct Launch {
@@ -102,30 +72,6 @@ struct Launch {
   uint64_t end_ns;
   size_t global = 0;  // work items launched (an upper bound on the queue length)
 };
-
-// Everything a render accumulates between passes: with the same scene and options, a renderer
-// restored from it continues bitwise as if it had never stopped (film sums are added in sample order).
-struct RenderState {
-  int spp_done = 0;
-  int passes = 0;
-  double seconds = 0.0;  // render time so far: kept by the caller, carried through checkpoints
-  uint64_t extend_rays = 0, shadow_rays = 0;
-  uint32_t nonfinite = 0;
-  std::vector<glm::vec4> sum, sum_sq, albedo, normal;  // the film buffers, one vec4 per pixel
-};
-
-// The rows `rows` of a whole frame's state (film buffers of width × height pixels), and back: the
-// share's rows copied into their places. Counters and spp are the frame's; merging adds none.
-RenderState select_rows(const RenderState& frame, FilmRows rows, int width, int height);
-void insert_rows(RenderState* frame, const RenderState& share, FilmRows rows, int width, int height);
-
-// The film resolved to images: per pixel, the mean radiance, the variance of that mean (sample
-// variance / sample count), and the mean first-hit albedo and normal.
-struct Film {
-  Image mean, variance, albedo, normal;
-};
-// The film buffers of a state (width × height pixels) resolved to images.
-Film resolve_film(const RenderState& state, int width, int height);
 
 class Renderer {
  public:
@@ -140,8 +86,6 @@ class Renderer {
   int spp_done() const { return spp_done_; }
   int samples_per_pass() const { return samples_per_pass_; }
   size_t paths_in_flight() const { return paths_; }
-  // Whether bounce and shadow rays go in packets (RenderOptions::ray_packets, resolved).
-  bool ray_packets() const { return ray_packets_; }
 
   // The film (options().rows of the frame) resolved to images.
   Film film() const;
@@ -157,15 +101,10 @@ class Renderer {
 
   const std::vector<Launch>& launches() const { return launches_; }
   const Program& program() const { return program_; }
+  const KernelConfig& kernels() const { return kernels_; }
   const CompiledScene& compiled() const { return scene_; }
   const RenderOptions& options() const { return options_; }
   uint64_t extend_rays() const { return extend_rays_; }
-  const RayBatch& recorded_rays() const { return recorded_; }
-  // Runs the extend stage alone on the given rays (at most wave size) as it runs at `bounce`: in
-  // packets of 8 consecutive rays where XI_EXTEND_PACKET says so (camera rays, bounce 0, through an
-  // 8-wide tree; other bounces with ray packets), else one by one. Returns the kernel's time in
-  // seconds and the hits (t or −1, u, v, triangle in BVH order as float bits).
-  double trace_closest(const RayBatch& rays, std::vector<glm::vec4>* hits, int bounce);
   uint64_t shadow_rays() const { return shadow_rays_; }
 
  private:
@@ -179,7 +118,11 @@ class Renderer {
   void run_wave(const WaveParams& wave);
   WaveParams wave(size_t first_pixel, size_t pixels, int first_sample, uint32_t samples) const;
   void warm_up();
-  void record(const cl::Buffer& queue, int bounce);
+  // The constructor's steps, in order.
+  void build_kernels();
+  void size_waves();
+  void check_memory() const;
+  void allocate();
   // Launches over global items (queue entries), items_per_work_item of them per work item.
   void launch(cl::Kernel& kernel, const char* stage, int bounce, size_t global, size_t items_per_work_item = 1);
   void finish_pass();
@@ -191,10 +134,9 @@ class Renderer {
   Device& device_;
   RenderOptions options_;
   CompiledScene scene_;
-  Program program_;  // every stage's kernels (generate's and shade's are built apart, for their lane count)
-  int lanes_ = 1;
+  KernelConfig kernels_;
+  Program program_;  // every stage's kernels (two OpenCL programs; key and build time of both)
   bool exact_bounds_ = false;  // RenderOptions::launch_bound, resolved for the device
-  bool ray_packets_ = false;  // RenderOptions::ray_packets, resolved for the tree
   size_t pixels_ = 0;
   size_t paths_ = 0;           // path state slots: the most (pixel, sample) items of one wave
   int samples_per_pass_ = 1;
@@ -208,7 +150,9 @@ class Renderer {
   // lengths for statistics and the profile), read when the pass finishes.
   std::vector<std::vector<uint32_t>> wave_counters_;
   std::vector<size_t> wave_first_launch_;
-  RayBatch recorded_;
+  // Measuring tools (bench/, tests) reach the extend stage through a RayProbe (an internal header).
+  friend class RayProbe;
+  RayProbe* probe_ = nullptr;
 
   cl::Kernel generate_, extend_, shade_, shadow_, accumulate_;
 #define XI_DECLARE_BUFFER(type, name) cl::Buffer name##_;

@@ -1,0 +1,51 @@
+// Every option the kernels are compiled with, in one place: what the scene uses, the sampler and
+// light transport strategy, and the choices made for the device (lanes, BVH width, ray packets).
+#pragma once
+#include <string>
+#include <vector>
+
+#include "sampling.h"
+#include "xi/compiled_scene.h"
+#include "xi/device.h"
+
+namespace xi {
+
+struct RenderOptions;
+
+// Light transport strategies: MIS combines light and BSDF sampling; nee uses light sampling alone
+// for direct light; bsdf uses BSDF sampling alone.
+enum class Strategy { Mis, Nee, Bsdf };
+Strategy parse_strategy(const std::string& name);   // throws xi::Error
+const char* strategy_name(Strategy s);
+int parse_sampler(const std::string& name);         // XI_SAMPLER_*; throws xi::Error
+const char* sampler_name(int sampler);
+// Whether every prefix of a render is a render with fewer spp (random, sobol); grid and stratified
+// patterns are only complete at the spp they were made for.
+bool sampler_is_progressive(int sampler);
+
+// Each field maps to -D flags (defines()), so a feature the scene does not use compiles no code.
+// The flags are part of the binary cache's key (build_program hashes its options).
+struct KernelConfig {
+  Features features;
+  int sampler = XI_SAMPLER_SOBOL;
+  Strategy strategy = Strategy::Mis;
+  int lanes = 1;             // paths per generate and shade work item (kernels/shared/lanes.h): 1 or 8
+  int bvh_width = 4;         // children per BVH node (kernels/shared/layout.h): 4 or 8
+  bool ray_packets = false;  // bounce and shadow rays in packets of 8, as camera rays go (8-wide trees)
+  bool cpu_device = false;   // prefetch hints and the triangle test's early exit, for a CPU
+
+  // The BVH width a render on this device traverses: options.bvh_width, or the device's default
+  // (8 on a CPU, whose vector registers test eight boxes as cheaply as four; 4 elsewhere). Needed
+  // before the scene is compiled, since the tree is built for it.
+  static int bvh_width_for(const DeviceInfo& device, const RenderOptions& options);
+  // The configuration of a render: the scene (compiled for bvh_width_for), the device, the options.
+  // Throws xi::Error for an option out of range.
+  static KernelConfig make(const DeviceInfo& device, const CompiledScene& scene, const RenderOptions& options);
+
+  std::vector<std::string> defines() const;
+  // One line for --profile, e.g. "diffuse emitters; sampler sobol; mis; lanes 8; bvh 8-wide; ...".
+  std::string describe() const;
+  bool operator==(const KernelConfig&) const = default;
+};
+
+}  // namespace xi

@@ -1,0 +1,93 @@
+#include "xi/kernel_config.h"
+
+#include "xi/error.h"
+#include "xi/renderer.h"
+
+namespace xi {
+namespace {
+
+// The largest 8-wide tree whose bounce and shadow rays go in packets when RenderOptions::ray_packets
+// is Auto: in a tree this small each ray visits most nodes anyway, so eight rays in different
+// directions cost little more than one; in a larger tree they part ways.
+constexpr size_t kRayPacketNodes = 8;
+
+bool is_cpu(const DeviceInfo& device) { return device.type == "CPU"; }
+
+}  // namespace
+
+Strategy parse_strategy(const std::string& name) {
+  if (name == "mis") return Strategy::Mis;
+  if (name == "nee") return Strategy::Nee;
+  if (name == "bsdf") return Strategy::Bsdf;
+  throw Error("unknown strategy '" + name + "'", "expected mis, nee or bsdf");
+}
+
+const char* strategy_name(Strategy s) {
+  return s == Strategy::Mis ? "mis" : s == Strategy::Nee ? "nee" : "bsdf";
+}
+
+int parse_sampler(const std::string& name) {
+  for (int s = XI_SAMPLER_RANDOM; s <= XI_SAMPLER_SOBOL; ++s)
+    if (name == sampler_name(s)) return s;
+  throw Error("unknown sampler '" + name + "'", "expected random, grid, stratified or sobol");
+}
+
+const char* sampler_name(int sampler) {
+  switch (sampler) {
+    case XI_SAMPLER_RANDOM: return "random";
+    case XI_SAMPLER_GRID: return "grid";
+    case XI_SAMPLER_STRATIFIED: return "stratified";
+    case XI_SAMPLER_SOBOL: return "sobol";
+  }
+  return "?";
+}
+
+bool sampler_is_progressive(int sampler) { return sampler == XI_SAMPLER_RANDOM || sampler == XI_SAMPLER_SOBOL; }
+
+int KernelConfig::bvh_width_for(const DeviceInfo& device, const RenderOptions& options) {
+  const int width = options.bvh_width ? options.bvh_width : (is_cpu(device) ? 8 : 4);
+  if (width != 4 && width != 8) throw Error("BVH width must be 4 or 8, not " + std::to_string(width), "--bvh-width");
+  return width;
+}
+
+KernelConfig KernelConfig::make(const DeviceInfo& device, const CompiledScene& scene, const RenderOptions& options) {
+  KernelConfig c;
+  c.features = options.all_features ? Features::everything() : scene.features;
+  c.sampler = options.sampler;
+  c.strategy = options.strategy;
+  // On a CPU, float8 arithmetic across eight paths is what fills the vector units.
+  c.lanes = options.lanes ? options.lanes : (is_cpu(device) ? 8 : 1);
+  if (c.lanes != 1 && c.lanes != 8) throw Error("lanes must be 1 or 8, not " + std::to_string(c.lanes), "--lanes");
+  c.bvh_width = scene.bvh.width;
+  c.ray_packets = c.bvh_width == 8 && (options.ray_packets == RenderOptions::RayPackets::Auto
+                                           ? scene.bvh.nodes8.size() <= kRayPacketNodes
+                                           : options.ray_packets == RenderOptions::RayPackets::On);
+  c.cpu_device = is_cpu(device);
+  return c;
+}
+
+std::vector<std::string> KernelConfig::defines() const {
+  std::vector<std::string> d{"XI_SAMPLER=" + std::to_string(sampler)};
+  if (features.mirror) d.push_back("XI_HAS_MIRROR");
+  if (features.dielectric) d.push_back("XI_HAS_DIELECTRIC");
+  if (features.normals) d.push_back("XI_HAS_NORMALS");
+  if (features.lens) d.push_back("XI_HAS_LENS");
+  if (features.emitters) {
+    d.push_back("XI_HAS_EMITTERS");
+    if (strategy != Strategy::Bsdf) d.push_back("XI_NEE");
+    if (strategy == Strategy::Mis) d.push_back("XI_MIS");
+  }
+  d.push_back("XI_LANES=" + std::to_string(lanes));
+  d.push_back("XI_BVH_WIDTH=" + std::to_string(bvh_width));
+  d.push_back(std::string("XI_RAY_PACKETS=") + (ray_packets ? "1" : "0"));
+  if (cpu_device) d.push_back("XI_CPU_DEVICE");
+  return d;
+}
+
+std::string KernelConfig::describe() const {
+  return features.describe() + "; sampler " + sampler_name(sampler) + "; strategy " + strategy_name(strategy) +
+         "; lanes " + std::to_string(lanes) + "; bvh " + std::to_string(bvh_width) + "-wide; ray packets " +
+         (ray_packets ? "on" : "off") + (cpu_device ? "; cpu device" : "");
+}
+
+}  // namespace xi

@@ -1,0 +1,22 @@
+// The up-front memory check of a render: everything it will allocate, against what the device and
+// the host have, before anything is allocated.
+#pragma once
+#include <cstddef>
+
+#include "xi/device.h"
+
+namespace xi {
+
+struct MemoryNeeds {
+  size_t pixels = 0;                // film pixels (four vec4 buffers on the device)
+  size_t paths = 0;                 // paths in flight
+  size_t path_bytes = 0;            // device bytes per path in flight
+  size_t scene_bytes = 0;           // every scene buffer
+  size_t largest_scene_buffer = 0;  // the largest of them (one allocation)
+};
+
+// Throws one xi::Error naming what the render needs and what there is, so that a frame too large
+// stops there rather than in the driver (PoCL aborts on a failed allocation).
+void check_memory(Device& device, const MemoryNeeds& needs);
+
+}  // namespace xi

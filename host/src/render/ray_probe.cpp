@@ -1,0 +1,52 @@
+#include "ray_probe.h"
+
+#include <chrono>
+#include <string>
+
+#include "xi/error.h"
+
+namespace xi {
+
+// Waits for this bounce's queue and keeps its rays.
+void RayProbe::entering_extend(const cl::Buffer& queue, int bounce) {
+  if (bounce != record_bounce_) return;
+  Renderer& r = renderer_;
+  cl::CommandQueue& q = r.device_.queue();
+  uint32_t count = 0;
+  q.enqueueReadBuffer(r.counters_, CL_TRUE, sizeof(uint32_t) * XI_COUNTER_RAYS(bounce), sizeof count, &count);
+  std::vector<uint32_t> slots(count);
+  std::vector<glm::vec4> org(r.paths_), dir(r.paths_);
+  if (count > 0) q.enqueueReadBuffer(queue, CL_TRUE, 0, sizeof(uint32_t) * count, slots.data());
+  q.enqueueReadBuffer(r.ray_org_, CL_TRUE, 0, sizeof(glm::vec4) * r.paths_, org.data());
+  q.enqueueReadBuffer(r.ray_dir_, CL_TRUE, 0, sizeof(glm::vec4) * r.paths_, dir.data());
+  for (uint32_t s : slots) {
+    recorded_.org.push_back(org[s]);
+    recorded_.dir.push_back(dir[s]);
+  }
+}
+
+double RayProbe::trace_closest(const RayBatch& rays, std::vector<glm::vec4>* hits, int bounce) {
+  Renderer& r = renderer_;
+  const size_t n = rays.org.size();
+  if (n > r.paths_ || rays.dir.size() != n) throw Error("ray batch larger than the paths in flight or malformed");
+  if (bounce < 0 || bounce > r.options_.max_depth) throw Error("trace_closest: no bounce " + std::to_string(bounce));
+  cl::CommandQueue& q = r.device_.queue();
+  std::vector<uint32_t> identity(n);
+  for (size_t i = 0; i < n; ++i) identity[i] = (uint32_t)i;
+  const uint32_t count = (uint32_t)n;
+  q.enqueueWriteBuffer(r.ray_org_, CL_TRUE, 0, sizeof(glm::vec4) * n, rays.org.data());
+  q.enqueueWriteBuffer(r.ray_dir_, CL_TRUE, 0, sizeof(glm::vec4) * n, rays.dir.data());
+  q.enqueueWriteBuffer(r.queue_a_, CL_TRUE, 0, sizeof(uint32_t) * n, identity.data());
+  q.enqueueWriteBuffer(r.counters_, CL_TRUE, sizeof(uint32_t) * XI_COUNTER_RAYS(bounce), sizeof count, &count);
+  auto start = std::chrono::steady_clock::now();
+  r.extend(r.queue_a_, bounce, n);
+  q.finish();
+  double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  hits->resize(n);
+  q.enqueueReadBuffer(r.hit_, CL_TRUE, 0, sizeof(glm::vec4) * n, hits->data());
+  r.launches_.clear();
+  r.launch_events_.clear();
+  return seconds;
+}
+
+}  // namespace xi
