@@ -1,8 +1,8 @@
 // Stage 3, shade: at each queued hit, adds emitted radiance (MIS-weighted against light
 // sampling), queues one shadow ray toward a light (next-event estimation), samples the BSDF for
 // the next ray, applies Russian roulette and appends surviving paths to the next ray queue.
-// Compiled per scene: XI_HAS_MIRROR, XI_HAS_DIELECTRIC, XI_HAS_NORMALS (interpolated shading
-// normals), XI_HAS_EMITTERS, XI_NEE (light sampling), XI_MIS (combine it with BSDF sampling).
+// What it does beyond diffuse surfaces is the shading word's (shading.h): mirrors, glass,
+// interpolated shading normals, emitters, light sampling (NEE) and MIS.
 // Each work item shades XI_LANES paths at once (lanes.h): branches that differ between paths are
 // lane masks, and every path of one launch is at the same depth, `bounce`.
 #include "bsdf.h"
@@ -10,6 +10,7 @@
 #include "layout.h"
 #include "lights.h"
 #include "sampling.h"
+#include "shading.h"
 #include "spawn.h"
 #include "warps.h"
 
@@ -36,8 +37,9 @@ static inline XI_INLINE ShadeResult xi_shade_paths(XI_PATH_PARAMS xuint slot, xm
                                                    __global const float* restrict light_cdf,
                                                    __global const uint* restrict light_tri,
                                                    __global const float* restrict tri_light_pdf, uint light_count,
-                                                   SamplerParams sampler, xuint pixel, xuint sample_index,
-                                                   uint max_depth, float4 background) {
+                                                   SamplerParams sampler, uint shading, xuint pixel,
+                                                   xuint sample_index, uint max_depth, float4 background) {
+  const int sampler_kind = xi_sampler_of(shading);
   ShadeResult r;
   r.next_ray = XI_FALSE;
   r.shadow = XI_FALSE;
@@ -69,40 +71,35 @@ static inline XI_INLINE ShadeResult xi_shade_paths(XI_PATH_PARAMS xuint slot, xm
   xfloat3 p_error;
   xfloat3 p = xi_interpolate(p0, p1, p2, h.y, h.z, &p_error);
 
-#ifdef XI_HAS_EMITTERS
   xmask emits = at_surface && (front || m.two_sided > 0.0f) && xi_max3(m.emission) > 0.0f;
-  if (XI_ANY(emits)) {
+  if (xi_uses(shading, XI_USE_EMITTERS) && XI_ANY(emits)) {
     xfloat emit_weight = 1.0f;
-#ifdef XI_NEE
-#ifdef XI_MIS
-    emit_weight = prev_pdf > 0.0f ? xi_power_heuristic(prev_pdf, xi_light_pdf(tri_light_pdf, tri, h.x,
-                                                                              fabs(xi_dot3(ng, wo))))
-                                  : emit_weight;
-#else
-    emit_weight = prev_pdf > 0.0f ? (xfloat)0.0f : emit_weight;  // light sampling alone already counted it
-#endif
-#endif
+    if (xi_uses(shading, XI_USE_MIS))
+      emit_weight = prev_pdf > 0.0f ? xi_power_heuristic(prev_pdf, xi_light_pdf(tri_light_pdf, tri, h.x,
+                                                                                fabs(xi_dot3(ng, wo))))
+                                    : emit_weight;
+    else if (xi_uses(shading, XI_USE_NEE))
+      emit_weight = prev_pdf > 0.0f ? (xfloat)0.0f : emit_weight;  // light sampling alone already counted it
     L = xi_select3(emits, xi_add3(L, xi_scale3(xi_mul3(beta, m.emission), emit_weight)), L);
   }
-#endif
 
   xi_scatter4(radiance, slot, L, (xfloat)0.0f, active);
   if (d >= max_depth) return r;
 
   xfloat3 n_geo = xi_select3(front, ng, xi_neg3(ng));  // geometric normal on the side of wo
   xfloat3 n = n_geo;
-#ifdef XI_HAS_NORMALS
-  xfloat has_normals;  // w marks a triangle that has vertex normals
-  xfloat3 na = xi_gather_xyz(tri_normals, 3u * tri, &has_normals);
-  xmask smooth = has_normals > 0.0f;
-  if (XI_ANY(smooth)) {
-    xfloat3 ns = xi_normalize3(xi_add3(xi_add3(xi_scale3(na, 1.0f - h.y - h.z),
-                                               xi_scale3(xi_gather_xyz(tri_normals, 3u * tri + 1u, 0), h.y)),
-                                       xi_scale3(xi_gather_xyz(tri_normals, 3u * tri + 2u, 0), h.z)));
-    ns = xi_select3(xi_dot3(ns, n_geo) < 0.0f, xi_neg3(ns), ns);
-    n = xi_select3(smooth, ns, n_geo);
+  if (xi_uses(shading, XI_USE_NORMALS)) {
+    xfloat has_normals;  // w marks a triangle that has vertex normals
+    xfloat3 na = xi_gather_xyz(tri_normals, 3u * tri, &has_normals);
+    xmask smooth = has_normals > 0.0f;
+    if (XI_ANY(smooth)) {
+      xfloat3 ns = xi_normalize3(xi_add3(xi_add3(xi_scale3(na, 1.0f - h.y - h.z),
+                                                 xi_scale3(xi_gather_xyz(tri_normals, 3u * tri + 1u, 0), h.y)),
+                                         xi_scale3(xi_gather_xyz(tri_normals, 3u * tri + 2u, 0), h.z)));
+      ns = xi_select3(xi_dot3(ns, n_geo) < 0.0f, xi_neg3(ns), ns);
+      n = xi_select3(smooth, ns, n_geo);
+    }
   }
-#endif
 
   if (d == 0u) {
     xi_scatter4(aov_albedo, slot, m.albedo, (xfloat)0.0f, at_surface);
@@ -113,17 +110,14 @@ static inline XI_INLINE ShadeResult xi_shade_paths(XI_PATH_PARAMS xuint slot, xm
   xfloat pdf = 0.0f;  // stays 0 for specular lobes
   xmask goes_on = XI_FALSE;
   xmask diffuse = at_surface && m.type == XI_MATERIAL_DIFFUSE && xi_max3(m.albedo) > 0.0f;
-#ifdef XI_NEE
-  if (light_count > 0u && XI_ANY(diffuse)) {
-    xfloat2 ul = xi_sample_2d(XI_SAMPLER, sampler, pixel, sample_index, XI_PAIR_BOUNCE(d, XI_BOUNCE_LIGHT));
+  if (xi_uses(shading, XI_USE_NEE) && light_count > 0u && XI_ANY(diffuse)) {
+    xfloat2 ul = xi_sample_2d(sampler_kind, sampler, pixel, sample_index, XI_PAIR_BOUNCE(d, XI_BOUNCE_LIGHT));
     xfloat3 org = xi_offset_ray_origin(p, p_error, n_geo, n_geo);  // lights behind n_geo are skipped
     LightSample ls = xi_sample_light(light_cdf, light_tri, tri_light_pdf, tri_verts, tri_material, materials,
                                      light_count, org, ul);
     xfloat cos_s = xi_dot3(n, ls.wi);
     xfloat w = 1.0f;
-#ifdef XI_MIS
-    w = xi_power_heuristic(ls.pdf, xi_lambert_pdf(n, ls.wi));
-#endif
+    if (xi_uses(shading, XI_USE_MIS)) w = xi_power_heuristic(ls.pdf, xi_lambert_pdf(n, ls.wi));
     r.shadow = diffuse && ls.pdf > 0.0f && cos_s > 0.0f && xi_dot3(n_geo, ls.wi) > 0.0f;
     r.shadow_contrib = xi_scale3(xi_mul3(xi_scale3(xi_mul3(beta, m.albedo), XI_INV_PI), ls.radiance),
                                  cos_s * w / ls.pdf);
@@ -132,9 +126,8 @@ static inline XI_INLINE ShadeResult xi_shade_paths(XI_PATH_PARAMS xuint slot, xm
     r.shadow_tmax = ls.dist * (1.0f - 1e-4f);
     r.shadow_dir = ls.wi;
   }
-#endif
   if (XI_ANY(diffuse)) {
-    xfloat2 ub = xi_sample_2d(XI_SAMPLER, sampler, pixel, sample_index, XI_PAIR_BOUNCE(d, XI_BOUNCE_BSDF_DIR));
+    xfloat2 ub = xi_sample_2d(sampler_kind, sampler, pixel, sample_index, XI_PAIR_BOUNCE(d, XI_BOUNCE_BSDF_DIR));
     xfloat lambert_pdf;
     xfloat3 wl = xi_lambert_sample(n, ub, &lambert_pdf);
     wi = xi_select3(diffuse, wl, wi);
@@ -142,24 +135,20 @@ static inline XI_INLINE ShadeResult xi_shade_paths(XI_PATH_PARAMS xuint slot, xm
     // A shading normal may send the sample below the surface.
     goes_on = goes_on || (diffuse && xi_dot3(wl, n_geo) > 0.0f && lambert_pdf > 0.0f);
   }
-#ifdef XI_HAS_MIRROR
   xmask mirror = at_surface && m.type == XI_MATERIAL_MIRROR;
-  if (XI_ANY(mirror)) {
+  if (xi_uses(shading, XI_USE_MIRROR) && XI_ANY(mirror)) {
     xfloat3 wm = xi_reflect(wo, n);
     wi = xi_select3(mirror, wm, wi);
     goes_on = goes_on || (mirror && xi_dot3(wm, n_geo) > 0.0f);
   }
-#endif
-#ifdef XI_HAS_DIELECTRIC
   xmask glass = at_surface && m.type == XI_MATERIAL_DIELECTRIC;
-  if (XI_ANY(glass)) {
-    xfloat2 uc = xi_sample_2d(XI_SAMPLER, sampler, pixel, sample_index, XI_PAIR_BOUNCE(d, XI_BOUNCE_LOBE));
+  if (xi_uses(shading, XI_USE_DIELECTRIC) && XI_ANY(glass)) {
+    xfloat2 uc = xi_sample_2d(sampler_kind, sampler, pixel, sample_index, XI_PAIR_BOUNCE(d, XI_BOUNCE_LOBE));
     xmask reflected;
     wi = xi_select3(glass, xi_dielectric_sample(wo, n, m.ior, front, uc.x, &reflected), wi);
     goes_on = goes_on || glass;
   }
-#endif
-  // (A material this build was not compiled for ends its path.)
+  // (A material the shading word leaves out ends its path.)
   beta = xi_mul3(beta, m.albedo);
 
   if (d + 1u >= XI_ROULETTE_DEPTH) {
@@ -186,7 +175,8 @@ __kernel void shade(XI_PATH_PARAMS __global const uint* restrict queue_in, __glo
                     __global const uint* restrict tri_material, __global const float4* restrict tri_normals,
                     __global const float* restrict light_cdf, __global const uint* restrict light_tri,
                     __global const float* restrict tri_light_pdf, uint light_count,
-                    SamplerParams sampler, uint max_depth, float4 background) {
+                    SamplerParams sampler, uint shading_argument, uint max_depth, float4 background) {
+  const uint shading = xi_shading(shading_argument);
   volatile __local uint group_count[2], group_base[2];  // for the queue appends below
   xuint entry = (uint)get_global_id(0) * XI_LANES + XI_LANE_INDEX;
   uint count = counters[XI_COUNTER_RAYS(bounce)];
@@ -207,7 +197,7 @@ __kernel void shade(XI_PATH_PARAMS __global const uint* restrict queue_in, __glo
   slot = active ? slot : (xuint)0u;  // queue_in[0] may be unwritten when the queue is empty
   ShadeResult r = xi_shade_paths(XI_PATH_ARGS slot, active, bounce, materials, tri_verts, tri_material, tri_normals,
                                  light_cdf, light_tri, tri_light_pdf, light_count, sampler,
-                                 xi_gather_uint(item_pixel, slot), xi_gather_uint(item_sample, slot), max_depth,
+                                 shading, xi_gather_uint(item_pixel, slot), xi_gather_uint(item_sample, slot), max_depth,
                                  background);
   // Append to the ray and shadow queues: entries are counted in local memory and reserved with one
   // global atomic per work group, since a global atomic per item serialises the cores on one line.

@@ -63,6 +63,7 @@ class Kernel : public ::testing::Test {
     c.cpu_device = device_->info().type == "CPU";
     program_.emplace(xi::build_program(*device_, {"generate.cl", "extend.cl", "shade.cl", "shadow.cl", "accumulate.cl"},
                                        c.defines()));
+    shading_word_ = c.shading_word();
     xi::KernelConfig lanes8 = c, width8 = c, packets8 = c;
     lanes8.lanes = 8;
     width8.bvh_width = packets8.bvh_width = 8;
@@ -147,9 +148,11 @@ class Kernel : public ::testing::Test {
 
   static std::optional<xi::Device> device_;
   static std::optional<xi::Program> program_, program8_, ray_packets8_, lanes8_;
+  static uint32_t shading_word_;  // the programs' own (compiled in; the argument is read by generic programs)
 };
 std::optional<xi::Device> Kernel::device_;
 std::optional<xi::Program> Kernel::program_, Kernel::program8_, Kernel::ray_packets8_, Kernel::lanes8_;
+uint32_t Kernel::shading_word_ = 0;
 
 vec3 random_direction(std::mt19937& rng) {
   std::normal_distribution<float> g;
@@ -478,7 +481,7 @@ TEST_F(Kernel, GenerateCameraRays) {
     cl::Buffer qb = buffer(garbage<uint32_t>(slots));
     cl::Buffer cb = buffer(std::vector<uint32_t>(XI_COUNTER_COUNT(8), 7u));
     cl::Kernel k((lanes == 8 ? lanes8_ : program_)->program, "generate");
-    bind(k, b, qb, cb, cam, sp, wave);
+    bind(k, b, qb, cb, cam, sp, shading_word_, wave);
     launch(k, (count + lanes - 1) / lanes);
     PathState out = download(b, slots);
     std::vector<uint32_t> q = read<uint32_t>(qb, slots);
@@ -666,7 +669,7 @@ TEST_F(Kernel, ShadeFirstHitsFromTheCamera) {
                light_pdf = buffer(cs.tri_light_pdf);
     cl::Kernel k((lanes == 8 ? lanes8_ : program_)->program, "shade");
     bind(k, b, queue_in, queue_out, shadow_org, shadow_dir, shadow_contrib, cb, 0u, materials, verts, tri_material,
-         normals, light_cdf, light_tri, light_pdf, (uint32_t)cs.light_tri.size(), xi_make_sampler_params(3, 16), 8u,
+         normals, light_cdf, light_tri, light_pdf, (uint32_t)cs.light_tri.size(), xi_make_sampler_params(3, 16), shading_word_, 8u,
          background);
     launch(k, (count + lanes - 1) / lanes);
     PathState out = download(b, slots);

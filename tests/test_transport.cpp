@@ -673,32 +673,35 @@ bool has(const std::vector<std::string>& defines, const std::string& d) {
 }
 
 TEST(TransportFeatures, KernelDefinesFollowTheScene) {
-  auto defines = [](const char* name, xi::Strategy s = xi::Strategy::Mis) {
+  auto word = [](const char* name, xi::Strategy s = xi::Strategy::Mis) {
     xi::KernelConfig c;
     c.features = xi::compile_scene(xi::load_scene(kScenes / name)).features;
     c.strategy = s;
-    return c.defines();
+    EXPECT_TRUE(has(c.shading_defines(), "XI_SHADING=" + std::to_string(c.shading_word())));
+    EXPECT_FALSE(has(c.as_generic().shading_defines(), "XI_SHADING=" + std::to_string(c.shading_word())));
+    EXPECT_TRUE(has(c.as_generic().shading_defines(), "XI_GENERIC"));
+    return c.shading_word();
   };
-  auto cornell = defines("cornell-box.json");
-  EXPECT_FALSE(has(cornell, "XI_HAS_DIELECTRIC"));
-  EXPECT_FALSE(has(cornell, "XI_HAS_MIRROR"));
-  EXPECT_FALSE(has(cornell, "XI_HAS_LENS"));
-  EXPECT_FALSE(has(cornell, "XI_HAS_NORMALS"));
-  EXPECT_TRUE(has(cornell, "XI_HAS_EMITTERS"));
-  EXPECT_TRUE(has(cornell, "XI_NEE"));
-  EXPECT_TRUE(has(cornell, "XI_MIS"));
-  EXPECT_TRUE(has(cornell, "XI_SAMPLER=3"));
-  EXPECT_TRUE(has(defines("caustics.json"), "XI_HAS_DIELECTRIC"));
-  EXPECT_TRUE(has(defines("caustics.json"), "XI_HAS_NORMALS"));
-  EXPECT_TRUE(has(defines("mirror.json"), "XI_HAS_MIRROR"));
-  EXPECT_TRUE(has(defines("depth-of-field.json"), "XI_HAS_LENS"));
-  auto nee = defines("cornell-box.json", xi::Strategy::Nee);
-  EXPECT_TRUE(has(nee, "XI_NEE"));
-  EXPECT_FALSE(has(nee, "XI_MIS"));
-  auto bsdf = defines("cornell-box.json", xi::Strategy::Bsdf);
-  EXPECT_FALSE(has(bsdf, "XI_NEE"));
-  EXPECT_FALSE(has(bsdf, "XI_MIS"));
-  EXPECT_TRUE(has(bsdf, "XI_HAS_EMITTERS"));
+  const uint32_t cornell = word("cornell-box.json");
+  EXPECT_FALSE(xi_uses(cornell, XI_USE_DIELECTRIC));
+  EXPECT_FALSE(xi_uses(cornell, XI_USE_MIRROR));
+  EXPECT_FALSE(xi_uses(cornell, XI_USE_LENS));
+  EXPECT_FALSE(xi_uses(cornell, XI_USE_NORMALS));
+  EXPECT_TRUE(xi_uses(cornell, XI_USE_EMITTERS));
+  EXPECT_TRUE(xi_uses(cornell, XI_USE_NEE));
+  EXPECT_TRUE(xi_uses(cornell, XI_USE_MIS));
+  EXPECT_EQ(xi_sampler_of(cornell), XI_SAMPLER_SOBOL);
+  EXPECT_TRUE(xi_uses(word("caustics.json"), XI_USE_DIELECTRIC));
+  EXPECT_TRUE(xi_uses(word("caustics.json"), XI_USE_NORMALS));
+  EXPECT_TRUE(xi_uses(word("mirror.json"), XI_USE_MIRROR));
+  EXPECT_TRUE(xi_uses(word("depth-of-field.json"), XI_USE_LENS));
+  const uint32_t nee = word("cornell-box.json", xi::Strategy::Nee);
+  EXPECT_TRUE(xi_uses(nee, XI_USE_NEE));
+  EXPECT_FALSE(xi_uses(nee, XI_USE_MIS));
+  const uint32_t bsdf = word("cornell-box.json", xi::Strategy::Bsdf);
+  EXPECT_FALSE(xi_uses(bsdf, XI_USE_NEE));
+  EXPECT_FALSE(xi_uses(bsdf, XI_USE_MIS));
+  EXPECT_TRUE(xi_uses(bsdf, XI_USE_EMITTERS));
 }
 
 // KernelConfig::make chooses for the device where the options leave it open, and follows the options
@@ -756,7 +759,7 @@ TEST(TransportFeatures, KernelConfigFollowsDeviceSceneAndOptions) {
 // binary (build_program hashes the flags), and describe() names every field's value.
 TEST(TransportFeatures, EveryKernelOptionChangesTheFlags) {
   const xi::KernelConfig base;
-  std::vector<xi::KernelConfig> variants(8, base);
+  std::vector<xi::KernelConfig> variants(9, base);
   variants[0].features.mirror = true;
   variants[1].features.lens = true;
   variants[2].sampler = XI_SAMPLER_RANDOM;
@@ -765,6 +768,7 @@ TEST(TransportFeatures, EveryKernelOptionChangesTheFlags) {
   variants[5].lanes = 8;
   variants[6].bvh_width = 8;
   variants[7].ray_packets = true;
+  variants[8].generic = true;
   std::vector<std::vector<std::string>> flags{base.defines()};
   for (const xi::KernelConfig& v : variants) flags.push_back(v.defines());
   for (size_t i = 0; i < flags.size(); ++i)
@@ -774,6 +778,10 @@ TEST(TransportFeatures, EveryKernelOptionChangesTheFlags) {
   EXPECT_TRUE(has(cpu.defines(), "XI_CPU_DEVICE"));
   EXPECT_FALSE(has(base.defines(), "XI_CPU_DEVICE"));
   EXPECT_EQ(variants[7].describe(), "diffuse; sampler sobol; strategy mis; lanes 1; bvh 4-wide; ray packets on");
+  EXPECT_EQ(variants[8].describe(),
+            "generic shading; lanes 1; bvh 4-wide; ray packets off");
+  // The tracing stages' flags do not depend on the scene's materials, sampler or strategy.
+  for (int k : {0, 1, 2, 3, 4, 8}) EXPECT_EQ(variants[k].trace_defines(), base.trace_defines()) << k;
   EXPECT_EQ(cpu.describe(), "diffuse; sampler sobol; strategy mis; lanes 1; bvh 4-wide; ray packets off; cpu device");
 }
 

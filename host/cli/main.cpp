@@ -117,6 +117,9 @@ static const char* kUsage =
     "                            a CPU, 1 on a GPU)\n"
     "      --bvh-width N         children per BVH node, 4 or 8 (default: 8 on a CPU, 4 on a\n"
     "                            GPU)\n"
+    "      --kernels K           auto | scene | generic: which program shades; auto: the scene's\n"
+    "                            own if built before, else the generic one (see `xi prebuild`) while\n"
+    "                            the scene's own builds, taking over when ready; the image is the same\n"
     "      --ray-packets M       auto | on | off: bounce and shadow rays in packets of 8 through\n"
     "                            an 8-wide BVH, as camera rays go (default auto: on for trees\n"
     "                            of at most 8 nodes, where they pay)\n"
@@ -159,6 +162,10 @@ static const char* kUsage =
     "  tonemap IMAGE.exr OUT.png   the 8-bit sRGB PNG that `xi render` writes beside its EXR\n"
     "      --exposure E          scale the linear values by E first (default 1)\n"
     "      --layer NAME          an EXR layer (e.g. albedo) instead of RGB\n"
+    "  prebuild              build the kernels any scene's first image can start with (the\n"
+    "                        generic shading program), so that a new scene waits for no build\n"
+    "      --device D            OpenCL device (as for render)\n"
+    "      --lanes N, --bvh-width N   as for render (default: the device's)\n"
     "  help                  this text\n";
 
 int main(int argc, char** argv) {
@@ -175,6 +182,7 @@ int main(int argc, char** argv) {
     if (command == "warp") return xi::cli::warp(args);
     if (command == "diff") return xi::cli::diff(args);
     if (command == "tonemap") return xi::cli::tonemap(args);
+    if (command == "prebuild") return xi::cli::prebuild(args);
     throw xi::Error("unknown command '" + command + "'", "xi help lists the commands");
   } catch (const xi::cli::Team::QuietExit&) {
     // a rank of an MPI job whose setup error rank 0 reports

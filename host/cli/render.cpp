@@ -113,6 +113,9 @@ struct Job {
   std::optional<Renderer> renderer;
   CheckpointKey key;
   RenderState resumed;  // rank 0: the whole frame's state read from --resume
+  // When the command started, and when its first pass was done: the wait for a first image.
+  std::chrono::steady_clock::time_point started = std::chrono::steady_clock::now();
+  double first_pass_seconds = 0.0;
 };
 
 // Each rank's device: --device (or $XI_DEVICE) as given; a comma-separated list gives local rank i
@@ -142,7 +145,7 @@ std::string device_selector(const Args& args, const Team& team) {
 void prepare(Job& job, const std::vector<std::string>& argv, const Team& team) {
   Args args(argv,
             {"-o", "--spp", "--seed", "--device", "--max-depth", "--resolution", "--sampler", "--strategy",
-             "--local-size", "--lanes", "--bvh-width", "--ray-packets", "--reference", "--convergence", "--trace",
+             "--local-size", "--lanes", "--bvh-width", "--ray-packets", "--kernels", "--reference", "--convergence", "--trace",
              "--paths-in-flight", "--samples-per-pass",
              "--time", "--snapshot-every", "--checkpoint", "--checkpoint-every", "--resume", "--camera"},
             {"--profile", "--quiet", "--all-features", "--no-spatial-splits"});
@@ -180,6 +183,11 @@ void prepare(Job& job, const std::vector<std::string>& argv, const Team& team) {
   else if (packets == "on") opt.ray_packets = RenderOptions::RayPackets::On;
   else if (packets == "off") opt.ray_packets = RenderOptions::RayPackets::Off;
   else throw Error("expected auto, on or off", "--ray-packets " + packets);
+  const std::string shading = args.get("--kernels", "auto");
+  if (shading == "auto") opt.shading_program = RenderOptions::ShadingProgram::Auto;
+  else if (shading == "scene") opt.shading_program = RenderOptions::ShadingProgram::Scene;
+  else if (shading == "generic") opt.shading_program = RenderOptions::ShadingProgram::Generic;
+  else throw Error("expected auto, scene or generic", "--kernels " + shading);
   opt.all_features = args.has("--all-features");
   opt.spatial_splits = !args.has("--no-spatial-splits");
   opt.paths_in_flight = (size_t)args.get_int("--paths-in-flight", 0, 1, 1 << 30);
@@ -277,8 +285,11 @@ void print_setup(const Job& job, const Team& team, const std::vector<std::string
               renderer.kernels().ray_packets ? "; camera, bounce and shadow rays in packets of 8"
               : cs.bvh.width == 8       ? "; camera rays in packets of 8"
                                         : "");
-  std::printf("kernels: %s in %.3f s\n", renderer.program().from_cache ? "loaded from cache" : "compiled",
-              renderer.program().build_seconds);
+  std::printf("kernels: %s in %.3f s%s\n", renderer.program().from_cache ? "loaded from cache" : "compiled",
+              renderer.program().build_seconds,
+              !renderer.generic_shading()        ? ""
+              : renderer.scene_shading_pending() ? "; the generic ones shade while this scene's own build"
+                                                 : "; the generic ones shade");
   if (job.opt.profile)
     std::printf("kernel options: %s (key %s)\n", renderer.kernels().describe().c_str(), renderer.program().key.c_str());
   std::printf("paths in flight: %zu, %d spp per pass%s\n", renderer.paths_in_flight(), renderer.samples_per_pass(),
@@ -372,7 +383,9 @@ int run(Job& job, Team& team) {
     }
     auto t0 = std::chrono::steady_clock::now();
     renderer.run_pass();
-    seconds += std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+    const auto t1 = std::chrono::steady_clock::now();
+    seconds += std::chrono::duration<double>(t1 - t0).count();
+    if (job.first_pass_seconds == 0.0) job.first_pass_seconds = std::chrono::duration<double>(t1 - job.started).count();
     if (job.measured && (!job.convergence.empty() || renderer.done())) {  // collective: not job.reference, rank 0's
       const Image now = team.gather(renderer.mean(), scene.height);
       if (team.leader()) {
@@ -446,6 +459,11 @@ int run(Job& job, Team& team) {
       std::printf("film state gathered from %d processes: %.1f MB in %.3f s\n", team.size(),
                   4.0 * sizeof(glm::vec4) * pixels * 1e-6, gather_seconds);
     std::printf("wrote %s and %s\n", job.out.string().c_str(), job.png.string().c_str());
+    std::printf("first pass done %.2f s after start%s\n", job.first_pass_seconds,
+                renderer.shading_switch_pass() >= 0
+                    ? ("; the scene's own kernels took over from the generic ones after pass " +
+                       std::to_string(renderer.shading_switch_pass())).c_str()
+                    : renderer.generic_shading() ? "; shaded by the generic kernels throughout" : "");
     if (job.reference)
       std::printf("error vs reference: rmse %.6g, relmse %.6g\n", last_error["rmse"], last_error["relmse"]);
     if (job.profile) {

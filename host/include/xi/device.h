@@ -75,5 +75,10 @@ std::filesystem::path cache_dir();
 // its checksum or does not load is rebuilt. A failing build throws xi::Error carrying the full log.
 Program build_program(Device& device, const std::vector<std::string>& files,
                       const std::vector<std::string>& defines);
+// Whether build_program would find that program in the cache, and the key it would give it; both
+// without building. Thread-safe, as build_program is.
+bool program_cached(Device& device, const std::vector<std::string>& files, const std::vector<std::string>& defines);
+std::string program_key(Device& device, const std::vector<std::string>& files,
+                        const std::vector<std::string>& defines);
 
 }  // namespace xi

@@ -5,6 +5,7 @@
 #include <vector>
 
 #include "sampling.h"
+#include "shading.h"
 #include "xi/compiled_scene.h"
 #include "xi/device.h"
 
@@ -23,8 +24,11 @@ const char* sampler_name(int sampler);
 // patterns are only complete at the spp they were made for.
 bool sampler_is_progressive(int sampler);
 
-// Each field maps to -D flags (defines()), so a feature the scene does not use compiles no code.
-// The flags are part of the binary cache's key (build_program hashes its options).
+// Each field maps to -D flags, so a feature the scene does not use compiles no code. The flags are
+// part of the binary cache's key (build_program hashes its options). A render builds two programs:
+// the tracing stages (extend, shadow, accumulate), whose flags do not depend on the scene's
+// materials, so one build serves many scenes; and the shading stages (generate, shade), built for
+// the scene's shading word, or generic: the word read at run time (kernels/shared/shading.h).
 struct KernelConfig {
   Features features;
   int sampler = XI_SAMPLER_SOBOL;
@@ -33,6 +37,7 @@ struct KernelConfig {
   int bvh_width = 4;         // children per BVH node (kernels/shared/layout.h): 4 or 8
   bool ray_packets = false;  // bounce and shadow rays in packets of 8, as camera rays go (8-wide trees)
   bool cpu_device = false;   // prefetch hints and the triangle test's early exit, for a CPU
+  bool generic = false;      // the shading stages read the shading word at run time
 
   // The BVH width a render on this device traverses: options.bvh_width, or the device's default
   // (8 on a CPU, whose vector registers test eight boxes as cheaply as four; 4 elsewhere). Needed
@@ -42,7 +47,12 @@ struct KernelConfig {
   // Throws xi::Error for an option out of range.
   static KernelConfig make(const DeviceInfo& device, const CompiledScene& scene, const RenderOptions& options);
 
-  std::vector<std::string> defines() const;
+  // The shading word: features, strategy and sampler (kernels/shared/shading.h).
+  uint32_t shading_word() const;
+  std::vector<std::string> trace_defines() const;    // extend.cl, shadow.cl, accumulate.cl
+  std::vector<std::string> shading_defines() const;  // generate.cl, shade.cl
+  std::vector<std::string> defines() const;          // both, for one program holding every stage
+  KernelConfig as_generic() const;
   // One line for --profile, e.g. "diffuse emitters; sampler sobol; mis; lanes 8; bvh 8-wide; ...".
   std::string describe() const;
   bool operator==(const KernelConfig&) const = default;

@@ -1,6 +1,7 @@
 // The wavefront renderer: path state in device buffers, one launch per stage, the progressive loop.
 #pragma once
 #include <cstdint>
+#include <future>
 #include <string>
 #include <vector>
 
@@ -53,6 +54,14 @@ struct RenderOptions {
   // enough that each ray visits most of it anyway (KernelConfig::make decides).
   enum class RayPackets { Auto, On, Off };
   RayPackets ray_packets = RayPackets::Auto;
+  // Which program shades (generate and shade). Scene: the scene's own, compiled for what it uses
+  // (the constructor waits for its build unless it is cached). Generic: the one program that reads
+  // the scene's shading word at run time (kernels/shared/shading.h). Auto: the scene's own if
+  // cached; else, if the generic one is cached, that one at once while the scene's own builds in
+  // the background and takes over between passes when ready; else as Scene. The image is the same
+  // whichever shades.
+  enum class ShadingProgram { Auto, Scene, Generic };
+  ShadingProgram shading_program = ShadingProgram::Auto;
   bool profile = false;         // time every launch with OpenCL events (launches())
 };
 
@@ -61,6 +70,13 @@ struct RenderOptions {
 size_t default_paths_in_flight(Device& device);
 // Device bytes per path in flight: path state, shadow rays and the two queues.
 size_t path_bytes();
+
+// Builds into the binary cache, and launches once, the programs any render on this device can start
+// with before its scene's own shading program is built: the generic shading program and the
+// tracing program with ray packets on and off, for options.lanes and options.bvh_width (0: the
+// device's defaults). A scene's first image then waits for no kernel build. Returns what it built,
+// one KernelConfig::describe() line each.
+std::vector<std::string> prebuild_kernels(Device& device, const RenderOptions& options);
 
 // One kernel launch, timed by OpenCL profiling events (nanoseconds on the device clock).
 struct Launch {
@@ -76,6 +92,9 @@ struct Launch {
 class Renderer {
  public:
   Renderer(Device& device, const Scene& scene, const RenderOptions& options);
+  ~Renderer();  // waits for a background build of the scene's shading program (it fills the cache)
+  Renderer(const Renderer&) = delete;
+  Renderer& operator=(const Renderer&) = delete;
 
   // Renders samples_per_pass() more samples of every pixel (fewer in the last pass).
   void run_pass();
@@ -102,6 +121,13 @@ class Renderer {
   const std::vector<Launch>& launches() const { return launches_; }
   const Program& program() const { return program_; }
   const KernelConfig& kernels() const { return kernels_; }
+  // Whether the generic shading program is rendering now (RenderOptions::shading_program), and
+  // the number of passes it rendered before the scene's own took over (-1: none took over).
+  bool generic_shading() const { return generic_shading_; }
+  int shading_switch_pass() const { return shading_switch_pass_; }
+  // Whether the scene's own shading program is building in the background; waiting takes it.
+  bool scene_shading_pending() const { return pending_shading_.valid(); }
+  void wait_for_scene_shading();
   const CompiledScene& compiled() const { return scene_; }
   const RenderOptions& options() const { return options_; }
   uint64_t extend_rays() const { return extend_rays_; }
@@ -111,10 +137,14 @@ class Renderer {
   // The stages: each binds its kernel's arguments and launches it over `global` work items (an
   // upper bound on its queue: the kernel reads the length from counters_).
   void generate(const WaveParams& wave);
+  void bind_generate(cl::Kernel& kernel, const WaveParams& wave, const cl::Buffer& counters) const;
+  void bind_shade(cl::Kernel& kernel, const cl::Buffer& queue_in, const cl::Buffer& queue_out, int bounce,
+                  const cl::Buffer& counters) const;
   void extend(const cl::Buffer& queue, int bounce, size_t global);
   void shade(const cl::Buffer& queue_in, const cl::Buffer& queue_out, int bounce, size_t global);
   void shadow(int bounce, size_t global);
   void accumulate(const WaveParams& wave);
+  void bind_accumulate(const WaveParams& wave);
   void run_wave(const WaveParams& wave);
   WaveParams wave(size_t first_pixel, size_t pixels, int first_sample, uint32_t samples) const;
   void warm_up();
@@ -123,12 +153,18 @@ class Renderer {
   void size_waves();
   void check_memory() const;
   void allocate();
+  // The scene's own generate and shade kernels, built on another thread and launched there once.
+  struct ShadingKernels {
+    cl::Kernel generate, shade;
+  };
+  ShadingKernels build_scene_shading(const std::vector<std::string>& defines) const;
+  void take_scene_shading(bool wait);
   // Launches over global items (queue entries), items_per_work_item of them per work item.
   void launch(cl::Kernel& kernel, const char* stage, int bounce, size_t global, size_t items_per_work_item = 1);
   void finish_pass();
   SamplerParams sampler_params() const;
-  int bind_path_state(cl::Kernel& kernel);               // returns the next argument index
-  int bind_shadow_state(cl::Kernel& kernel, int arg);
+  int bind_path_state(cl::Kernel& kernel) const;               // returns the next argument index
+  int bind_shadow_state(cl::Kernel& kernel, int arg) const;
   std::vector<glm::vec4> read(const cl::Buffer& film) const;
 
   Device& device_;
@@ -136,6 +172,9 @@ class Renderer {
   CompiledScene scene_;
   KernelConfig kernels_;
   Program program_;  // every stage's kernels (two OpenCL programs; key and build time of both)
+  bool generic_shading_ = false;
+  int shading_switch_pass_ = -1;
+  std::future<ShadingKernels> pending_shading_;
   bool exact_bounds_ = false;  // RenderOptions::launch_bound, resolved for the device
   size_t pixels_ = 0;
   size_t paths_ = 0;           // path state slots: the most (pixel, sample) items of one wave

@@ -66,10 +66,10 @@ Scene load_scene(const std::filesystem::path& path);
 // Same, from text already in memory; base_dir resolves mesh paths.
 Scene parse_scene(const std::string& json_text, const std::string& source_name,
                   const std::filesystem::path& base_dir);
-// Throws xi::Error if the scene breaks the limits within which single precision stays finite
-// (README, "Limits"): a vertex not finite or beyond +-1e9, geometry spanning less than 1e-6, a
-// negative or non-finite radiance (emitters, background). The loaders check these where they read
-// them; compile_scene checks them again for scenes built in code.
+// Throws xi::Error if the scene breaks the limits within which single precision stays finite: a
+// vertex not finite or beyond +-1e9, geometry spanning less than 1e-6, a negative or non-finite
+// radiance (emitters, background). The loaders check these where they read them; compile_scene
+// checks them again for scenes built in code.
 void check_scene_limits(const Scene& scene);
 
 }  // namespace xi

@@ -26,15 +26,15 @@ constexpr int kMaxSahDepth = 48;    // below it, ranges are halved by index: no 
 // The binary build's SAH weighs a side by its blocks of four triangles (they are tested four at a
 // time); the collapse into wide nodes (Collapser) decides which subtrees become leaves.
 float blocks_cost(size_t triangles) { return (float)((triangles + 3) / 4); }
-// The collapse's costs, tuned on PoCL (README, "The wide tree by its own costs"): a wide node's
+// The collapse's costs, tuned on PoCL: a wide node's
 // (its slab test of all lanes at once, then its pushes and pops) and a leaf's triangle test's (a
 // block of four; on 8 lanes, a leaf's two blocks at once), each weighted by how likely a ray is to
 // enter the box (Collapser::weight).
 constexpr float kNodeCost = 1.0f;
 constexpr float kLeafTestCost = 2.0f;
 // The binary build stops at this many references: the collapse then chooses the leaves among
-// subtrees of pairs (a mesh's quads). Down to single triangles the build took 30% longer on the
-// 1.3M-triangle bench scene, and traced no faster.
+// subtrees of pairs (a mesh's quads). Going down to single triangles makes the build slower and
+// the rays no faster.
 constexpr size_t kMinBinaryLeaf = 2;
 // Spatial splits (Stich, Friedrich and Dietrich 2009, "Spatial Splits in Bounding Volume
 // Hierarchies") are tried only where the best object split's two boxes overlap by more than this

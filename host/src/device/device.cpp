@@ -218,9 +218,17 @@ std::filesystem::path cache_dir() {
   return std::filesystem::temp_directory_path() / "xi-cache";
 }
 
-Program build_program(Device& device, const std::vector<std::string>& files,
-                      const std::vector<std::string>& defines) {
-  auto start = std::chrono::steady_clock::now();
+namespace {
+
+// What a build compiles: the build options, the stub that includes the files, and the key.
+struct ProgramSource {
+  std::string options, stub;
+  Hasher key;
+  std::string cache_file() const { return (cache_dir() / (hex(key.h) + ".bin")).string(); }
+};
+
+ProgramSource program_source(Device& device, const std::vector<std::string>& files,
+                             const std::vector<std::string>& defines) {
   auto dir = kernel_dir();
 
   // The key covers every source the program can include, so editing a header invalidates it.
@@ -252,10 +260,29 @@ Program build_program(Device& device, const std::vector<std::string>& files,
   // cache keyed on the text alone cannot serve a stale build.
   std::string stub = "// xi kernel sources " + hex(key.h) + "\n";
   for (auto& f : files) stub += "#include \"" + f + "\"\n";
+  return ProgramSource{options, stub, key};
+}
 
+}  // namespace
+
+bool program_cached(Device& device, const std::vector<std::string>& files, const std::vector<std::string>& defines) {
+  return std::filesystem::exists(program_source(device, files, defines).cache_file());
+}
+
+std::string program_key(Device& device, const std::vector<std::string>& files,
+                        const std::vector<std::string>& defines) {
+  return hex(program_source(device, files, defines).key.h);
+}
+
+Program build_program(Device& device, const std::vector<std::string>& files,
+                      const std::vector<std::string>& defines) {
+  auto start = std::chrono::steady_clock::now();
+  const ProgramSource source = program_source(device, files, defines);
+  const std::string& options = source.options;
+  const Hasher& key = source.key;
   Program result;
   result.key = hex(key.h);
-  result.cache_file = (cache_dir() / (result.key + ".bin")).string();
+  result.cache_file = source.cache_file();
   cl::Device dev = device.device();
   std::vector<unsigned char> binary;
   if (read_cache(result.cache_file, key.h, &binary)) {
@@ -270,7 +297,7 @@ Program build_program(Device& device, const std::vector<std::string>& files,
     }
   }
   if (!result.from_cache) {
-    cl::Program p(device.context(), stub);
+    cl::Program p(device.context(), source.stub);
     try {
       p.build({dev}, options.c_str());
     } catch (const cl::Error&) {

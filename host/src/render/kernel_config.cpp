@@ -66,27 +66,52 @@ KernelConfig KernelConfig::make(const DeviceInfo& device, const CompiledScene& s
   return c;
 }
 
-std::vector<std::string> KernelConfig::defines() const {
-  std::vector<std::string> d{"XI_SAMPLER=" + std::to_string(sampler)};
-  if (features.mirror) d.push_back("XI_HAS_MIRROR");
-  if (features.dielectric) d.push_back("XI_HAS_DIELECTRIC");
-  if (features.normals) d.push_back("XI_HAS_NORMALS");
-  if (features.lens) d.push_back("XI_HAS_LENS");
+uint32_t KernelConfig::shading_word() const {
+  uint32_t word = (uint32_t)sampler << XI_SAMPLER_SHIFT;
+  if (features.mirror) word |= XI_USE_MIRROR;
+  if (features.dielectric) word |= XI_USE_DIELECTRIC;
+  if (features.normals) word |= XI_USE_NORMALS;
+  if (features.lens) word |= XI_USE_LENS;
   if (features.emitters) {
-    d.push_back("XI_HAS_EMITTERS");
-    if (strategy != Strategy::Bsdf) d.push_back("XI_NEE");
-    if (strategy == Strategy::Mis) d.push_back("XI_MIS");
+    word |= XI_USE_EMITTERS;
+    if (strategy != Strategy::Bsdf) word |= XI_USE_NEE;
+    if (strategy == Strategy::Mis) word |= XI_USE_MIS;
   }
-  d.push_back("XI_LANES=" + std::to_string(lanes));
-  d.push_back("XI_BVH_WIDTH=" + std::to_string(bvh_width));
-  d.push_back(std::string("XI_RAY_PACKETS=") + (ray_packets ? "1" : "0"));
+  return word;
+}
+
+std::vector<std::string> KernelConfig::trace_defines() const {
+  std::vector<std::string> d{"XI_BVH_WIDTH=" + std::to_string(bvh_width),
+                             std::string("XI_RAY_PACKETS=") + (ray_packets ? "1" : "0")};
   if (cpu_device) d.push_back("XI_CPU_DEVICE");
   return d;
 }
 
+std::vector<std::string> KernelConfig::shading_defines() const {
+  std::vector<std::string> d{generic ? "XI_GENERIC" : "XI_SHADING=" + std::to_string(shading_word()),
+                             "XI_LANES=" + std::to_string(lanes)};
+  if (cpu_device) d.push_back("XI_CPU_DEVICE");
+  return d;
+}
+
+std::vector<std::string> KernelConfig::defines() const {
+  std::vector<std::string> d = shading_defines();
+  for (const std::string& flag : trace_defines())
+    if (flag != "XI_CPU_DEVICE") d.push_back(flag);
+  return d;
+}
+
+KernelConfig KernelConfig::as_generic() const {
+  KernelConfig c = *this;
+  c.generic = true;
+  return c;
+}
+
 std::string KernelConfig::describe() const {
-  return features.describe() + "; sampler " + sampler_name(sampler) + "; strategy " + strategy_name(strategy) +
-         "; lanes " + std::to_string(lanes) + "; bvh " + std::to_string(bvh_width) + "-wide; ray packets " +
+  const std::string shading = generic ? "generic shading"
+                                      : features.describe() + "; sampler " + sampler_name(sampler) + "; strategy " +
+                                            strategy_name(strategy);
+  return shading + "; lanes " + std::to_string(lanes) + "; bvh " + std::to_string(bvh_width) + "-wide; ray packets " +
          (ray_packets ? "on" : "off") + (cpu_device ? "; cpu device" : "");
 }
 

@@ -16,6 +16,21 @@ namespace {
 const std::vector<std::string> kTraceFiles = {"extend.cl", "shadow.cl", "accumulate.cl"};
 const std::vector<std::string> kLaneFiles = {"generate.cl", "shade.cl"};
 
+// A launch size past PoCL's limit for "small grid" work-group functions (it compiles a kernel once
+// for launches below the limit and once for those above): warming up at 1 and at this many items
+// compiles both before the first pass.
+constexpr size_t kLargeLaunch = (size_t)1 << 20;
+
+// Enqueues a kernel over global_items queue entries, items_per_work_item of them per work item, in
+// work groups of `local` (0: the driver chooses).
+void enqueue_items(cl::CommandQueue& queue, cl::Kernel& kernel, size_t global_items, size_t items_per_work_item,
+                   size_t local, cl::Event* event = nullptr) {
+  const size_t n = std::max<size_t>((global_items + items_per_work_item - 1) / items_per_work_item, 1);
+  const size_t global = local ? (n + local - 1) / local * local : n;
+  queue.enqueueNDRangeKernel(kernel, cl::NullRange, cl::NDRange(global), local ? cl::NDRange(local) : cl::NullRange,
+                             nullptr, event);
+}
+
 template <typename T>
 cl::Buffer upload(cl::Context& ctx, const std::vector<T>& data) {
   return cl::Buffer(ctx, CL_MEM_READ_ONLY | CL_MEM_COPY_HOST_PTR, sizeof(T) * data.size(),
@@ -46,6 +61,33 @@ size_t default_paths_in_flight(Device& device) {
   return std::max<size_t>(paths, 1024);
 }
 
+std::vector<std::string> prebuild_kernels(Device& device, const RenderOptions& options) {
+  // A renderer of one small triangle builds and launches every stage's program in its constructor.
+  Scene scene;
+  scene.width = scene.height = 8;
+  scene.camera.position = glm::vec3(0.0f, 0.0f, -2.0f);
+  scene.camera.look_at = glm::vec3(0.0f);
+  Material white;
+  white.albedo = glm::vec3(0.5f);
+  scene.materials.push_back(white);
+  Triangle t;
+  t.v[0] = glm::vec3(-1.0f, -1.0f, 0.0f);
+  t.v[1] = glm::vec3(1.0f, -1.0f, 0.0f);
+  t.v[2] = glm::vec3(0.0f, 1.0f, 0.0f);
+  scene.triangles.push_back(t);
+  RenderOptions o = options;
+  o.spp = 1;
+  o.shading_program = RenderOptions::ShadingProgram::Generic;
+  std::vector<std::string> built;
+  for (auto packets : {RenderOptions::RayPackets::On, RenderOptions::RayPackets::Off}) {
+    o.ray_packets = packets;
+    Renderer r(device, scene, o);
+    const std::string line = r.kernels().as_generic().describe();
+    if (std::find(built.begin(), built.end(), line) == built.end()) built.push_back(line);
+  }
+  return built;
+}
+
 Renderer::Renderer(Device& device, const Scene& scene, const RenderOptions& options)
     : device_(device),
       options_(options),
@@ -65,21 +107,64 @@ Renderer::Renderer(Device& device, const Scene& scene, const RenderOptions& opti
   auto start = std::chrono::steady_clock::now();
   warm_up();
   program_.build_seconds += std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  if (generic_shading_ && options.shading_program == RenderOptions::ShadingProgram::Auto)
+    pending_shading_ = std::async(std::launch::async, &Renderer::build_scene_shading, this, kernels_.shading_defines());
 }
 
 void Renderer::build_kernels() {
-  const std::vector<std::string> defines = kernels_.defines();
-  program_ = build_program(device_, kTraceFiles, defines);
-  Program lane_program = build_program(device_, kLaneFiles, defines);
-  // One key, build time and cache state for all the kernels (checkpoints and `xi render` use them).
-  program_.key += lane_program.key;
-  program_.build_seconds += lane_program.build_seconds;
-  program_.from_cache = program_.from_cache && lane_program.from_cache;
-  generate_ = cl::Kernel(lane_program.program, "generate");
+  program_ = build_program(device_, kTraceFiles, kernels_.trace_defines());
   extend_ = cl::Kernel(program_.program, "extend");
-  shade_ = cl::Kernel(lane_program.program, "shade");
   shadow_ = cl::Kernel(program_.program, "shadow");
   accumulate_ = cl::Kernel(program_.program, "accumulate");
+
+  using Choice = RenderOptions::ShadingProgram;
+  const std::vector<std::string> own = kernels_.shading_defines(), generic = kernels_.as_generic().shading_defines();
+  generic_shading_ = options_.shading_program == Choice::Generic ||
+                     (options_.shading_program == Choice::Auto && !program_cached(device_, kLaneFiles, own) &&
+                      program_cached(device_, kLaneFiles, generic));
+  Program shading = build_program(device_, kLaneFiles, generic_shading_ ? generic : own);
+  generate_ = cl::Kernel(shading.program, "generate");
+  shade_ = cl::Kernel(shading.program, "shade");
+  // One key, build time and cache state for all the kernels (checkpoints and `xi render` use them).
+  // The key is the scene's own program's whichever shades, since both render the same image.
+  program_.key += program_key(device_, kLaneFiles, own);
+  program_.build_seconds += shading.build_seconds;
+  program_.from_cache = program_.from_cache && shading.from_cache;
+}
+
+void Renderer::wait_for_scene_shading() { take_scene_shading(true); }
+
+Renderer::~Renderer() {
+  if (pending_shading_.valid()) pending_shading_.wait();
+}
+
+// Between passes: the scene's own generate and shade replace the generic ones once built.
+void Renderer::take_scene_shading(bool wait) {
+  if (!pending_shading_.valid()) return;
+  if (!wait && pending_shading_.wait_for(std::chrono::seconds(0)) != std::future_status::ready) return;
+  ShadingKernels own = pending_shading_.get();  // rethrows a failed build, with its log
+  generate_ = own.generate;
+  shade_ = own.shade;
+  generic_shading_ = false;
+  shading_switch_pass_ = passes_;
+}
+
+// On a thread of its own: builds the program, then launches both kernels once with no work on a
+// queue of its own, with counters of their own, so that a driver that compiles per launch
+// configuration (PoCL) does it here rather than in the render's queue.
+Renderer::ShadingKernels Renderer::build_scene_shading(const std::vector<std::string>& defines) const {
+  Program program = build_program(device_, kLaneFiles, defines);
+  ShadingKernels k{cl::Kernel(program.program, "generate"), cl::Kernel(program.program, "shade")};
+  cl::CommandQueue queue(device_.context(), device_.device());
+  cl::Buffer counters(device_.context(), CL_MEM_READ_WRITE, sizeof(uint32_t) * counter_count_);
+  queue.enqueueFillBuffer(counters, 0u, 0, sizeof(uint32_t) * counter_count_);
+  bind_generate(k.generate, wave(0, 1, 0, 0), counters);
+  bind_shade(k.shade, queue_a_, queue_b_, 0, counters);
+  for (size_t items : {(size_t)1, kLargeLaunch})
+    for (cl::Kernel* kernel : {&k.generate, &k.shade})
+      enqueue_items(queue, *kernel, items, (size_t)kernels_.lanes, options_.local_size);
+  queue.finish();
+  return k;
 }
 
 // Paths in flight: a wave holds several samples of every pixel when the budget allows it.
@@ -142,14 +227,14 @@ void Renderer::allocate() {
   q.finish();
 }
 
-int Renderer::bind_path_state(cl::Kernel& kernel) {
+int Renderer::bind_path_state(cl::Kernel& kernel) const {
   int arg = 0;
 #define XI_BIND_BUFFER(type, name) kernel.setArg(arg++, name##_);
   XI_PATH_STATE(XI_BIND_BUFFER)
   return arg;
 }
 
-int Renderer::bind_shadow_state(cl::Kernel& kernel, int arg) {
+int Renderer::bind_shadow_state(cl::Kernel& kernel, int arg) const {
   XI_SHADOW_STATE(XI_BIND_BUFFER)
   return arg;
 }
@@ -159,13 +244,9 @@ int Renderer::bind_shadow_state(cl::Kernel& kernel, int arg) {
 // profiling does a launch carry an event, read when the pass is done.
 void Renderer::launch(cl::Kernel& kernel, const char* stage, int bounce, size_t global_items,
                       size_t items_per_work_item) {
-  const size_t local = options_.local_size;
-  const size_t n = std::max<size_t>((global_items + items_per_work_item - 1) / items_per_work_item, 1);
-  const size_t global = local ? (n + local - 1) / local * local : n;
   cl::Event event;
-  device_.queue().enqueueNDRangeKernel(kernel, cl::NullRange, cl::NDRange(global),
-                                       local ? cl::NDRange(local) : cl::NullRange, nullptr,
-                                       options_.profile ? &event : nullptr);
+  enqueue_items(device_.queue(), kernel, global_items, items_per_work_item, options_.local_size,
+                options_.profile ? &event : nullptr);
   if (options_.profile) {
     launches_.push_back(Launch{stage, passes_, bounce, global_items, 0, 0, global_items});
     launch_events_.push_back(event);
@@ -174,13 +255,18 @@ void Renderer::launch(cl::Kernel& kernel, const char* stage, int bounce, size_t 
 
 // Each stage's arguments in the order its kernel declares them.
 
+void Renderer::bind_generate(cl::Kernel& kernel, const WaveParams& wave, const cl::Buffer& counters) const {
+  int arg = bind_path_state(kernel);
+  kernel.setArg(arg++, queue_a_);
+  kernel.setArg(arg++, counters);
+  kernel.setArg(arg++, scene_.camera);
+  kernel.setArg(arg++, sampler_params());
+  kernel.setArg(arg++, kernels_.shading_word());
+  kernel.setArg(arg++, wave);
+}
+
 void Renderer::generate(const WaveParams& wave) {
-  int arg = bind_path_state(generate_);
-  generate_.setArg(arg++, queue_a_);
-  generate_.setArg(arg++, counters_);
-  generate_.setArg(arg++, scene_.camera);
-  generate_.setArg(arg++, sampler_params());
-  generate_.setArg(arg++, wave);
+  bind_generate(generate_, wave, counters_);
   launch(generate_, "generate", -1, (size_t)wave.pixels * wave.samples, (size_t)kernels_.lanes);
 }
 
@@ -194,24 +280,30 @@ void Renderer::extend(const cl::Buffer& queue, int bounce, size_t global) {
   launch(extend_, "extend", bounce, global, XI_EXTEND_PACKET(kernels_.bvh_width, bounce, kernels_.ray_packets));
 }
 
+void Renderer::bind_shade(cl::Kernel& kernel, const cl::Buffer& queue_in, const cl::Buffer& queue_out, int bounce,
+                          const cl::Buffer& counters) const {
+  int arg = bind_path_state(kernel);
+  kernel.setArg(arg++, queue_in);
+  kernel.setArg(arg++, queue_out);
+  arg = bind_shadow_state(kernel, arg);
+  kernel.setArg(arg++, counters);
+  kernel.setArg(arg++, (uint32_t)bounce);
+  kernel.setArg(arg++, materials_);
+  kernel.setArg(arg++, tri_verts_);
+  kernel.setArg(arg++, tri_material_);
+  kernel.setArg(arg++, tri_normals_);
+  kernel.setArg(arg++, light_cdf_);
+  kernel.setArg(arg++, light_tri_);
+  kernel.setArg(arg++, tri_light_pdf_);
+  kernel.setArg(arg++, scene_.features.emitters ? (uint32_t)scene_.light_tri.size() : 0u);
+  kernel.setArg(arg++, sampler_params());
+  kernel.setArg(arg++, kernels_.shading_word());
+  kernel.setArg(arg++, (uint32_t)options_.max_depth);
+  kernel.setArg(arg++, scene_.background);
+}
+
 void Renderer::shade(const cl::Buffer& queue_in, const cl::Buffer& queue_out, int bounce, size_t global) {
-  int arg = bind_path_state(shade_);
-  shade_.setArg(arg++, queue_in);
-  shade_.setArg(arg++, queue_out);
-  arg = bind_shadow_state(shade_, arg);
-  shade_.setArg(arg++, counters_);
-  shade_.setArg(arg++, (uint32_t)bounce);
-  shade_.setArg(arg++, materials_);
-  shade_.setArg(arg++, tri_verts_);
-  shade_.setArg(arg++, tri_material_);
-  shade_.setArg(arg++, tri_normals_);
-  shade_.setArg(arg++, light_cdf_);
-  shade_.setArg(arg++, light_tri_);
-  shade_.setArg(arg++, tri_light_pdf_);
-  shade_.setArg(arg++, scene_.features.emitters ? (uint32_t)scene_.light_tri.size() : 0u);
-  shade_.setArg(arg++, sampler_params());
-  shade_.setArg(arg++, (uint32_t)options_.max_depth);
-  shade_.setArg(arg++, scene_.background);
+  bind_shade(shade_, queue_in, queue_out, bounce, counters_);
   launch(shade_, "shade", bounce, global, (size_t)kernels_.lanes);
 }
 
@@ -224,7 +316,7 @@ void Renderer::shadow(int bounce, size_t global) {
   launch(shadow_, "shadow", bounce, global, XI_SHADOW_PACKET(kernels_.bvh_width, kernels_.ray_packets));
 }
 
-void Renderer::accumulate(const WaveParams& wave) {
+void Renderer::bind_accumulate(const WaveParams& wave) {
   int arg = bind_path_state(accumulate_);
   accumulate_.setArg(arg++, film_sum_);
   accumulate_.setArg(arg++, film_sum_sq_);
@@ -232,6 +324,10 @@ void Renderer::accumulate(const WaveParams& wave) {
   accumulate_.setArg(arg++, film_normal_);
   accumulate_.setArg(arg++, counters_);
   accumulate_.setArg(arg++, wave);
+}
+
+void Renderer::accumulate(const WaveParams& wave) {
+  bind_accumulate(wave);
   launch(accumulate_, "accumulate", -1, wave.pixels);
 }
 
@@ -247,7 +343,7 @@ SamplerParams Renderer::sampler_params() const {
 // lengths shade b counts, and launches shadow b and bounce b + 1 over exactly those: PoCL hands a
 // launch's work groups to its threads in large contiguous chunks, so over a loose bound the live
 // groups, all at the front, fall in one thread's chunk while the others draw groups that exit at
-// once (on 2 cores the engine's third-bounce shade took 2.2× as long). Host and device share the
+// once, and the launch takes as long as one thread alone would. Host and device share the
 // cores there, so the wait costs only a launch's latency.
 void Renderer::run_wave(const WaveParams& wave) {
   cl::CommandQueue& q = device_.queue();
@@ -295,6 +391,7 @@ WaveParams Renderer::wave(size_t first_pixel, size_t pixels, int first_sample, u
 
 void Renderer::run_pass() {
   if (done()) return;
+  take_scene_shading(false);
   const uint32_t samples = (uint32_t)std::min(samples_per_pass_, options_.spp - spp_done_);
   const size_t pixels_per_wave = paths_ / samples;  // all pixels when samples > 1
   for (size_t first = 0; first < pixels_; first += pixels_per_wave)
@@ -335,15 +432,18 @@ void Renderer::finish_pass() {
   wave_first_launch_.clear();
 }
 
-// Launches every stage once with no work, over the whole path state, so a driver that compiles per
-// launch configuration (PoCL) does it now, counted in the kernel build, not in the first pass.
+// Launches every stage with no work (every queue is empty), small and large, so that a driver that
+// compiles per launch configuration (PoCL) does it now, counted in the kernel build, not in a pass.
 void Renderer::warm_up() {
-  const WaveParams empty = wave(0, 1, 0, 0);  // no items; one pixel so that nothing divides by zero
-  generate(empty);
-  extend(queue_a_, 0, paths_);
-  shade(queue_a_, queue_b_, 0, paths_);
-  shadow(0, paths_);
-  accumulate(wave(0, 0, 0, 0));
+  bind_generate(generate_, wave(0, 1, 0, 0), counters_);  // no items; one pixel so that nothing divides by zero
+  bind_accumulate(wave(0, 0, 0, 0));
+  for (size_t items : {(size_t)1, kLargeLaunch}) {
+    launch(generate_, "generate", -1, items, (size_t)kernels_.lanes);
+    extend(queue_a_, 0, items);
+    shade(queue_a_, queue_b_, 0, items);
+    shadow(0, items);
+    launch(accumulate_, "accumulate", -1, items);
+  }
   device_.queue().finish();
   launches_.clear();
   launch_events_.clear();

@@ -1,0 +1,35 @@
+// What the shading stages (generate, shade) do beyond a diffuse surface lit by escaped rays: the
+// scene's features and the light transport strategy as bits, with the sampler, in one word.
+// A scene's own program is compiled with XI_SHADING set to its word, so code for what the scene
+// does not use is not compiled at all. The generic program (XI_GENERIC) reads the word from its
+// kernel argument instead: one build serves every scene, with the same arithmetic, and so renders
+// a new scene's first passes, pixel for pixel as its own program would, while that one builds.
+#ifndef XI_SHADING_H
+#define XI_SHADING_H
+#include "compat.h"
+
+#define XI_USE_MIRROR 1u
+#define XI_USE_DIELECTRIC 2u
+#define XI_USE_NORMALS 4u    // interpolated vertex normals
+#define XI_USE_EMITTERS 8u
+#define XI_USE_LENS 16u      // a thin-lens camera
+#define XI_USE_NEE 32u       // light sampling (next-event estimation), where there are emitters
+#define XI_USE_MIS 64u       // light and BSDF sampling combined by the power heuristic, with NEE
+#define XI_SAMPLER_SHIFT 8u  // the sampler (XI_SAMPLER_*) in the bits above
+
+#ifdef XI_DEVICE
+// The shading word in force: the program's own, or in the generic program the argument's.
+static inline uint xi_shading(uint argument) {
+#ifdef XI_GENERIC
+  return argument;
+#else
+  (void)argument;
+  return XI_SHADING;
+#endif
+}
+#endif
+
+static inline bool xi_uses(uint shading, uint feature) { return (shading & feature) != 0u; }
+static inline int xi_sampler_of(uint shading) { return (int)(shading >> XI_SAMPLER_SHIFT); }
+
+#endif
