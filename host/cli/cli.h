@@ -30,5 +30,6 @@ int devices(const std::vector<std::string>& args);
 int warp(const std::vector<std::string>& args);
 int diff(const std::vector<std::string>& args);
 int tonemap(const std::vector<std::string>& args);
+int export_scene(const std::vector<std::string>& args);  // `xi export`
 
 }  // namespace xi::cli

@@ -159,6 +159,11 @@ static const char* kUsage =
     "  tonemap IMAGE.exr OUT.png   the 8-bit sRGB PNG that `xi render` writes beside its EXR\n"
     "      --exposure E          scale the linear values by E first (default 1)\n"
     "      --layer NAME          an EXR layer (e.g. albedo) instead of RGB\n"
+    "  export SCENE OUT_DIR  write the scene's triangles as xi renders them, in world space, for\n"
+    "                        other renderers: one binary PLY per material (x y z nx ny nz; a\n"
+    "                        flat triangle has its face normal at its three vertices) and\n"
+    "                        manifest.json naming each file's material; OUT_DIR is made if its\n"
+    "                        parent exists\n"
     "  help                  this text\n";
 
 int main(int argc, char** argv) {
@@ -175,6 +180,7 @@ int main(int argc, char** argv) {
     if (command == "warp") return xi::cli::warp(args);
     if (command == "diff") return xi::cli::diff(args);
     if (command == "tonemap") return xi::cli::tonemap(args);
+    if (command == "export") return xi::cli::export_scene(args);
     throw xi::Error("unknown command '" + command + "'", "xi help lists the commands");
   } catch (const xi::cli::Team::QuietExit&) {
     // a rank of an MPI job whose setup error rank 0 reports
