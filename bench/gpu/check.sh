@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Issue 8's checks on a GPU machine lent by the `device` tool, from what bench/gpu/prepare.sh packed:
+# Checks on a GPU machine, from what bench/gpu/prepare.sh packed:
 #   suite    the whole test suite on the GPU (but Install.* and MpiRender.*: no cmake or mpirun there)
 #   profile  xi render --profile at 1920x1080, 64 spp, Cornell box and engine, three runs each
 #   mitsuba  a 16-spp Mitsuba cuda_ad_rgb render of its own Cornell box, with Dr.Jit's log: shows the
