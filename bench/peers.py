@@ -219,8 +219,10 @@ def check(a, xi, mitsuba, scene, resolution, out_dir, tmp):
     t_xi = xi_render(a, xi, scene, xi_out, a.spp, 1, resolution)["seconds"]
     t_mi = mitsuba.ask(cmd="render", spp=a.spp, seed=1, out=str(mi_out))["seconds"]
     r = mitsuba.ask(cmd="compare", xi=str(xi_out), mitsuba=str(mi_out))
+    full = xi_out.resolve()
+    shown = full.relative_to(c.ROOT) if full.is_relative_to(c.ROOT) else full  # (--out may lie elsewhere)
     print(f"\n{name}, {resolution}, {a.spp} spp, xi max depth {depth}: xi {t_xi:.2f} s, Mitsuba {t_mi:.2f} s "
-          f"(its kernel compilation included); images {xi_out.relative_to(c.ROOT)} and {mi_out.name}")
+          f"(its kernel compilation included); images {shown} and {mi_out.name}")
     rows = []
     for k, ch in enumerate("RGB"):
         x, m = r["xi"][k], r["mitsuba"][k]
