@@ -77,8 +77,13 @@ class CliExport : public CliTest {
     EXPECT_FALSE(has_temp_files());
 
     const xi::Scene scene = xi::load_scene(scene_path);
+    // Per material: the triangles without vertex normals first, then those with, each in scene order.
     std::map<std::string, std::vector<const xi::Triangle*>> by_material;
-    for (const xi::Triangle& t : scene.triangles) by_material[scene.materials[t.material].name].push_back(&t);
+    std::map<std::string, size_t> flat;
+    for (bool smooth : {false, true})
+      for (const xi::Triangle& t : scene.triangles)
+        if (t.has_normals == smooth) by_material[scene.materials[t.material].name].push_back(&t);
+    for (const xi::Triangle& t : scene.triangles) flat[scene.materials[t.material].name] += !t.has_normals;
 
     const json manifest = json::parse(read_text(work_ / "out" / "manifest.json"));
     EXPECT_EQ(manifest.at("triangles").get<size_t>(), scene.triangles.size());
@@ -93,6 +98,7 @@ class CliExport : public CliTest {
       EXPECT_EQ(ply.header.at(0), "ply");
       EXPECT_EQ(ply.header.at(1), "format binary_little_endian 1.0");
       EXPECT_EQ(mesh.at("triangles").get<size_t>(), tris.size());
+      EXPECT_EQ(mesh.at("flat_triangles").get<size_t>(), flat[material]);
       ASSERT_EQ(ply.faces, tris.size());
       ASSERT_EQ(ply.vertices, 3 * tris.size());
       ASSERT_EQ(ply.face.size(), tris.size());
@@ -126,6 +132,19 @@ TEST_F(CliExport, SceneWithASphere) {
   size_t smooth = 0;
   for (const xi::Triangle& t : s.triangles) smooth += t.has_normals;
   EXPECT_GT(smooth, 1000u);  // the icosphere's vertex normals were checked above
+}
+
+TEST_F(CliExport, FlatAndSmoothTrianglesOfOneMaterial) {
+  write_scene("ball.json", [](json& j) {
+    j["shapes"].push_back({{"type", "sphere"}, {"material", "white"}, {"center", {300, 100, 300}}, {"radius", 50},
+                           {"subdivisions", 2}, {"transform", {{"scale", {1, 2, -1}}}}});  // mirrored: winding swapped
+  });
+  check_export(work_ / "ball.json");
+  const json manifest = json::parse(read_text(work_ / "out" / "manifest.json"));
+  bool mixed = false;
+  for (const json& mesh : manifest.at("meshes"))
+    mixed |= mesh.at("material") == "white" && mesh.at("flat_triangles") == 26 && mesh.at("triangles") == 26 + 320;
+  EXPECT_TRUE(mixed) << manifest.dump();
 }
 
 TEST_F(CliExport, IntoAnExistingFolderReplacesTheManifest) {
