@@ -160,10 +160,10 @@ static const char* kUsage =
     "      --exposure E          scale the linear values by E first (default 1)\n"
     "      --layer NAME          an EXR layer (e.g. albedo) instead of RGB\n"
     "  export SCENE OUT_DIR  write the scene's triangles as xi renders them, in world space, for\n"
-    "                        other renderers: one binary PLY per material (x y z nx ny nz; a\n"
-    "                        flat triangle has its face normal at its three vertices) and\n"
-    "                        manifest.json naming each file's material; OUT_DIR is made if its\n"
-    "                        parent exists\n"
+    "                        other renderers: one binary PLY per material (x y z nx ny nz; its\n"
+    "                        flat triangles first, each with its face normal at its three\n"
+    "                        vertices) and manifest.json naming each file's material and its\n"
+    "                        count of flat triangles; OUT_DIR is made if its parent exists\n"
     "  help                  this text\n";
 
 int main(int argc, char** argv) {
