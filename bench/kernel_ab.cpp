@@ -1,7 +1,7 @@
-// A/B of two kernel builds in one process: timing noise between processes on a shared machine (±5–20%
-// here) hides the few per cent a kernel change is worth, while two renderers alternated in one process
-// see the same machine state. Each side is a kernel folder (as XI_KERNEL_DIR) and optionally a BVH
-// width: `DIR` or `DIR@WIDTH`.
+// A/B of two kernel builds in one process: timing noise between processes on a shared machine hides
+// the few per cent a kernel change is worth, while two renderers alternated in one process see the same
+// machine state. Each side is a kernel folder (as XI_KERNEL_DIR) and optionally a BVH width: `DIR` or
+// `DIR@WIDTH`.
 //
 //   xi_kernel_ab SCENE A B [RUNS] [WxH] [SPP]
 //

@@ -8,14 +8,14 @@ relMSE against a high-spp xi reference and the efficiency 1/(relMSE x seconds). 
 64x64 with many spp and compares their mean radiance, to show that the scene conversion is right.
 
 Mitsuba runs in bench/.venv (made by bench/setup-mitsuba.sh) in a worker process: this file, run by the
-venv's python with --worker, converting xi's JSON scene itself (see convert())."""
+venv's python with --worker. It loads each scene through bench/mitsuba_scene.py: xi's camera and materials
+from the JSON, xi's own triangles from `xi export`."""
 import argparse
 import json
 import math
 import os
 import re
 import select
-import shutil
 import subprocess
 import sys
 import tempfile
@@ -25,10 +25,10 @@ from pathlib import Path
 sys.dont_write_bytecode = True  # no __pycache__ in the repo
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import common as c  # noqa: E402
+import mitsuba_scene as ms  # noqa: E402
 
 DEFAULT_SCENES = ["cornell-box", "bench/scenes/engine.json"]
 VENV = c.ROOT / "bench" / ".venv"
-MESH_CACHE = c.ROOT / "bench" / ".cache" / "meshes"  # Assimp exports of mesh files (ignored by git)
 # Mitsuba 3.9.1's samplers and the spp each takes without rounding it (to a square, a power of two).
 MITSUBA_SAMPLERS = {"independent": lambda n: n > 0,
                     "stratified": lambda n: n > 0 and math.isqrt(n) ** 2 == n,
@@ -40,276 +40,6 @@ MITSUBA_SAMPLER_SPP = {"independent": "any spp", "stratified": "a square spp", "
 
 # ---------------------------------------------------------------------------------------------------------
 # Worker side: runs under bench/.venv/bin/python with numpy and mitsuba.
-
-class Unsupported(Exception):
-    """A scene feature the conversion cannot express in Mitsuba: the scene is skipped for Mitsuba."""
-
-
-def rotation(axis, degrees):
-    """glm::rotate's matrix: right-handed rotation by DEGREES about AXIS (Rodrigues)."""
-    import numpy as np
-    a = np.asarray(axis, float) / np.linalg.norm(axis)
-    t = math.radians(degrees)
-    k = np.array([[0, -a[2], a[1]], [a[2], 0, -a[0]], [-a[1], a[0], 0]])
-    return math.cos(t) * np.eye(3) + math.sin(t) * k + (1 - math.cos(t)) * np.outer(a, a)
-
-
-def xi_matrix(t):
-    """A shape's `transform` as a 4x4 matrix, as xi builds it: scale, then rotate, then translate."""
-    import numpy as np
-    m = np.eye(4)
-    if not t:
-        return m
-    if "matrix" in t:
-        return np.array(t["matrix"], float).reshape(4, 4)  # row-major in the file
-    s = t.get("scale", 1.0)
-    m[:3, :3] = np.diag(s if isinstance(s, list) else [s] * 3)
-    if "rotate" in t:
-        m[:3, :3] = rotation(t["rotate"]["axis"], t["rotate"]["degrees"]) @ m[:3, :3]
-    m[:3, 3] = t.get("translate", [0, 0, 0])
-    return m
-
-
-def transform(m, v, n):
-    """Applies M to triangles V (k,3,3) and their normals N (or None) as xi's apply() does: double math,
-    normals by the inverse transpose, winding swapped by a mirroring transform to keep the front face."""
-    import numpy as np
-    lin = m[:3, :3]
-    v = (v.astype(np.float64) @ lin.T + m[:3, 3]).astype(np.float32)
-    if n is not None:
-        with np.errstate(invalid="ignore", divide="ignore"):
-            n = n.astype(np.float64) @ np.linalg.inv(lin)
-            n = (n / np.linalg.norm(n, axis=-1, keepdims=True)).astype(np.float32)
-    if np.linalg.det(lin) < 0:
-        v = v[:, [0, 2, 1]]
-        n = None if n is None else n[:, [0, 2, 1]]
-    return v, n
-
-
-def icosphere(levels):
-    """xi's icosphere (host/src/scene/scene.cpp), vertex for vertex: (unit positions = normals (k,3,3) float32)."""
-    import numpy as np
-    g = (1 + math.sqrt(5)) / 2
-    p = [np.array(v, float) / np.linalg.norm(v) for v in (
-        (-1, g, 0), (1, g, 0), (-1, -g, 0), (1, -g, 0), (0, -1, g), (0, 1, g),
-        (0, -1, -g), (0, 1, -g), (g, 0, -1), (g, 0, 1), (-g, 0, -1), (-g, 0, 1))]
-    faces = [(0, 11, 5), (0, 5, 1), (0, 1, 7), (0, 7, 10), (0, 10, 11), (1, 5, 9), (5, 11, 4), (11, 10, 2),
-             (10, 7, 6), (7, 1, 8), (3, 9, 4), (3, 4, 2), (3, 2, 6), (3, 6, 8), (3, 8, 9), (4, 9, 5),
-             (2, 4, 11), (6, 2, 10), (8, 6, 7), (9, 8, 1)]
-    for _ in range(levels):
-        mids = {}
-
-        def mid(a, b):
-            key = (min(a, b), max(a, b))
-            if key not in mids:
-                mids[key] = len(p)
-                q = p[a] + p[b]
-                p.append(q / np.linalg.norm(q))
-            return mids[key]
-        nxt = []
-        for a, b, cc in faces:
-            ab, bc, ca = mid(a, b), mid(b, cc), mid(cc, a)
-            nxt += [(a, ab, ca), (b, bc, ab), (cc, ca, bc), (ab, bc, ca)]
-        faces = nxt
-    pts, f = np.array(p), np.array(faces)
-    tri = pts[f]  # (k,3,3) double
-    outward = np.einsum("ij,ij->i", np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), tri.sum(axis=1)) >= 0
-    f[~outward] = f[~outward][:, [0, 2, 1]]
-    return pts[f].astype(np.float32)
-
-
-PLY_TYPES = {"char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1", "short": "<i2", "int16": "<i2",
-             "ushort": "<u2", "uint16": "<u2", "int": "<i4", "int32": "<i4", "uint": "<u4", "uint32": "<u4",
-             "float": "<f4", "float32": "<f4", "double": "<f8", "float64": "<f8"}
-
-
-def read_ply(path):
-    """Triangles (k,3,3) and normals (or None) of a binary little-endian PLY, as `assimp export` writes it."""
-    import numpy as np
-    data = Path(path).read_bytes()
-    end = data.index(b"end_header\n") + len(b"end_header\n")
-    elements = []  # (name, count, [(prop, type)] or list types)
-    for line in data[:end].decode("ascii").splitlines():
-        w = line.split()
-        if w[:2] == ["format", "ascii"] or w[:2] == ["format", "binary_big_endian"]:
-            raise Unsupported(f"{path}: only binary little-endian PLY is read")
-        if w and w[0] == "element":
-            elements.append((w[1], int(w[2]), []))
-        elif w and w[0] == "property":
-            elements[-1][2].append((w[-1], w[1:-1]))
-    pos, verts, tris = end, None, None
-    for name, count, props in elements:
-        if name == "vertex":
-            dtype = np.dtype([(p, PLY_TYPES[t[0]]) for p, t in props])
-            verts = np.frombuffer(data, dtype, count, pos)
-            pos += dtype.itemsize * count
-        elif name == "face" and len(props) == 1 and props[0][1][0] == "list":
-            ct, it = np.dtype(PLY_TYPES[props[0][1][1]]), np.dtype(PLY_TYPES[props[0][1][2]])
-            fast = np.dtype([("n", ct), ("i", it, (3,))])
-            f = np.frombuffer(data, fast, count, pos) if pos + fast.itemsize * count <= len(data) else None
-            if f is not None and (f["n"] == 3).all():
-                tris, pos = f["i"], pos + fast.itemsize * count
-            else:  # polygons, points or lines left: xi keeps only the triangles
-                keep = []
-                for _ in range(count):
-                    k = int(np.frombuffer(data, ct, 1, pos)[0])
-                    idx = np.frombuffer(data, it, k, pos + ct.itemsize)
-                    pos += ct.itemsize + it.itemsize * k
-                    if k == 3:
-                        keep.append(idx)
-                tris = np.array(keep, dtype=np.int64).reshape(-1, 3)
-        else:
-            raise Unsupported(f"{path}: unexpected PLY element '{name}'")
-    xyz = np.stack([verts["x"], verts["y"], verts["z"]], axis=-1).astype(np.float32)
-    has_n = all(k in verts.dtype.names for k in ("nx", "ny", "nz"))
-    nrm = np.stack([verts["nx"], verts["ny"], verts["nz"]], axis=-1).astype(np.float32) if has_n else None
-    return xyz[tris], (nrm[tris] if has_n else None)
-
-
-def load_mesh(path, tmp):
-    """A mesh file through Assimp, as xi loads it (triangulated, node transforms applied): `assimp export` to
-    a binary PLY, the same importer for every format, so the triangles are xi's. Exports are kept in
-    MESH_CACHE by the file's content hash, so a machine without the tool (a lent GPU) can use exports made
-    here."""
-    import hashlib
-    out = MESH_CACHE / f"{hashlib.sha256(Path(path).read_bytes()).hexdigest()[:20]}.ply"
-    if out.exists():
-        return read_ply(out)
-    part = Path(tmp) / f"assimp-{len(list(Path(tmp).glob('assimp-*')))}.ply"
-    try:
-        r = subprocess.run(["assimp", "export", str(path), str(part), "-fplyb", "-ptv", "-tri"],
-                           capture_output=True, text=True)
-    except FileNotFoundError:
-        raise Unsupported("mesh files need the `assimp` tool (Debian's assimp-utils; bench/setup-mitsuba.sh)")
-    if r.returncode != 0 or not part.exists():
-        raise Unsupported(f"assimp export {path} failed:\n{r.stdout}{r.stderr}")
-    MESH_CACHE.mkdir(parents=True, exist_ok=True)
-    shutil.move(part, out)
-    return read_ply(out)
-
-
-def write_ply(path, v, n):
-    """A triangle soup (3 vertices per triangle, as xi stores them) as a binary PLY."""
-    import numpy as np
-    k = len(v)
-    cols = [v.reshape(-1, 3)] + ([n.reshape(-1, 3)] if n is not None else [])
-    verts = np.ascontiguousarray(np.concatenate(cols, axis=1), dtype="<f4")
-    faces = np.zeros(k, dtype=[("n", "u1"), ("i", "<i4", (3,))])
-    faces["n"], faces["i"] = 3, np.arange(3 * k, dtype="<i4").reshape(k, 3)
-    props = "xyz" if n is None else ["x", "y", "z", "nx", "ny", "nz"]
-    header = (f"ply\nformat binary_little_endian 1.0\nelement vertex {3 * k}\n"
-              + "".join(f"property float {p}\n" for p in props)
-              + f"element face {k}\nproperty list uchar int vertex_indices\nend_header\n")
-    with open(path, "wb") as f:
-        f.write(header.encode("ascii"))
-        f.write(verts.tobytes())
-        f.write(faces.tobytes())
-
-
-def shape_triangles(shape, base, tmp):
-    """One xi shape as triangles (k,3,3) float32 and vertex normals (or None), as xi's read_shape makes them.
-    Mesh triangles are split by whether their normals are usable, so returns a list of (v, n)."""
-    import numpy as np
-    kind = shape["type"]
-    if kind in ("quad", "triangle"):
-        q = np.array(shape["vertices"], np.float32)
-        v, n = q[np.array([[0, 1, 2], [0, 2, 3]] if kind == "quad" else [[0, 1, 2]])], None
-    elif kind == "sphere":
-        n = icosphere(shape.get("subdivisions", 4))
-        v = np.array(shape["center"], np.float32) + np.float32(shape["radius"]) * n
-    elif kind == "mesh":
-        v, n = load_mesh(Path(base) / shape["file"], tmp)
-    else:
-        raise Unsupported(f"shape type '{kind}'")
-    v, n = transform(xi_matrix(shape.get("transform")), v, n)
-    if kind != "mesh":
-        return [(v, n)]
-    # xi drops degenerate triangles of meshes (zero area up to float noise) and uses flat normals for the
-    # triangles whose normals are missing or not finite.
-    e1, e2 = (v[:, 1] - v[:, 0]).astype(np.float64), (v[:, 2] - v[:, 0]).astype(np.float64)
-    keep = np.linalg.norm(np.cross(e1, e2), axis=1) > 1e-6 * np.maximum((e1 * e1).sum(1), (e2 * e2).sum(1))
-    if n is None:
-        return [(v[keep], None)]
-    good = np.isfinite(n).all(axis=(1, 2))
-    return [(v[keep & good], n[keep & good]), (v[keep & ~good], None)]
-
-
-def rgb(value):
-    return {"type": "rgb", "value": [float(x) for x in value]}
-
-
-def bsdf(m):
-    """xi's material as a Mitsuba BSDF (and area emitter). xi scatters on both sides of every surface;
-    Mitsuba's diffuse and conductor are one-sided, hence `twosided`."""
-    kind = m["type"]
-    emitter = None
-    if kind in ("diffuse", "emitter"):
-        if "radiance" in m:
-            if m.get("two_sided", False):
-                raise Unsupported("two-sided emitters (Mitsuba's area lights emit from the front face only)")
-            emitter = {"type": "area", "radiance": rgb(m["radiance"])}
-        b = {"type": "twosided", "bsdf": {"type": "diffuse", "reflectance": rgb(m.get("albedo", [0, 0, 0]))}}
-    elif kind == "mirror":  # a perfect mirror: no Fresnel falloff (material 'none'), the albedo as tint
-        b = {"type": "twosided", "bsdf": {"type": "conductor", "material": "none",
-                                          "specular_reflectance": rgb(m.get("albedo", [1, 1, 1]))}}
-    elif kind == "glass":
-        tint = rgb(m.get("albedo", [1, 1, 1]))
-        b = {"type": "dielectric", "int_ior": float(m.get("ior", 1.5)), "ext_ior": 1.0,
-             "specular_reflectance": tint, "specular_transmittance": tint}
-    else:
-        raise Unsupported(f"material type '{kind}'")
-    return b, emitter
-
-
-def convert(scene_file, width, height, max_depth, sampler, tmp):
-    """xi's JSON scene as a Mitsuba scene dict. Geometry goes over as xi's own triangles (quads split as xi
-    splits them, spheres as xi's icospheres with exact vertex normals, meshes through Assimp), one PLY per
-    material; the camera as a perspective (or thin-lens) sensor with the same vertical fov."""
-    import mitsuba as mi
-    import numpy as np
-    s = json.loads(Path(scene_file).read_text())
-    cam = s["camera"]
-    pos, look = np.array(cam["position"], float), np.array(cam["look_at"], float)
-    dist = float(np.linalg.norm(look - pos))
-    fov = cam.get("fov") or math.degrees(2 * math.atan(cam["film_height_mm"] / 2 / cam["focal_length_mm"]))
-    # Mitsuba's look_at puts camera +x at cross(up, forward), so the image's x axis is cross(forward, up),
-    # as in xi. Clip planes: xi has none; these keep Mitsuba's default near/far ratio (1e6) at the scene's scale.
-    sensor = {"type": "perspective", "fov": fov, "fov_axis": "y",
-              "to_world": mi.ScalarTransform4f().look_at(origin=cam["position"], target=cam["look_at"], up=cam["up"]),
-              "near_clip": 1e-3 * dist, "far_clip": 1e3 * dist,
-              "film": {"type": "hdrfilm", "width": width, "height": height, "rfilter": {"type": "box"},
-                       "pixel_format": "rgb", "component_format": "float32"},
-              "sampler": {"type": sampler, "sample_count": 1}}  # (mi.render sets the spp)
-    if cam.get("aperture_radius", 0) > 0:
-        sensor.update(type="thinlens", aperture_radius=cam["aperture_radius"],
-                      focus_distance=cam.get("focus_distance", dist))
-    d = {"type": "scene", "sensor": sensor,
-         # xi counts bounces (1 = direct light), Mitsuba path vertices (2 = direct light)
-         "integrator": {"type": "path", "max_depth": max_depth + 1}}
-    bg = s.get("background", [0, 0, 0])
-    if max(bg) > 0:  # xi adds it to escaping rays; Mitsuba also samples it as a light: same expectation
-        d["background"] = {"type": "constant", "radiance": rgb(bg)}
-
-    groups = {}  # (material, has normals) -> lists of triangles and normals
-    for shape in s["shapes"]:
-        for v, n in shape_triangles(shape, Path(scene_file).parent, tmp):
-            if len(v):
-                g = groups.setdefault((shape["material"], n is not None), ([], []))
-                g[0].append(v)
-                g[1].append(n)
-    triangles = 0
-    for i, ((mat, has_n), (vs, ns)) in enumerate(sorted(groups.items())):
-        path = Path(tmp) / f"shape-{i}.ply"
-        v = np.concatenate(vs)
-        write_ply(path, v, np.concatenate(ns) if has_n else None)
-        triangles += len(v)
-        b, emitter = bsdf(s["materials"][mat])
-        # face_normals: without it Mitsuba would smooth the normals of a mesh that has none
-        d[f"shape-{i}"] = {"type": "ply", "filename": str(path), "face_normals": not has_n, "bsdf": b}
-        if emitter:
-            d[f"shape-{i}"]["emitter"] = emitter
-    return d, triangles
-
 
 def read_rgb(path):
     """The R,G,B layer of an EXR (xi's has more layers) and, if present, its variance layer."""
@@ -338,8 +68,8 @@ def worker(variant):
                 res = dict(version=mi.__version__, variant=variant, threads=dr.thread_count())
             elif cmd == "load":
                 scene = None
-                d, triangles = convert(req["scene"], req["width"], req["height"], req["max_depth"], req["sampler"],
-                                       req["tmp"])
+                d, triangles = ms.convert(req["scene"], req["export"], req["width"], req["height"],
+                                          req["max_depth"], req["sampler"])
                 scene = mi.load_dict(d)
                 res = dict(triangles=triangles)
             elif cmd == "render":
@@ -364,7 +94,7 @@ def worker(variant):
                            relmse_flipped=relmse(mi_rgb[::-1], xi_rgb))
             else:
                 raise ValueError(f"unknown request {cmd}")
-        except Unsupported as e:
+        except ms.Unsupported as e:
             res = dict(unsupported=str(e))
         reply.write(json.dumps(res) + "\n")
 
@@ -420,12 +150,18 @@ def scene_depth(scene):
     return json.loads(Path(scene).read_text()).get("render", {}).get("max_depth", 8)
 
 
-def load(a, mitsuba, scene, resolution, depth, tmp):
-    """Loads SCENE into the worker; returns False (after saying why) if Mitsuba cannot render it."""
+def load(a, xi, mitsuba, scene, resolution, depth, tmp):
+    """Loads SCENE into the worker, with xi's triangles from `xi export`; returns False (after saying why)
+    if Mitsuba cannot render it."""
     w, h = c.parse_resolution(resolution)
     t0 = time.monotonic()
-    r = mitsuba.ask(cmd="load", scene=str(scene), width=w, height=h, max_depth=depth, sampler=a.mitsuba_sampler,
-                    tmp=str(tmp))
+    export = Path(tmp) / f"export-{scene.stem}-{len(list(Path(tmp).glob('export-*')))}"
+    try:
+        ms.export(xi, scene, export)
+        r = mitsuba.ask(cmd="load", scene=str(scene), export=str(export), width=w, height=h, max_depth=depth,
+                        sampler=a.mitsuba_sampler)
+    except ms.Unsupported as e:
+        r = dict(unsupported=str(e))
     if "unsupported" in r:
         print(f"mitsuba: skipping {scene.stem}: unsupported: {r['unsupported']}", file=sys.stderr)
         return False
@@ -444,7 +180,7 @@ def measure(a, xi, mitsuba, scene, resolution, tmp):
     name, depth = scene.stem, a.max_depth or scene_depth(scene)
     w, h = c.parse_resolution(resolution)
     samples = w * h * a.spp
-    ok = load(a, mitsuba, scene, resolution, depth, tmp)
+    ok = load(a, xi, mitsuba, scene, resolution, depth, tmp)
     ref = None
     if a.error:
         default_depth = a.max_depth is None or a.max_depth == scene_depth(scene)
@@ -477,14 +213,16 @@ def measure(a, xi, mitsuba, scene, resolution, tmp):
 def check(a, xi, mitsuba, scene, resolution, out_dir, tmp):
     """Mean radiance per channel of both renderers at RESOLUTION with --spp: should agree within noise."""
     name, depth = scene.stem, a.max_depth or scene_depth(scene)
-    if not load(a, mitsuba, scene, resolution, depth, tmp):
+    if not load(a, xi, mitsuba, scene, resolution, depth, tmp):
         return []
     xi_out, mi_out = out_dir / f"peers-check-{name}-xi.exr", out_dir / f"peers-check-{name}-mitsuba.exr"
     t_xi = xi_render(a, xi, scene, xi_out, a.spp, 1, resolution)["seconds"]
     t_mi = mitsuba.ask(cmd="render", spp=a.spp, seed=1, out=str(mi_out))["seconds"]
     r = mitsuba.ask(cmd="compare", xi=str(xi_out), mitsuba=str(mi_out))
+    full = xi_out.resolve()
+    shown = full.relative_to(c.ROOT) if full.is_relative_to(c.ROOT) else full  # (--out may lie elsewhere)
     print(f"\n{name}, {resolution}, {a.spp} spp, xi max depth {depth}: xi {t_xi:.2f} s, Mitsuba {t_mi:.2f} s "
-          f"(its kernel compilation included); images {xi_out.relative_to(c.ROOT)} and {mi_out.name}")
+          f"(its kernel compilation included); images {shown} and {mi_out.name}")
     rows = []
     for k, ch in enumerate("RGB"):
         x, m = r["xi"][k], r["mitsuba"][k]

@@ -7,7 +7,6 @@
 #
 # - libllvm19: Dr.Jit's LLVM backend (Mitsuba's llvm_* variants) loads libLLVM at run time; Debian 12's
 #   LLVM 19 is new enough for Dr.Jit, PoCL's LLVM 14/15 are not loaded into the same process.
-# - assimp-utils: `assimp export` converts meshes Mitsuba cannot read (glTF/GLB) to PLY.
 # - python3-venv: the venv below (Mitsuba and numpy from PyPI, kept apart from Debian's python3).
 # Prints the DRJIT_LIBLLVM_PATH that peers.py sets for Mitsuba (it finds it the same way).
 set -euo pipefail

@@ -16,9 +16,9 @@ packages=(
 if [ "${1:-}" = "--bench" ]; then
   packages+=(libembree-dev python3-matplotlib python3-numpy)
 elif [ "${1:-}" = "--mitsuba" ]; then
-  # libllvm19: Dr.Jit's LLVM backend (Mitsuba's llvm_* variants); assimp-utils: `assimp export` turns
-  # mesh files into PLY for Mitsuba; python3-venv: the venv that holds Mitsuba from PyPI.
-  packages=(libllvm19 assimp-utils python3-venv)
+  # libllvm19: Dr.Jit's LLVM backend (Mitsuba's llvm_* variants); python3-venv: the venv that holds
+  # Mitsuba from PyPI. (Meshes reach Mitsuba as xi's own triangles, through `xi export`.)
+  packages=(libllvm19 python3-venv)
 fi
 
 missing=()

@@ -5,9 +5,9 @@
 #   - the shared libraries of build/xi and build/xi_tests and an ICD file naming NVIDIA's OpenCL
 #     (bench/gpu/pack.sh, or the script $PACK names);
 #   - Mitsuba 3 and Dr.Jit for Python 3.12, unpacked and cut to the cuda_ad_rgb variant and the plugins
-#     the scene conversion can use, as one .tar.xz (the whole Mitsuba wheel alone is 60 MB);
+#     bench/mitsuba_scene.py's conversion can use, as one .tar.xz (the whole Mitsuba wheel alone is 60 MB);
 #   - Assimp's test models that the suite and bench/scenes/engine.json read from /usr/share/assimp.
-# It also makes bench/.cache/meshes hold the Assimp exports peers.py needs (no `assimp` tool there).
+# peers.py takes the scenes' triangles from build/xi there (`xi export`), so nothing else is needed.
 # usage, from anywhere, after bash scripts/build.sh:  bash bench/gpu/prepare.sh
 set -euo pipefail
 cd "$(dirname "$0")/../.."
@@ -18,7 +18,7 @@ done
 [ -f "$PACK" ] || { echo "prepare: no $PACK (set PACK to the GPU packing script)" >&2; exit 1; }
 bash "$PACK" build/xi build/xi_tests
 
-# bench/.venv's pip fetches the wheels, assimp-utils exports meshes (both idempotent, as for peers.py).
+# bench/.venv's pip fetches the wheels (idempotent, as for peers.py).
 bash bench/setup-mitsuba.sh >/dev/null
 # the same Mitsuba and Dr.Jit as the CPU bench's venv
 read -r MITSUBA DRJIT < <(bench/.venv/bin/python -c 'import mitsuba, drjit; print(mitsuba.__version__, drjit.__version__)')
@@ -31,7 +31,7 @@ bench/.venv/bin/python -m pip download -q --no-deps --only-binary=:all: --python
   "mitsuba==$MITSUBA" "drjit==$DRJIT"
 /usr/bin/python3 - "$tmp" <<'PY'
 # Unpacks both wheels, keeps the cuda_ad_rgb variant (and scalar_rgb, Mitsuba's default), drops headers,
-# stubs and the large plugins no converted xi scene uses (the conversion makes ply shapes, diffuse,
+# stubs and the large plugins no converted xi scene uses (mitsuba_scene.convert(): ply shapes, diffuse,
 # conductor, dielectric and twosided BSDFs, area and constant emitters, perspective camera, hdrfilm, box
 # filter, path integrator), and writes the rest as one .tar.xz.
 import shutil, sys, tarfile, zipfile
@@ -67,25 +67,8 @@ cp /usr/share/assimp/models/PLY/cube.ply .gpu/assimp-models/PLY/
 cp /usr/share/assimp/models/OBJ/cube_usemtl.obj /usr/share/assimp/models/OBJ/cube_usemtl.mtl \
   .gpu/assimp-models/OBJ/
 
-# The Assimp exports of the bench scenes' meshes, as the scene conversion would make them
-# (load_mesh lives in bench/mitsuba_scene.py, or in peers.py where the converter is not split out).
-/usr/bin/python3 - <<'PY'
-import json, sys, tempfile
-from pathlib import Path
-sys.path.insert(0, "bench")
-try:
-    import mitsuba_scene as converter
-except ImportError:
-    import peers as converter
-with tempfile.TemporaryDirectory() as tmp:
-    for scene in ["bench/scenes/engine.json"]:
-        for shape in json.loads(Path(scene).read_text())["shapes"]:
-            if shape.get("type") == "mesh":
-                converter.load_mesh(Path(scene).parent / shape["file"], tmp)
-PY
-
-carry=".gpu bench/.cache build/xi build/xi_tests"
+carry=".gpu build/xi build/xi_tests"
 bytes=$( (du -cb $carry | tail -1 | cut -f1; git ls-files -z | du -cb --files0-from=- | tail -1 | cut -f1) |
   awk '{s += $1} END {print s}')
 echo "prepare: $((bytes / 1048576)) MiB to copy: the tracked files and $carry"
-echo "prepare: on the GPU machine, from the project root: bash bench/gpu/check.sh"
+echo "prepare: then, on the GPU machine, in that copy: bash bench/gpu/check.sh"

@@ -31,5 +31,6 @@ int warp(const std::vector<std::string>& args);
 int diff(const std::vector<std::string>& args);
 int tonemap(const std::vector<std::string>& args);
 int prebuild(const std::vector<std::string>& args);
+int export_scene(const std::vector<std::string>& args);  // `xi export`
 
 }  // namespace xi::cli

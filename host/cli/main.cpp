@@ -166,6 +166,11 @@ static const char* kUsage =
     "                        generic shading program), so that a new scene waits for no build\n"
     "      --device D            OpenCL device (as for render)\n"
     "      --lanes N, --bvh-width N   as for render (default: the device's)\n"
+    "  export SCENE OUT_DIR  write the scene's triangles as xi renders them, in world space, for\n"
+    "                        other renderers: one binary PLY per material (x y z nx ny nz; its\n"
+    "                        flat triangles first, each with its face normal at its three\n"
+    "                        vertices) and manifest.json naming each file's material and its\n"
+    "                        count of flat triangles; OUT_DIR is made if its parent exists\n"
     "  help                  this text\n";
 
 int main(int argc, char** argv) {
@@ -183,6 +188,7 @@ int main(int argc, char** argv) {
     if (command == "diff") return xi::cli::diff(args);
     if (command == "tonemap") return xi::cli::tonemap(args);
     if (command == "prebuild") return xi::cli::prebuild(args);
+    if (command == "export") return xi::cli::export_scene(args);
     throw xi::Error("unknown command '" + command + "'", "xi help lists the commands");
   } catch (const xi::cli::Team::QuietExit&) {
     // a rank of an MPI job whose setup error rank 0 reports

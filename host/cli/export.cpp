@@ -1,0 +1,141 @@
+// `xi export`: a scene's triangles as xi renders them (quads split, spheres as icospheres, meshes
+// cleaned, every transform applied), in world space, as binary little-endian PLY files, one per
+// material, and a JSON manifest naming each file's material. Other renderers read these to see
+// exactly xi's geometry. In each file the `flat_triangles` (manifest) that have no vertex normals
+// come first, their face normal at their three vertices; the rest carry their own vertex normals.
+#include <cmath>
+#include <cstdint>
+#include <cstdio>
+#include <cstring>
+#include <filesystem>
+#include <string>
+#include <vector>
+
+#include <glm/glm.hpp>
+#include <nlohmann/json.hpp>
+
+#include "cli.h"
+#include "xi/asset.h"
+#include "xi/error.h"
+#include "xi/image.h"
+#include "xi/scene.h"
+
+namespace xi::cli {
+namespace {
+
+namespace fs = std::filesystem;
+
+void put_u32(std::string& out, uint32_t v) {
+  for (int i = 0; i < 4; ++i) out += char((v >> (8 * i)) & 0xff);  // little-endian whatever the host
+}
+
+void put_float(std::string& out, float f) {
+  uint32_t bits = 0;
+  static_assert(sizeof bits == sizeof f);
+  std::memcpy(&bits, &f, sizeof f);
+  put_u32(out, bits);
+}
+
+// The normal at each vertex: the triangle's own, or its face normal (the same at all three, so that
+// interpolating them keeps the triangle flat). The face normal follows the winding, as xi's does.
+void vertex_normals(const Triangle& t, glm::vec3 out[3]) {
+  if (t.has_normals) {
+    for (int k = 0; k < 3; ++k) out[k] = t.n[k];
+    return;
+  }
+  const glm::dvec3 a(t.v[0]), b(t.v[1]), c(t.v[2]);
+  const glm::vec3 n(glm::normalize(glm::cross(b - a, c - a)));
+  for (int k = 0; k < 3; ++k) out[k] = n;
+}
+
+// One material's triangles as a PLY: three vertices per triangle (x y z nx ny nz), as xi stores them.
+std::string ply(const std::vector<const Triangle*>& tris, const std::string& material) {
+  const size_t n = tris.size();
+  if (3 * n > (size_t)INT32_MAX) throw Error("too many triangles for a PLY file's int indices", material);
+  std::string out =
+      "ply\nformat binary_little_endian 1.0\ncomment xi export\nelement vertex " + std::to_string(3 * n) +
+      "\nproperty float x\nproperty float y\nproperty float z\nproperty float nx\nproperty float ny\n"
+      "property float nz\nelement face " + std::to_string(n) + "\nproperty list uchar int vertex_indices\nend_header\n";
+  out.reserve(out.size() + n * (3 * 6 * 4 + 1 + 3 * 4));
+  for (const Triangle* t : tris) {
+    glm::vec3 normals[3];
+    vertex_normals(*t, normals);
+    for (int k = 0; k < 3; ++k) {
+      for (int c = 0; c < 3; ++c) put_float(out, t->v[k][c]);
+      for (int c = 0; c < 3; ++c) put_float(out, normals[k][c]);
+    }
+  }
+  for (size_t i = 0; i < n; ++i) {
+    out += char(3);
+    for (uint32_t k = 0; k < 3; ++k) put_u32(out, uint32_t(3 * i + k));
+  }
+  return out;
+}
+
+void write_file(const fs::path& path, const std::string& bytes) {
+  write_atomically(path, [&](const fs::path& tmp) {
+    std::FILE* f = std::fopen(tmp.c_str(), "wb");
+    if (!f) throw Error("cannot open file for writing", tmp.string());
+    const bool wrote = std::fwrite(bytes.data(), 1, bytes.size(), f) == bytes.size();
+    if (std::fclose(f) != 0 || !wrote) throw Error("cannot write file", tmp.string());
+  });
+}
+
+}  // namespace
+
+int export_scene(const std::vector<std::string>& argv) {
+  Args args(argv, {}, {});
+  if (args.positional().size() != 2) throw Error("expected SCENE OUT_DIR", "xi export");
+  const fs::path scene_path = args.positional()[0], out_dir = args.positional()[1];
+
+  // The output folder: an existing folder, or a new one whose parent exists. Checked before the
+  // scene loads (a mesh may take a while), created only once the scene has loaded.
+  std::error_code ec;
+  const bool existed = fs::exists(out_dir, ec);
+  if (existed && !fs::is_directory(out_dir, ec)) throw Error("the output exists and is not a folder", out_dir.string());
+  const fs::path parent = out_dir.has_parent_path() ? out_dir.parent_path() : fs::path(".");
+  if (!existed && !fs::is_directory(parent, ec))
+    throw Error("the output folder's parent folder does not exist", out_dir.string());
+
+  const Scene scene = is_asset_file(scene_path) ? load_asset(scene_path) : load_scene(scene_path);
+
+  // Per material, the triangles without vertex normals first (xi shades them flat), then those with
+  // (xi interpolates their normals), each in the scene's order; the manifest says where the first end.
+  std::vector<std::vector<const Triangle*>> by_material(scene.materials.size());
+  std::vector<size_t> flat(scene.materials.size(), 0);
+  for (bool smooth : {false, true})
+    for (const Triangle& t : scene.triangles)
+      if (t.has_normals == smooth) by_material.at(t.material).push_back(&t);
+  for (const Triangle& t : scene.triangles) flat.at(t.material) += !t.has_normals;
+
+  if (!existed && !fs::create_directory(out_dir, ec))
+    throw Error("cannot create the output folder: " + ec.message(), out_dir.string());
+  std::vector<fs::path> written;
+  try {
+    // An earlier export's manifest goes first: from here until the new one is written, none means
+    // the folder is incomplete.
+    if (fs::exists(out_dir / "manifest.json", ec)) fs::remove(out_dir / "manifest.json");
+    nlohmann::json meshes = nlohmann::json::array();
+    for (size_t m = 0; m < by_material.size(); ++m) {
+      if (by_material[m].empty()) continue;
+      const std::string file = "material-" + std::to_string(m) + ".ply";
+      write_file(out_dir / file, ply(by_material[m], scene.materials[m].name));
+      written.push_back(out_dir / file);
+      meshes.push_back({{"file", file}, {"material", scene.materials[m].name}, {"material_index", m},
+                        {"triangles", by_material[m].size()}, {"flat_triangles", flat[m]}});
+    }
+    const nlohmann::json manifest = {{"scene", scene.source.empty() ? scene_path.string() : scene.source},
+                                     {"triangles", scene.triangles.size()},
+                                     {"meshes", meshes}};
+    write_file(out_dir / "manifest.json", manifest.dump(2) + "\n");  // last: its presence means complete
+  } catch (...) {  // no partial export: what this run wrote goes, and the folder if it made it
+    for (const fs::path& p : written) fs::remove(p, ec);
+    if (!existed) fs::remove(out_dir, ec);
+    throw;
+  }
+  std::printf("wrote %zu triangles of %s in %zu PLY files and manifest.json to %s\n", scene.triangles.size(),
+              scene_path.string().c_str(), written.size(), out_dir.string().c_str());
+  return 0;
+}
+
+}  // namespace xi::cli
