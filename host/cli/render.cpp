@@ -96,6 +96,9 @@ void install_stop_handlers(const std::vector<std::filesystem::path>& outputs) {
 
 // Everything `xi render` sets up before the first pass. Rank 0 of a team also holds what only it
 // uses: the reference, the output paths it writes, the checkpoint it resumes from.
+// When the process started (static initialisation, before main).
+const std::chrono::steady_clock::time_point g_started = std::chrono::steady_clock::now();
+
 struct Job {
   std::filesystem::path scene_path;
   bool asset = false;
@@ -113,9 +116,7 @@ struct Job {
   std::optional<Renderer> renderer;
   CheckpointKey key;
   RenderState resumed;  // rank 0: the whole frame's state read from --resume
-  // When the command started, and when its first pass was done: the wait for a first image.
-  std::chrono::steady_clock::time_point started = std::chrono::steady_clock::now();
-  double first_pass_seconds = 0.0;
+  double first_pass_seconds = 0.0;  // since the process started: the wait for a first image
 };
 
 // Each rank's device: --device (or $XI_DEVICE) as given; a comma-separated list gives local rank i
@@ -385,7 +386,7 @@ int run(Job& job, Team& team) {
     renderer.run_pass();
     const auto t1 = std::chrono::steady_clock::now();
     seconds += std::chrono::duration<double>(t1 - t0).count();
-    if (job.first_pass_seconds == 0.0) job.first_pass_seconds = std::chrono::duration<double>(t1 - job.started).count();
+    if (job.first_pass_seconds == 0.0) job.first_pass_seconds = std::chrono::duration<double>(t1 - g_started).count();
     if (job.measured && (!job.convergence.empty() || renderer.done())) {  // collective: not job.reference, rank 0's
       const Image now = team.gather(renderer.mean(), scene.height);
       if (team.leader()) {
@@ -470,6 +471,8 @@ int run(Job& job, Team& team) {
       if (team.size() > 1) std::printf("profile of rank 0:\n");
       print_profile(stdout, renderer.launches(), seconds);
     }
+    if (renderer.scene_shading_pending())
+      std::printf("kernels: finishing this scene's own build, so that its next render starts with them\n");
   }
   return exit_code;
 }
