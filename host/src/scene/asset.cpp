@@ -207,6 +207,26 @@ struct Loaded {
   const aiScene* scene = nullptr;
 };
 
+// Some of Assimp's readers leave null entries behind (5.2's RAW reader: a null child node), which
+// the walks below would follow. (aiProcess_ValidateDataStructure would catch them, but also refuses
+// files read well, e.g. an OpenGEX light without a node.)
+std::optional<std::string> null_entry(const aiScene& scene) {
+  for (unsigned i = 0; i < scene.mNumMeshes; ++i)
+    if (!scene.mMeshes[i]) return "a null mesh";
+  for (unsigned i = 0; i < scene.mNumMaterials; ++i)
+    if (!scene.mMaterials[i]) return "a null material";
+  std::vector<const aiNode*> stack = {scene.mRootNode};
+  while (!stack.empty()) {
+    const aiNode* node = stack.back();
+    stack.pop_back();
+    for (unsigned c = 0; c < node->mNumChildren; ++c) {
+      if (!node->mChildren[c]) return "a null node in the scene graph";
+      stack.push_back(node->mChildren[c]);
+    }
+  }
+  return std::nullopt;
+}
+
 // Assimp picks its importer by the extension, so one it has no importer for is refused here, with
 // the list of those it has (JSON scenes too where the file was given as a whole scene).
 void check_format(const fs::path& path, const Assimp::Importer& importer, bool whole_scene) {
@@ -229,6 +249,7 @@ void read_file(const fs::path& path, Loaded& l, bool whole_scene) {
   l.scene = l.importer.ReadFile(path.string(), aiProcess_Triangulate | aiProcess_JoinIdenticalVertices);
   if (!l.scene || (l.scene->mFlags & AI_SCENE_FLAGS_INCOMPLETE) || !l.scene->mRootNode)
     throw Error(std::string("cannot load asset: ") + l.importer.GetErrorString(), path.string());
+  if (auto what = null_entry(*l.scene)) throw Error("cannot load asset: Assimp's reader left " + *what, path.string());
 }
 
 AssetGeometry geometry(const fs::path& path, const aiScene& scene) {
