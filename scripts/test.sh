@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
-# README command 2: install what is missing, build, run the whole test suite with ctest; then the
-# device-free tests and the fuzz driver again under the sanitizers (build-asan/).
+# README command 2: install what is missing (the tests' packages too), build everything, run the
+# whole test suite with ctest; then the device-free tests and the fuzz driver again under the
+# sanitizers (build-asan/).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/build.sh

@@ -10,6 +10,7 @@
 
 #include <algorithm>
 #include <array>
+#include <cctype>
 #include <cmath>
 #include <cstring>
 #include <string>
@@ -466,6 +467,71 @@ TEST(AssetScene, ObjPlyAndInvalidCorpus) {
   EXPECT_GT(errors, 10);
 }
 
+// Every scene file but a .json one is read through Assimp. An extension Assimp has no importer for
+// gets one error naming the file and listing what xi reads; a file Assimp reads loads, or fails with
+// Assimp's own error.
+TEST(AssetScene, EveryFormatAssimpReads) {
+  EXPECT_FALSE(xi::is_asset_file("scene.json"));
+  EXPECT_FALSE(xi::is_asset_file("dir/SCENE.Json"));
+  for (const char* p : {"a.3ds", "a.blend", "a.x", "a.ac", "a.ase", "a.irr", "a.md2", "a.gltf", "a.xyz", "noext"})
+    EXPECT_TRUE(xi::is_asset_file(p)) << p;
+  const std::vector<std::string> known = xi::asset_extensions();
+  for (const char* e : {".obj", ".gltf", ".glb", ".ply", ".3ds", ".blend", ".x", ".ac", ".ase", ".irr", ".md2"})
+    EXPECT_EQ(std::count(known.begin(), known.end(), e), 1) << e;
+
+  const xi::Scene cube = xi::load_scene("/usr/share/assimp/models/3DS/RotatingCube.3DS");
+  EXPECT_EQ(cube.triangles.size(), 12u);
+  const xi::Scene ase = xi::load_scene("/usr/share/assimp/models/ASE/RotatingCube.ASE");
+  EXPECT_EQ(ase.triangles.size(), 12u);
+  // Assimp 5.2's RAW reader leaves a null node in the scene graph: refused, not followed.
+  expect_error([&] { xi::load_scene("/usr/share/assimp/models/RAW/WithColor.raw"); },
+               {"cannot load asset", "null", "WithColor.raw"});
+
+  const fs::path dir = temp_dir();
+  xi_test::write_text(dir / "scene.xyz", xi_test::read_text(xi_test::kCornell));  // JSON inside: still refused
+  expect_error([&] { xi::load_scene(dir / "scene.xyz"); },
+               {"unknown scene format '.xyz'", "scene.xyz", "xi reads .json scenes and, through Assimp,", " .obj", " .3ds"});
+  expect_error([&] { xi::load_asset(dir / "scene.xyz"); }, {"unknown scene format '.xyz'", "scene.xyz"});
+  expect_error([&] { xi::load_scene(dir / "missing.xyz"); }, {"unknown scene format '.xyz'", "missing.xyz"});
+  xi_test::write_text(dir / "scene", "{}");
+  expect_error([&] { xi::load_scene(dir / "scene"); }, {"no file extension", " .gltf"});
+  // In a JSON scene's "asset" shape the file must be an asset: the error lists Assimp's formats only.
+  expect_error([&] { xi::parse_scene(R"({"camera": {"position": [0, 0, 5], "look_at": [0, 0, 0], "up": [0, 1, 0], "fov": 40},
+    "materials": {}, "shapes": [{"type": "asset", "file": "scene.xyz"}]})", "test.json", dir); },
+               {"unknown scene format '.xyz': xi reads through Assimp .", "/shapes/0/file"});
+}
+
+// Assimp's models (its invalid corpus aside): no file but a .json one is parsed as JSON. Each loads,
+// or gives one xi::Error naming it: Assimp's own error, xi's (no triangles...), or for an extension
+// Assimp does not read the list of what xi reads.
+TEST(AssetScene, ModelCorpusNeverParsedAsJson) {
+  const std::vector<std::string> known = xi::asset_extensions();
+  int files = 0, loaded = 0, unknown = 0;
+  for (auto it = fs::recursive_directory_iterator("/usr/share/assimp/models"); it != fs::recursive_directory_iterator(); ++it) {
+    if (it->path().filename() == "invalid") it.disable_recursion_pending();
+    if (!it->is_regular_file()) continue;
+    std::string ext = it->path().extension().string();
+    std::transform(ext.begin(), ext.end(), ext.begin(), [](unsigned char c) { return char(std::tolower(c)); });
+    if (ext == ".json") continue;
+    ++files;
+    SCOPED_TRACE(it->path().string());
+    EXPECT_TRUE(xi::is_asset_file(it->path()));
+    const bool readable = std::count(known.begin(), known.end(), ext) > 0;
+    try {
+      loaded += xi::load_scene(it->path()).triangles.size() > 0;
+    } catch (const xi::Error& e) {
+      const std::string what = e.what();
+      EXPECT_EQ(what.find("invalid JSON"), std::string::npos) << what;
+      EXPECT_NE(what.find(it->path().string()), std::string::npos) << what;
+      if (!readable) EXPECT_NE(what.find("xi reads .json scenes and, through Assimp, .3d"), std::string::npos) << what;
+    }
+    unknown += !readable;
+  }
+  EXPECT_GT(files, 400);
+  EXPECT_GT(loaded, 250);
+  EXPECT_GT(unknown, 100);  // textures, notes, extensionless files
+}
+
 // The JSON "asset" shape: the file's shapes with its own materials, then the shape's transform.
 TEST(AssetScene, JsonAssetShape) {
   const fs::path dir = temp_dir();
@@ -595,6 +661,22 @@ TEST_F(AssetCli, RendersTheEngineGlb) {
   for (const auto& p : img.pixels) (p.x > 0.999f ? sky : engine) += 1;
   EXPECT_GT(sky, 512 * 512 / 20);
   EXPECT_GT(engine, 512 * 512 / 20);
+}
+
+// `xi render` reads any format Assimp reads (not as JSON), and refuses an extension it does not
+// read with one error naming the file and listing the formats.
+TEST_F(AssetCli, AnyAssimpFormatAndUnknownExtension) {
+  fs::copy_file("/usr/share/assimp/models/3DS/RotatingCube.3DS", work_ / "cube.3ds");
+  const auto r = run_xi(xi_test::concat({"render", "cube.3ds", "-o", "cube.exr"}, xi_test::kFast));
+  ASSERT_EQ(r.code, 0) << r.err;
+  EXPECT_EQ(xi::read_exr(work_ / "cube.exr").width, 32);
+
+  fs::copy_file(xi_test::kCornell, work_ / "scene.xyz");
+  const auto before = files();
+  expect_user_error(run_xi(xi_test::concat({"render", "scene.xyz", "-o", "out.exr"}, xi_test::kFast)),
+                    {"unknown scene format '.xyz'", "(scene.xyz)", ".json", " .obj", " .3ds", " .blend"}, before);
+  const auto help = run_xi({"help"});
+  EXPECT_NE(help.out.find("render [SCENE]"), std::string::npos) << help.out;
 }
 
 // Warnings: one line per kind on stderr, whatever the number of materials and triangles.

@@ -143,17 +143,21 @@ std::string device_selector(const Args& args, const Team& team) {
   return selector;
 }
 
-void prepare(Job& job, const std::vector<std::string>& argv, const Team& team) {
-  Args args(argv,
-            {"-o", "--spp", "--seed", "--device", "--max-depth", "--resolution", "--sampler", "--strategy",
-             "--local-size", "--lanes", "--bvh-width", "--ray-packets", "--kernels", "--reference", "--convergence", "--trace",
-             "--paths-in-flight", "--samples-per-pass",
-             "--time", "--snapshot-every", "--checkpoint", "--checkpoint-every", "--resume", "--camera"},
-            {"--profile", "--quiet", "--all-features", "--no-spatial-splits"});
+// ---- Setup: each step checks what the user typed before the slow work starts. ----
+
+Args parse_render_args(const std::vector<std::string>& argv) {
+  return Args(argv,
+              {"-o", "--spp", "--seed", "--device", "--max-depth", "--resolution", "--sampler", "--strategy",
+               "--local-size", "--lanes", "--bvh-width", "--ray-packets", "--kernels", "--reference", "--convergence", "--trace",
+               "--paths-in-flight", "--samples-per-pass",
+               "--time", "--snapshot-every", "--checkpoint", "--checkpoint-every", "--resume", "--camera"},
+              {"--profile", "--quiet", "--all-features", "--no-spatial-splits"});
+}
+
+// The scene file, with --camera and --resolution applied; every rank must get whole rows.
+void load_job_scene(Job& job, const Args& args, const Team& team) {
   if (args.positional().size() > 1) throw Error("expected at most one scene file", args.positional()[1]);
   job.scene_path = args.positional().empty() ? default_scene() : std::filesystem::path(args.positional()[0]);
-
-  // Check everything the user typed before the slow work starts.
   // An asset file (.gltf, .glb, .obj, .ply...) is a whole scene: its cameras, lights and materials.
   job.asset = is_asset_file(job.scene_path);
   if (args.has("--camera") && !job.asset)
@@ -169,6 +173,25 @@ void prepare(Job& job, const std::vector<std::string>& argv, const Team& team) {
     throw Error(std::to_string(team.size()) + " processes but the frame has " + std::to_string(scene.height) +
                     " rows, and each process renders whole rows",
                 "mpirun -np; use at most " + std::to_string(scene.height));
+}
+
+RenderOptions::RayPackets parse_ray_packets(const std::string& packets) {
+  if (packets == "auto") return RenderOptions::RayPackets::Auto;
+  if (packets == "on") return RenderOptions::RayPackets::On;
+  if (packets == "off") return RenderOptions::RayPackets::Off;
+  throw Error("expected auto, on or off", "--ray-packets " + packets);
+}
+
+RenderOptions::ShadingProgram parse_shading_program(const std::string& kernels) {
+  if (kernels == "auto") return RenderOptions::ShadingProgram::Auto;
+  if (kernels == "scene") return RenderOptions::ShadingProgram::Scene;
+  if (kernels == "generic") return RenderOptions::ShadingProgram::Generic;
+  throw Error("expected auto, scene or generic", "--kernels " + kernels);
+}
+
+// The sampling and kernel options; the scene's render settings are the defaults.
+void read_render_options(Job& job, const Args& args, const Team& team) {
+  const Scene& scene = job.scene;
   RenderOptions& opt = job.opt;
   opt.spp = args.get_int("--spp", scene.render.spp, 1, 1 << 20);
   opt.max_depth = args.get_int("--max-depth", scene.render.max_depth, 1, 64);
@@ -179,16 +202,8 @@ void prepare(Job& job, const std::vector<std::string>& argv, const Team& team) {
   // 0 (the fallback, never a value a user may give): the device's default.
   opt.lanes = args.get_int("--lanes", 0, 1, 8);
   opt.bvh_width = args.get_int("--bvh-width", 0, 1, 8);
-  const std::string packets = args.get("--ray-packets", "auto");
-  if (packets == "auto") opt.ray_packets = RenderOptions::RayPackets::Auto;
-  else if (packets == "on") opt.ray_packets = RenderOptions::RayPackets::On;
-  else if (packets == "off") opt.ray_packets = RenderOptions::RayPackets::Off;
-  else throw Error("expected auto, on or off", "--ray-packets " + packets);
-  const std::string shading = args.get("--kernels", "auto");
-  if (shading == "auto") opt.shading_program = RenderOptions::ShadingProgram::Auto;
-  else if (shading == "scene") opt.shading_program = RenderOptions::ShadingProgram::Scene;
-  else if (shading == "generic") opt.shading_program = RenderOptions::ShadingProgram::Generic;
-  else throw Error("expected auto, scene or generic", "--kernels " + shading);
+  opt.ray_packets = parse_ray_packets(args.get("--ray-packets", "auto"));
+  opt.shading_program = parse_shading_program(args.get("--kernels", "auto"));
   opt.all_features = args.has("--all-features");
   opt.spatial_splits = !args.has("--no-spatial-splits");
   opt.paths_in_flight = (size_t)args.get_int("--paths-in-flight", 0, 1, 1 << 30);
@@ -197,6 +212,10 @@ void prepare(Job& job, const std::vector<std::string>& argv, const Team& team) {
   job.profile = args.has("--profile");
   opt.profile = job.profile || args.has("--trace");
   opt.rows = team.rows();
+}
+
+// The files the render writes: the EXR and the PNG beside it, the convergence log, the trace.
+void read_output_names(Job& job, const Args& args) {
   job.out = args.get("-o", job.scene_path.stem().string() + ".exr");
   if (job.out.extension() != ".exr") throw Error("the output must be an .exr file", "-o " + job.out.string());
   job.png = job.out;
@@ -205,65 +224,84 @@ void prepare(Job& job, const std::vector<std::string>& argv, const Team& team) {
   job.trace = args.get("--trace");
   job.measured = args.has("--reference");
   if (args.has("--convergence") && !args.has("--reference")) throw Error("--convergence needs --reference", "--convergence");
-  // Long renders: a time budget, snapshots, checkpoints. Grid and stratified patterns are complete
-  // only at their spp, so a render cut short by --time or a snapshot would not be a valid image.
+}
+
+// Long renders: a time budget, snapshots, checkpoints. Grid and stratified patterns are complete
+// only at their spp, so a render cut short by --time or a snapshot would not be a valid image.
+void read_long_render_options(Job& job, const Args& args) {
   job.time_budget = args.get_seconds("--time", INFINITY);
   job.snapshot_every = args.get_int("--snapshot-every", 0, 1, 1 << 20);
   for (const char* flag : {"--time", "--snapshot-every"})
-    if (args.has(flag) && !sampler_is_progressive(opt.sampler))
-      throw Error(std::string("the ") + sampler_name(opt.sampler) + " sampler's pattern is only complete at " +
-                      std::to_string(opt.spp) + " spp, so it cannot stop early or show a partial image",
+    if (args.has(flag) && !sampler_is_progressive(job.opt.sampler))
+      throw Error(std::string("the ") + sampler_name(job.opt.sampler) + " sampler's pattern is only complete at " +
+                      std::to_string(job.opt.spp) + " spp, so it cannot stop early or show a partial image",
                   std::string(flag) + "; use --sampler sobol or random");
   job.resume = args.get("--resume");
   job.checkpoint = args.get("--checkpoint", job.resume.string());
   job.checkpoint_every = args.get_seconds("--checkpoint-every", 60.0);
   if (args.has("--checkpoint-every") && job.checkpoint.empty())
     throw Error("--checkpoint-every needs --checkpoint FILE", "--checkpoint-every");
-  // Rank 0 alone reads the reference and the checkpoint and writes every file (below), so only its
-  // inputs and output folders are checked.
-  if (team.leader()) {
-    if (args.has("--reference")) {
-      job.reference = read_exr(args.get("--reference"));
-      if (job.reference->width != scene.width || job.reference->height != scene.height)
-        throw Error("reference is " + std::to_string(job.reference->width) + "x" +
-                        std::to_string(job.reference->height) + " but the render is " + std::to_string(scene.width) +
-                        "x" + std::to_string(scene.height),
-                    "--reference " + args.get("--reference"));
-    }
-    if (!job.resume.empty() && !std::filesystem::is_regular_file(job.resume))
-      throw Error("no such checkpoint", "--resume " + job.resume.string());
-  }
-  job.quiet = args.has("--quiet") || !team.leader();
-  job.progress = !job.quiet && isatty(STDERR_FILENO);
+}
 
+// Rank 0 alone reads the reference and the checkpoint (and writes every file), so only its inputs
+// are checked.
+void read_leader_inputs(Job& job, const Args& args, const Team& team) {
+  if (!team.leader()) return;
+  if (args.has("--reference")) {
+    job.reference = read_exr(args.get("--reference"));
+    if (job.reference->width != job.scene.width || job.reference->height != job.scene.height)
+      throw Error("reference is " + std::to_string(job.reference->width) + "x" +
+                      std::to_string(job.reference->height) + " but the render is " + std::to_string(job.scene.width) +
+                      "x" + std::to_string(job.scene.height),
+                  "--reference " + args.get("--reference"));
+  }
+  if (!job.resume.empty() && !std::filesystem::is_regular_file(job.resume))
+    throw Error("no such checkpoint", "--resume " + job.resume.string());
+}
+
+// Rank 0's output files, checked here, before the render, rather than found when writing after it
+// (and after the files written before this one). Returns them (other ranks: none).
+std::vector<std::filesystem::path> check_outputs(const Job& job, const Team& team) {
   std::vector<std::filesystem::path> outputs;
-  if (team.leader()) {
-    const std::pair<const char*, std::filesystem::path> named[] = {
-        {"-o", job.out}, {"-o", job.png}, {"--convergence", job.convergence}, {"--trace", job.trace},
-        {"--checkpoint", job.checkpoint}};
-    // Checked here, before the render, rather than found when writing after it (and after the
-    // files written before this one).
-    for (const auto& [flag, f] : named) {
-      if (f.empty()) continue;
-      const auto dir = f.has_parent_path() ? f.parent_path() : std::filesystem::path(".");
-      if (!std::filesystem::is_directory(dir))
-        throw Error("output folder does not exist", std::string(flag) + " " + f.string());
-      if (std::filesystem::is_directory(f)) throw Error("output is a folder", std::string(flag) + " " + f.string());
-      outputs.push_back(f);
-    }
+  if (!team.leader()) return outputs;
+  const std::pair<const char*, std::filesystem::path> named[] = {
+      {"-o", job.out}, {"-o", job.png}, {"--convergence", job.convergence}, {"--trace", job.trace},
+      {"--checkpoint", job.checkpoint}};
+  for (const auto& [flag, f] : named) {
+    if (f.empty()) continue;
+    const auto dir = f.has_parent_path() ? f.parent_path() : std::filesystem::path(".");
+    if (!std::filesystem::is_directory(dir))
+      throw Error("output folder does not exist", std::string(flag) + " " + f.string());
+    if (std::filesystem::is_directory(f)) throw Error("output is a folder", std::string(flag) + " " + f.string());
+    outputs.push_back(f);
   }
-  install_stop_handlers(outputs);
+  return outputs;
+}
 
+// The slow part of setup: the device, the BVH and the kernels, and the checkpoint to resume from.
+void open_renderer(Job& job, const Args& args, const Team& team) {
   job.device.emplace(Device::open(device_selector(args, team)));
-  job.renderer.emplace(*job.device, scene, opt);
+  job.renderer.emplace(*job.device, job.scene, job.opt);
   if (!job.checkpoint.empty()) job.key = checkpoint_key(*job.renderer, job.scene_path, job.device->info().name);
   if (!job.resume.empty() && team.leader()) job.resumed = read_checkpoint(job.resume, job.key);
 }
 
-// Says what was set up (rank 0; a team's ranks each name their device).
-void print_setup(const Job& job, const Team& team, const std::vector<std::string>& rank_devices) {
-  const Renderer& renderer = *job.renderer;
-  const CompiledScene& cs = renderer.compiled();
+void prepare(Job& job, const std::vector<std::string>& argv, const Team& team) {
+  const Args args = parse_render_args(argv);
+  load_job_scene(job, args, team);
+  read_render_options(job, args, team);
+  read_output_names(job, args);
+  read_long_render_options(job, args);
+  read_leader_inputs(job, args, team);
+  job.quiet = args.has("--quiet") || !team.leader();
+  job.progress = !job.quiet && isatty(STDERR_FILENO);
+  install_stop_handlers(check_outputs(job, team));
+  open_renderer(job, args, team);
+}
+
+// Says what was set up (rank 0; a team's ranks each name their device): the devices, the scene,
+// then the BVH, the kernels and the passes.
+void print_devices(const Job& job, const Team& team, const std::vector<std::string>& rank_devices) {
   const DeviceInfo& d = job.device->info();
   std::printf("device: %s (%s, %d compute units)\n", d.name.c_str(), d.platform.c_str(), d.compute_units);
   if (team.size() > 1) {
@@ -271,6 +309,11 @@ void print_setup(const Job& job, const Team& team, const std::vector<std::string
                 team.size() == 2 ? "nd" : team.size() == 3 ? "rd" : "th");
     for (int r = 0; r < team.size(); ++r) std::printf("  rank %d: %s\n", r, rank_devices[r].c_str());
   }
+}
+
+void print_scene(const Job& job) {
+  const Renderer& renderer = *job.renderer;
+  const CompiledScene& cs = renderer.compiled();
   std::printf("scene: %s, %zu triangles, %zu lights, features: %s\n", job.scene_path.string().c_str(),
               job.scene.triangles.size(), cs.features.emitters ? cs.light_tri.size() : 0,
               renderer.kernels().features.describe().c_str());
@@ -278,6 +321,11 @@ void print_setup(const Job& job, const Team& team, const std::vector<std::string
   if (job.asset)
     std::printf("film: %dx%d (%s)\n", job.scene.width, job.scene.height,
                 job.resolution_given ? "--resolution" : "height 512, width from the camera's aspect ratio");
+}
+
+void print_kernels(const Job& job, const Team& team) {
+  const Renderer& renderer = *job.renderer;
+  const CompiledScene& cs = renderer.compiled();
   std::printf("bvh: %zu %d-wide nodes, %zu leaves, %zu triangle references, depth %d, stack %zu, built in %.2f ms "
               "on %zu thread%s%s\n",
               cs.bvh.stats.nodes, cs.bvh.width, cs.bvh.stats.leaves, cs.bvh.stats.references, cs.bvh.stats.depth,
@@ -297,185 +345,257 @@ void print_setup(const Job& job, const Team& team, const std::vector<std::string
               team.size() > 1 ? " (rank 0)" : "");
   if (!job.resume.empty())
     std::printf("resumed from %s at %d spp\n", job.resume.string().c_str(), renderer.spp_done());
+}
+
+void print_setup(const Job& job, const Team& team, const std::vector<std::string>& rank_devices) {
+  print_devices(job, team, rank_devices);
+  print_scene(job);
+  print_kernels(job, team);
   std::fflush(stdout);
 }
 
-int run(Job& job, Team& team) {
-  Renderer& renderer = *job.renderer;
-  const RenderOptions& opt = job.opt;
-  const Scene& scene = job.scene;
+// ---- The render: passes until done, stopped or out of time, then the files and the summary. ----
+// Every rank runs each step in the same order (the Team calls in them are collective); rank 0
+// alone writes files and prints.
+class RenderRun {
+ public:
+  RenderRun(Job& job, Team& team) : job_(job), team_(team), renderer_(*job.renderer) {}
+
+  int run() {
+    start();
+    render_passes();
+    if (job_.progress) std::fputs("\n", stderr);
+    const bool stopped = !renderer_.done();
+    const int exit_code = stopped && stop_signal_ ? 128 + stop_signal_ : 0;
+    if (stopped) report_stop();
+    if (stopped && !image_is_valid()) return exit_code;
+    // The image from every rank's rows and the counters summed (collective), then rank 0's files.
+    const size_t overflowed = write_image(renderer_.spp_done());
+    const uint64_t rays = team_.sum(renderer_.extend_rays() + renderer_.shadow_rays());
+    const uint64_t nonfinite = team_.sum(renderer_.nonfinite_samples());
+    if (!team_.leader()) return exit_code;
+    write_logs(stopped);
+    warn_about_samples(nonfinite, overflowed);
+    if (!job_.quiet) print_summary(rays);
+    return exit_code;
+  }
+
+ private:
   // The ranks agree on the spp of a pass (shares of different sizes fit different numbers), so they
   // finish each pass together.
-  renderer.limit_samples_per_pass(team.min(renderer.samples_per_pass()));
-  double seconds = 0.0;  // render time, this run's and any resumed run's (rank 0's clock)
-  if (!job.resume.empty()) {
-    RenderState share = team.scatter(job.resumed, scene.width, scene.height);
-    renderer.restore(share);
-    seconds = share.seconds;
-  }
-  const double resumed_seconds = seconds;
-  std::vector<std::string> rank_devices = team.gather_strings(job.device->info().name + " on " + team.host());
-  if (!job.quiet) print_setup(job, team, rank_devices);
-  // What the scene could not model, once per kind.
-  if (team.leader())
-    for (const std::string& w : scene.warnings) std::fprintf(stderr, "xi: warning: %s\n", w.c_str());
-
-  // The convergence log: one row per pass; the time spent measuring the error is not counted.
-  std::string csv;
-  if (job.reference) {
-    csv = "pass,spp,seconds";
-    for (Metric m : all_metrics()) csv += std::string(",") + metric_name(m);
-    csv += "\n";
-  }
-  std::map<std::string, double> last_error;
-
-  const double pixels = (double)scene.width * scene.height;
-  // The whole frame's state, put together on rank 0 from every rank's rows (timed: the reduction).
-  double gather_seconds = 0.0;
-  auto frame_state = [&] {
-    auto t0 = std::chrono::steady_clock::now();
-    RenderState st = team.gather(renderer.state(), scene.width, scene.height);
-    gather_seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-    st.seconds = seconds;
-    return st;
-  };
-  // The image so far, written atomically: spp is what it holds (sppTarget: what was asked for).
-  // Returns how many of its pixels' variances single precision cannot hold (rank 0).
-  auto write_image = [&](int spp) -> size_t {
-    const RenderState st = frame_state();
-    if (!team.leader()) return 0;
-    const Film film = resolve_film(st, scene.width, scene.height);
-    ExrAttributes attrs{{"spp", spp},
-                        {"renderSeconds", seconds},
-                        {"seed", (int)opt.seed},
-                        {"scene", std::filesystem::absolute(job.scene_path).string()},
-                        {"device", job.device->info().name},
-                        {"sampler", std::string(sampler_name(opt.sampler))},
-                        {"strategy", std::string(strategy_name(opt.strategy))},
-                        {"maxDepth", opt.max_depth}};
-    if (team.size() > 1) attrs["processes"] = team.size();
-    if (spp < opt.spp) attrs["sppTarget"] = opt.spp;
-    for (auto& [name, value] : last_error) attrs["error." + name] = value;
-    write_exr(job.out, {{"", &film.mean}, {"variance", &film.variance}, {"albedo", &film.albedo}, {"normal", &film.normal}},
-              attrs);
-    write_png(job.png, film.mean);
-    return (size_t)std::count_if(film.variance.pixels.begin(), film.variance.pixels.end(),
-                                 [](const glm::vec3& v) { return !std::isfinite(v.x + v.y + v.z); });
-  };
-  auto save_checkpoint = [&] {
-    const RenderState st = frame_state();
-    if (team.leader()) write_checkpoint(job.checkpoint, job.key, st);
-  };
-  auto last_checkpoint = std::chrono::steady_clock::now();
-  int stop_signal = 0;
-  for (;;) {
-    // Before each pass the ranks agree: a signal to any of them, or rank 0's clock, stops them all;
-    // rank 0's clock says when to checkpoint.
-    const bool time_up = seconds - resumed_seconds >= job.time_budget;
-    const bool checkpoint_due =
-        !job.checkpoint.empty() &&
-        std::chrono::duration<double>(std::chrono::steady_clock::now() - last_checkpoint).count() >= job.checkpoint_every;
-    const std::vector<int> agreed = team.max({(int)g_signal, team.leader() && time_up, team.leader() && checkpoint_due});
-    stop_signal = agreed[0];
-    if (renderer.done() || agreed[0] || agreed[1]) break;
-    if (agreed[2]) {
-      save_checkpoint();
-      last_checkpoint = std::chrono::steady_clock::now();
+  void start() {
+    renderer_.limit_samples_per_pass(team_.min(renderer_.samples_per_pass()));
+    restore_resumed();
+    announce();
+    if (job_.reference) {
+      csv_ = "pass,spp,seconds";
+      for (Metric m : all_metrics()) csv_ += std::string(",") + metric_name(m);
+      csv_ += "\n";
     }
-    auto t0 = std::chrono::steady_clock::now();
-    renderer.run_pass();
-    const auto t1 = std::chrono::steady_clock::now();
-    seconds += std::chrono::duration<double>(t1 - t0).count();
-    if (job.first_pass_seconds == 0.0) job.first_pass_seconds = std::chrono::duration<double>(t1 - g_started).count();
-    if (job.measured && (!job.convergence.empty() || renderer.done())) {  // collective: not job.reference, rank 0's
-      const Image now = team.gather(renderer.mean(), scene.height);
-      if (team.leader()) {
-        char row[64];
-        std::snprintf(row, sizeof row, "%d,%d,%.6f", renderer.passes_done() - 1, renderer.spp_done(), seconds);
-        csv += row;
-        for (Metric m : all_metrics()) {
-          double e = image_metric(now, *job.reference, m);
-          last_error[metric_name(m)] = e;
-          std::snprintf(row, sizeof row, ",%.9g", e);
-          csv += row;
-        }
-        csv += "\n";
+  }
+
+  // A resumed render continues from its checkpoint's state and clock.
+  void restore_resumed() {
+    if (!job_.resume.empty()) {
+      RenderState share = team_.scatter(job_.resumed, scene().width, scene().height);
+      renderer_.restore(share);
+      seconds_ = share.seconds;
+    }
+    resumed_seconds_ = seconds_;
+  }
+
+  // The setup, and what the scene could not model (once per kind).
+  void announce() {
+    std::vector<std::string> rank_devices = team_.gather_strings(job_.device->info().name + " on " + team_.host());
+    if (!job_.quiet) print_setup(job_, team_, rank_devices);
+    if (team_.leader())
+      for (const std::string& w : scene().warnings) std::fprintf(stderr, "xi: warning: %s\n", w.c_str());
+  }
+
+  void render_passes() {
+    last_checkpoint_ = std::chrono::steady_clock::now();
+    for (;;) {
+      const std::vector<int> agreed = agree_before_pass();
+      stop_signal_ = agreed[0];
+      if (renderer_.done() || agreed[0] || agreed[1]) return;
+      if (agreed[2]) {
+        save_checkpoint();
+        last_checkpoint_ = std::chrono::steady_clock::now();
       }
+      run_pass();
     }
-    if (job.progress)
-      draw_progress(renderer.spp_done(), opt.spp, pixels * renderer.spp_done() / seconds * 1e-6, seconds);
-    if (!renderer.done() && job.snapshot_every && renderer.passes_done() % job.snapshot_every == 0)
-      write_image(renderer.spp_done());
   }
-  if (job.progress) std::fputs("\n", stderr);
-  const bool stopped = !renderer.done();
-  const int exit_code = stopped && stop_signal ? 128 + stop_signal : 0;
-  if (stopped && !job.checkpoint.empty()) save_checkpoint();
-  if (stopped && team.leader()) {
-    const std::string why =
-        stop_signal ? (stop_signal == SIGINT ? "SIGINT" : "SIGTERM") : "the time budget";
-    const std::string at = std::to_string(renderer.spp_done()) + " of " + std::to_string(opt.spp) + " spp";
-    const std::string saved = job.checkpoint.empty() ? "" : "; state saved to " + job.checkpoint.string();
-    if (renderer.spp_done() == 0 || !sampler_is_progressive(opt.sampler)) {
-      const std::string reason = renderer.spp_done() == 0 ? "no sample was done"
-                                                          : std::string("the ") + sampler_name(opt.sampler) +
-                                                                " pattern is incomplete";
+
+  // Before each pass the ranks agree: a signal to any of them, or rank 0's clock, stops them all;
+  // rank 0's clock says when to checkpoint. Returns {signal, time is up, checkpoint is due}.
+  std::vector<int> agree_before_pass() {
+    const bool time_up = seconds_ - resumed_seconds_ >= job_.time_budget;
+    const double since_checkpoint =
+        std::chrono::duration<double>(std::chrono::steady_clock::now() - last_checkpoint_).count();
+    const bool checkpoint_due = !job_.checkpoint.empty() && since_checkpoint >= job_.checkpoint_every;
+    return team_.max({(int)g_signal, team_.leader() && time_up, team_.leader() && checkpoint_due});
+  }
+
+  // One pass, timed, then what follows it: the error, the progress bar, a snapshot.
+  void run_pass() {
+    auto t0 = std::chrono::steady_clock::now();
+    renderer_.run_pass();
+    const auto t1 = std::chrono::steady_clock::now();
+    seconds_ += std::chrono::duration<double>(t1 - t0).count();
+    if (job_.first_pass_seconds == 0.0) job_.first_pass_seconds = std::chrono::duration<double>(t1 - g_started).count();
+    if (job_.measured && (!job_.convergence.empty() || renderer_.done())) measure_error();
+    if (job_.progress)
+      draw_progress(renderer_.spp_done(), job_.opt.spp, pixels() * renderer_.spp_done() / seconds_ * 1e-6, seconds_);
+    if (!renderer_.done() && job_.snapshot_every && renderer_.passes_done() % job_.snapshot_every == 0)
+      write_image(renderer_.spp_done());
+  }
+
+  // The error against the reference after this pass: a row of the convergence log (the time spent
+  // measuring is not counted). Collective: every rank has job.measured, only rank 0 the reference.
+  void measure_error() {
+    const Image now = team_.gather(renderer_.mean(), scene().height);
+    if (!team_.leader()) return;
+    char row[64];
+    std::snprintf(row, sizeof row, "%d,%d,%.6f", renderer_.passes_done() - 1, renderer_.spp_done(), seconds_);
+    csv_ += row;
+    for (Metric m : all_metrics()) {
+      double e = image_metric(now, *job_.reference, m);
+      last_error_[metric_name(m)] = e;
+      std::snprintf(row, sizeof row, ",%.9g", e);
+      csv_ += row;
+    }
+    csv_ += "\n";
+  }
+
+  // A stopped render with no sample, or with an incomplete grid or stratified pattern, has no image.
+  bool image_is_valid() const { return renderer_.spp_done() > 0 && sampler_is_progressive(job_.opt.sampler); }
+
+  // Saves the state of a render stopped early and says why it stopped and what it wrote.
+  void report_stop() {
+    if (!job_.checkpoint.empty()) save_checkpoint();
+    if (!team_.leader()) return;
+    const RenderOptions& opt = job_.opt;
+    const std::string why = stop_signal_ ? (stop_signal_ == SIGINT ? "SIGINT" : "SIGTERM") : "the time budget";
+    const std::string at = std::to_string(renderer_.spp_done()) + " of " + std::to_string(opt.spp) + " spp";
+    const std::string saved = job_.checkpoint.empty() ? "" : "; state saved to " + job_.checkpoint.string();
+    if (!image_is_valid()) {
+      const std::string reason = renderer_.spp_done() == 0 ? "no sample was done"
+                                                           : std::string("the ") + sampler_name(opt.sampler) +
+                                                                 " pattern is incomplete";
       std::fprintf(stderr, "xi: stopped by %s at %s: %s, no image written%s\n", why.c_str(), at.c_str(),
                    reason.c_str(), saved.c_str());
     } else {
-      std::fprintf(stderr, "xi: stopped by %s after pass %d: %s%s\n", why.c_str(), renderer.passes_done(), at.c_str(),
+      std::fprintf(stderr, "xi: stopped by %s after pass %d: %s%s\n", why.c_str(), renderer_.passes_done(), at.c_str(),
                    saved.c_str());
     }
   }
-  if (stopped && (renderer.spp_done() == 0 || !sampler_is_progressive(opt.sampler))) return exit_code;
-  const size_t overflowed = write_image(renderer.spp_done());
-  const uint64_t rays = team.sum(renderer.extend_rays() + renderer.shadow_rays());
-  const uint64_t nonfinite = team.sum(renderer.nonfinite_samples());
-  if (!team.leader()) return exit_code;
-  if (!stopped && !job.checkpoint.empty()) {  // the image holds the result now
-    std::error_code ec;
-    std::filesystem::remove(job.checkpoint, ec);
-  }
-  if (!job.convergence.empty()) {
-    write_atomically(job.convergence, [&](const std::filesystem::path& tmp) {
-      std::FILE* f = std::fopen(tmp.c_str(), "w");
-      if (!f || std::fputs(csv.c_str(), f) < 0 || std::fclose(f) != 0) throw Error("cannot write file", tmp.string());
-    });
-  }
-  if (!job.trace.empty()) write_chrome_trace(job.trace, renderer.launches());
 
-  if (nonfinite) std::fprintf(stderr, "xi: warning: %llu non-finite samples were dropped\n", (unsigned long long)nonfinite);
-  // Samples above about 1e19 (a radiance of 1e20 seen directly) square beyond the largest float.
-  if (overflowed)
-    std::fprintf(stderr,
-                 "xi: warning: the variance of %zu pixel(s) overflows single precision (samples above about 1e19): "
-                 "their variance layer holds infinity\n",
-                 overflowed);
-  if (!job.quiet) {
-    const int spp = renderer.spp_done();
-    std::printf("%dx%d, %d spp, %.2f s, %.2f Msamples/s, %.2f Mrays/s%s\n", scene.width, scene.height, spp, seconds,
-                pixels * spp / seconds * 1e-6, (double)rays / seconds * 1e-6,
-                team.size() > 1 ? (", " + std::to_string(team.size()) + " processes").c_str() : "");
-    if (team.size() > 1)
-      std::printf("film state gathered from %d processes: %.1f MB in %.3f s\n", team.size(),
-                  4.0 * sizeof(glm::vec4) * pixels * 1e-6, gather_seconds);
-    std::printf("wrote %s and %s\n", job.out.string().c_str(), job.png.string().c_str());
-    std::printf("first pass done %.2f s after start%s\n", job.first_pass_seconds,
-                renderer.shading_switch_pass() >= 0
-                    ? ("; the scene's own kernels took over from the generic ones after pass " +
-                       std::to_string(renderer.shading_switch_pass())).c_str()
-                    : renderer.generic_shading() ? "; shaded by the generic kernels throughout" : "");
-    if (job.reference)
-      std::printf("error vs reference: rmse %.6g, relmse %.6g\n", last_error["rmse"], last_error["relmse"]);
-    if (job.profile) {
-      if (team.size() > 1) std::printf("profile of rank 0:\n");
-      print_profile(stdout, renderer.launches(), seconds);
+  // The whole frame's state, put together on rank 0 from every rank's rows (timed: the reduction).
+  RenderState frame_state() {
+    auto t0 = std::chrono::steady_clock::now();
+    RenderState st = team_.gather(renderer_.state(), scene().width, scene().height);
+    gather_seconds_ = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+    st.seconds = seconds_;
+    return st;
+  }
+
+  void save_checkpoint() {
+    const RenderState st = frame_state();
+    if (team_.leader()) write_checkpoint(job_.checkpoint, job_.key, st);
+  }
+
+  // The image so far, written atomically: spp is what it holds (sppTarget: what was asked for).
+  // Returns how many of its pixels' variances single precision cannot hold (rank 0).
+  size_t write_image(int spp) {
+    const RenderState st = frame_state();
+    if (!team_.leader()) return 0;
+    const RenderOptions& opt = job_.opt;
+    const Film film = resolve_film(st, scene().width, scene().height);
+    ExrAttributes attrs{{"spp", spp},
+                        {"renderSeconds", seconds_},
+                        {"seed", (int)opt.seed},
+                        {"scene", std::filesystem::absolute(job_.scene_path).string()},
+                        {"device", job_.device->info().name},
+                        {"sampler", std::string(sampler_name(opt.sampler))},
+                        {"strategy", std::string(strategy_name(opt.strategy))},
+                        {"maxDepth", opt.max_depth}};
+    if (team_.size() > 1) attrs["processes"] = team_.size();
+    if (spp < opt.spp) attrs["sppTarget"] = opt.spp;
+    for (auto& [name, value] : last_error_) attrs["error." + name] = value;
+    write_exr(job_.out,
+              {{"", &film.mean}, {"variance", &film.variance}, {"albedo", &film.albedo}, {"normal", &film.normal}},
+              attrs);
+    write_png(job_.png, film.mean);
+    return (size_t)std::count_if(film.variance.pixels.begin(), film.variance.pixels.end(),
+                                 [](const glm::vec3& v) { return !std::isfinite(v.x + v.y + v.z); });
+  }
+
+  // After the image (rank 0): the checkpoint of a completed render goes, the log and trace are written.
+  void write_logs(bool stopped) {
+    if (!stopped && !job_.checkpoint.empty()) {  // the image holds the result now
+      std::error_code ec;
+      std::filesystem::remove(job_.checkpoint, ec);
     }
-    if (renderer.scene_shading_pending())
+    if (!job_.convergence.empty()) {
+      write_atomically(job_.convergence, [&](const std::filesystem::path& tmp) {
+        std::FILE* f = std::fopen(tmp.c_str(), "w");
+        if (!f || std::fputs(csv_.c_str(), f) < 0 || std::fclose(f) != 0) throw Error("cannot write file", tmp.string());
+      });
+    }
+    if (!job_.trace.empty()) write_chrome_trace(job_.trace, renderer_.launches());
+  }
+
+  static void warn_about_samples(uint64_t nonfinite, size_t overflowed) {
+    if (nonfinite)
+      std::fprintf(stderr, "xi: warning: %llu non-finite samples were dropped\n", (unsigned long long)nonfinite);
+    // Samples above about 1e19 (a radiance of 1e20 seen directly) square beyond the largest float.
+    if (overflowed)
+      std::fprintf(stderr,
+                   "xi: warning: the variance of %zu pixel(s) overflows single precision (samples above about 1e19): "
+                   "their variance layer holds infinity\n",
+                   overflowed);
+  }
+
+  void print_summary(uint64_t rays) {
+    const int spp = renderer_.spp_done();
+    std::printf("%dx%d, %d spp, %.2f s, %.2f Msamples/s, %.2f Mrays/s%s\n", scene().width, scene().height, spp,
+                seconds_, pixels() * spp / seconds_ * 1e-6, (double)rays / seconds_ * 1e-6,
+                team_.size() > 1 ? (", " + std::to_string(team_.size()) + " processes").c_str() : "");
+    if (team_.size() > 1)
+      std::printf("film state gathered from %d processes: %.1f MB in %.3f s\n", team_.size(),
+                  4.0 * sizeof(glm::vec4) * pixels() * 1e-6, gather_seconds_);
+    std::printf("wrote %s and %s\n", job_.out.string().c_str(), job_.png.string().c_str());
+    if (job_.reference)
+      std::printf("error vs reference: rmse %.6g, relmse %.6g\n", last_error_["rmse"], last_error_["relmse"]);
+    if (job_.profile) {
+      if (team_.size() > 1) std::printf("profile of rank 0:\n");
+      print_profile(stdout, renderer_.launches(), seconds_);
+    }
+    std::printf("first pass done %.2f s after start%s\n", job_.first_pass_seconds,
+                renderer_.shading_switch_pass() >= 0
+                    ? ("; the scene's own kernels took over from the generic ones after pass " +
+                       std::to_string(renderer_.shading_switch_pass()))
+                          .c_str()
+                : renderer_.generic_shading() ? "; shaded by the generic kernels throughout"
+                                              : "");
+    if (renderer_.scene_shading_pending())
       std::printf("kernels: finishing this scene's own build, so that its next render starts with them\n");
   }
-  return exit_code;
-}
+
+  const Scene& scene() const { return job_.scene; }
+  double pixels() const { return (double)scene().width * scene().height; }
+
+  Job& job_;
+  Team& team_;
+  Renderer& renderer_;
+  double seconds_ = 0.0;          // render time, this run's and any resumed run's (rank 0's clock)
+  double resumed_seconds_ = 0.0;  // the part of it the checkpoint brought
+  double gather_seconds_ = 0.0;   // the last gather of the frame's state
+  std::string csv_;               // the convergence log (rank 0)
+  std::map<std::string, double> last_error_;
+  std::chrono::steady_clock::time_point last_checkpoint_;
+  int stop_signal_ = 0;
+};
 
 // PoCL runs a CPU device on every core; ranks sharing a host split its cores instead (a variable
 // the user set wins). Read when OpenCL starts, so set before anything touches it. Returns the
@@ -506,7 +626,7 @@ int render(const std::vector<std::string>& argv) {
   }
   team.agree_setup(error);
   try {
-    const int code = run(*job, team);
+    const int code = RenderRun(*job, team).run();
     // Rank 0 has written every file: only now may the others end, since mpirun ends the whole job
     // when one rank exits with an error code. Rank 0's code is the job's.
     team.barrier();

@@ -1,5 +1,6 @@
-// Scenes from asset files (glTF, GLB, OBJ, PLY, ...) read through Assimp's scene graph: node
-// transforms, cameras and materials as the file gives them. Format notes in README.md.
+// Scenes from asset files (glTF, GLB, OBJ, PLY, 3DS...: whatever Assimp reads) read through
+// Assimp's scene graph: node transforms, cameras and materials as the file gives them. Format notes
+// in README.md.
 #pragma once
 #include <filesystem>
 #include <string>
@@ -14,8 +15,11 @@ struct AssetOptions {
   int height = 512;    // film height; the width follows the camera's aspect ratio
 };
 
-// The extensions read as assets: .gltf .glb .obj .ply .stl .off .dae .fbx (any case).
+// Whether a scene file is read through Assimp: every one but a .json scene (any case). load_asset
+// refuses an extension Assimp has no importer for, naming the file and listing asset_extensions().
 bool is_asset_file(const std::filesystem::path& path);
+// The extensions Assimp reads (".3ds", ".obj", ...), in its order.
+std::vector<std::string> asset_extensions();
 
 // A whole scene from an asset file. Camera: the chosen one, or without one, the bounding box framed
 // from +z (looking down -z, up +y, vfov 40). No emissive material: Scene::background is white (1).

@@ -207,7 +207,41 @@ struct Loaded {
   const aiScene* scene = nullptr;
 };
 
-void read_file(const fs::path& path, Loaded& l) {
+// Some of Assimp's readers leave null entries behind (5.2's RAW reader: a null child node), which
+// the walks below would follow. (aiProcess_ValidateDataStructure would catch them, but also refuses
+// files read well, e.g. an OpenGEX light without a node.)
+std::optional<std::string> null_entry(const aiScene& scene) {
+  for (unsigned i = 0; i < scene.mNumMeshes; ++i)
+    if (!scene.mMeshes[i]) return "a null mesh";
+  for (unsigned i = 0; i < scene.mNumMaterials; ++i)
+    if (!scene.mMaterials[i]) return "a null material";
+  std::vector<const aiNode*> stack = {scene.mRootNode};
+  while (!stack.empty()) {
+    const aiNode* node = stack.back();
+    stack.pop_back();
+    for (unsigned c = 0; c < node->mNumChildren; ++c) {
+      if (!node->mChildren[c]) return "a null node in the scene graph";
+      stack.push_back(node->mChildren[c]);
+    }
+  }
+  return std::nullopt;
+}
+
+// Assimp picks its importer by the extension, so one it has no importer for is refused here, with
+// the list of those it has (JSON scenes too where the file was given as a whole scene).
+void check_format(const fs::path& path, const Assimp::Importer& importer, bool whole_scene) {
+  const std::string ext = lower_extension(path);
+  if (!ext.empty() && importer.IsExtensionSupported(ext)) return;
+  std::string known;
+  for (const std::string& e : asset_extensions()) known += " " + e;
+  throw Error((ext.empty() ? std::string("no file extension to tell the format by")
+                           : "unknown scene format '" + path.extension().string() + "'") +
+                  ": xi reads " + (whole_scene ? ".json scenes and, through Assimp," : "through Assimp") + known,
+              path.string());
+}
+
+void read_file(const fs::path& path, Loaded& l, bool whole_scene) {
+  check_format(path, l.importer, whole_scene);
   std::error_code ec;
   if (!fs::is_regular_file(path, ec)) throw Error("asset file not found", path.string());
   // Before Assimp allocates what the header claims (it would exhaust memory, not fail).
@@ -215,6 +249,7 @@ void read_file(const fs::path& path, Loaded& l) {
   l.scene = l.importer.ReadFile(path.string(), aiProcess_Triangulate | aiProcess_JoinIdenticalVertices);
   if (!l.scene || (l.scene->mFlags & AI_SCENE_FLAGS_INCOMPLETE) || !l.scene->mRootNode)
     throw Error(std::string("cannot load asset: ") + l.importer.GetErrorString(), path.string());
+  if (auto what = null_entry(*l.scene)) throw Error("cannot load asset: Assimp's reader left " + *what, path.string());
 }
 
 AssetGeometry geometry(const fs::path& path, const aiScene& scene) {
@@ -321,22 +356,31 @@ std::string describe(const std::vector<CameraInfo>& list) {
 
 }  // namespace
 
-bool is_asset_file(const fs::path& path) {
-  const std::string ext = lower_extension(path);
-  for (const char* e : {".gltf", ".glb", ".obj", ".ply", ".stl", ".off", ".dae", ".fbx"})
-    if (ext == e) return true;
-  return false;
+bool is_asset_file(const fs::path& path) { return lower_extension(path) != ".json"; }
+
+std::vector<std::string> asset_extensions() {
+  std::string list;  // "*.3d;*.3ds;*.3mf;..."
+  Assimp::Importer().GetExtensionList(list);
+  std::vector<std::string> out;
+  for (size_t at = 0; at < list.size();) {
+    const size_t end = std::min(list.find(';', at), list.size());
+    std::string e = list.substr(at, end - at);
+    if (e.rfind("*", 0) == 0) e.erase(0, 1);
+    if (!e.empty()) out.push_back(e);
+    at = end + 1;
+  }
+  return out;
 }
 
 AssetGeometry load_asset_geometry(const fs::path& path) {
   Loaded l;
-  read_file(path, l);
+  read_file(path, l, false);
   return geometry(path, *l.scene);
 }
 
 Scene load_asset(const fs::path& path, const AssetOptions& options) {
   Loaded l;
-  read_file(path, l);
+  read_file(path, l, true);
   AssetGeometry g = geometry(path, *l.scene);
   Scene s;
   s.source = path.string();
