@@ -1,5 +1,9 @@
 #include "xi/renderer.h"
 
+#include <sys/resource.h>
+#include <sys/syscall.h>
+#include <unistd.h>
+
 #include <algorithm>
 #include <chrono>
 #include <string>
@@ -20,6 +24,9 @@ const std::vector<std::string> kLaneFiles = {"generate.cl", "shade.cl"};
 // for launches below the limit and once for those above): warming up at 1 and at this many items
 // compiles both before the first pass.
 constexpr size_t kLargeLaunch = (size_t)1 << 20;
+
+// The niceness of the thread that builds a scene's own shading program behind the generic one.
+constexpr int kBackgroundBuildNice = 10;
 
 // Enqueues a kernel over global_items queue entries, items_per_work_item of them per work item, in
 // work groups of `local` (0: the driver chooses).
@@ -151,8 +158,10 @@ void Renderer::take_scene_shading(bool wait) {
 
 // On a thread of its own: builds the program, then launches both kernels once with no work on a
 // queue of its own, with counters of their own, so that a driver that compiles per launch
-// configuration (PoCL) does it here rather than in the render's queue.
+// configuration (PoCL) does it here rather than in the render's queue. At a lower priority: the
+// generic program renders as fast, so on a CPU device the passes come first.
 Renderer::ShadingKernels Renderer::build_scene_shading(const std::vector<std::string>& defines) const {
+  setpriority(PRIO_PROCESS, (id_t)syscall(SYS_gettid), kBackgroundBuildNice);
   Program program = build_program(device_, kLaneFiles, defines);
   ShadingKernels k{cl::Kernel(program.program, "generate"), cl::Kernel(program.program, "shade")};
   cl::CommandQueue queue(device_.context(), device_.device());
