@@ -32,12 +32,8 @@ namespace {
 using glm::dvec2;
 using glm::dvec3;
 using glm::vec3;
-using namespace xi::test;  // fixtures.h, analytic.h, scene_builder.h
-
-// A render with the random sampler (fixtures.h's default).
-Shot shoot(const xi::Scene& scene, int spp, uint32_t seed, int max_depth, xi::Strategy strategy = xi::Strategy::Mis) {
-  return render_shot(scene, render_options(spp, seed, strategy, max_depth));
-}
+// fixtures.h (render_shot, render_options: the random sampler by default), analytic.h, scene_builder.h
+using namespace xi::test;
 
 // Lights 1e-10, 1e-6 and 1e3 times the scene's size: a diffuse plane y = 0 (albedo 1/2,
 // half-width 20) under a square light centred 1 above it (the scene's unit), facing down, of side
@@ -81,7 +77,7 @@ TEST(ExtremeValues, TinyAndHugeLightsMatchLambertsFormula) {
     if (side == 1e-6)
       for (const dvec3& p : spots)  // the reference itself, against the point-source limit
         EXPECT_NEAR(lambert_irradiance(polygon, radiance, p, dvec3(0, 1, 0)) / point_irradiance(p), 1.0, 1e-6);
-    const Shot shot = shoot(s, 256, seed++, 4);
+    const Shot shot = render_shot(s, render_options(256, seed++, xi::Strategy::Mis, 4));
     EXPECT_EQ(shot.nonfinite, 0u);
     for (const dvec3& p : spots) {
       const dvec2 f = v.film(p);
@@ -116,7 +112,9 @@ TEST(ExtremeValues, Radiance1e6IsFiniteAndLinear) {
     if (m.is_emitter()) m.emission *= 1e6f, lights++;
   ASSERT_EQ(lights, 1);
   const int depth = base.render.max_depth;
-  const Shot a = shoot(base, 64, 61, depth), b = shoot(bright, 64, 61, depth), c = shoot(bright, 64, 62, depth);
+  const Shot a = render_shot(base, render_options(64, 61, xi::Strategy::Mis, depth));
+  const Shot b = render_shot(bright, render_options(64, 61, xi::Strategy::Mis, depth));
+  const Shot c = render_shot(bright, render_options(64, 62, xi::Strategy::Mis, depth));
   EXPECT_EQ(a.nonfinite + b.nonfinite + c.nonfinite, 0u);
   double worst_rel = 0.0;
   for (int y = 0; y < 32; ++y)
@@ -164,7 +162,7 @@ TEST(ExtremeValues, AlbedoOneFurnaceAtDepth64SumsExactly65Terms) {
   uint32_t seed = 71;
   for (xi::Strategy strategy : {xi::Strategy::Mis, xi::Strategy::Bsdf}) {
     const bool mis = strategy == xi::Strategy::Mis;
-    const Shot shot = shoot(s, mis ? 256 : 1024, seed++, 64, strategy);
+    const Shot shot = render_shot(s, render_options(mis ? 256 : 1024, seed++, strategy, 64));
     EXPECT_EQ(shot.nonfinite, 0u);
     const MeanSe m = block_mean(shot, 0, 0, 32, 32);
     std::printf("[ furnace] %-4s %.3f ± %.3f, exact 65, z = %+.2f (against 64: %+.2f, 66: %+.2f)\n",

@@ -36,12 +36,8 @@ namespace {
 using glm::dvec2;
 using glm::dvec3;
 using glm::vec3;
-using namespace xi::test;  // fixtures.h, analytic.h, scene_builder.h
-
-// A render with the random sampler (fixtures.h's default).
-Shot shoot(const xi::Scene& scene, int spp, uint32_t seed, int max_depth, xi::Strategy strategy = xi::Strategy::Mis) {
-  return render_shot(scene, render_options(spp, seed, strategy, max_depth));
-}
+// fixtures.h (render_shot, render_options: the random sampler by default), analytic.h, scene_builder.h
+using namespace xi::test;
 
 
 // Area of a convex polygon clipped to the rectangle [x0, x1] × [y0, y1] (Sutherland–Hodgman).
@@ -188,7 +184,7 @@ TEST(IntersectionRobustness, NeedleAndDegenerateTriangles) {
   s.materials[0].name = "black";
   for (xi::Triangle& t : s.triangles) t.material = 0;
 
-  const Shot shot = shoot(s, 256, 91, 4);
+  const Shot shot = render_shot(s, render_options(256, 91, xi::Strategy::Mis, 4));
   EXPECT_EQ(shot.nonfinite, 0u);
   const double z_max = xi::stats::sidak_critical_z(0.01, 4);
   for (int band = 0; band < 4; ++band) {
@@ -216,7 +212,8 @@ TEST(IntersectionRobustness, NeedleAndDegenerateTriangles) {
     add_triangle(with, m, vec3(-1, -1, 10), vec3(0, 0, 10), vec3(1, 1, 10));  // exactly collinear in float
   }
   s.materials = with.materials;  // the same materials, so the same kernels
-  const Shot plain = shoot(s, 16, 92, 4), degenerate = shoot(with, 16, 92, 4);
+  const Shot plain = render_shot(s, render_options(16, 92, xi::Strategy::Mis, 4));
+  const Shot degenerate = render_shot(with, render_options(16, 92, xi::Strategy::Mis, 4));
   EXPECT_EQ(degenerate.nonfinite, 0u);
   int differ = 0;
   for (int y = 0; y < 64; ++y)

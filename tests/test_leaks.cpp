@@ -34,12 +34,8 @@ namespace {
 using glm::dvec2;
 using glm::dvec3;
 using glm::vec3;
-using namespace xi::test;  // fixtures.h, analytic.h, scene_builder.h
-
-// A render with the random sampler (fixtures.h's default).
-Shot shoot(const xi::Scene& scene, int spp, uint32_t seed, int max_depth, xi::Strategy strategy = xi::Strategy::Mis) {
-  return render_shot(scene, render_options(spp, seed, strategy, max_depth));
-}
+// fixtures.h (render_shot, render_options: the random sampler by default), analytic.h, scene_builder.h
+using namespace xi::test;
 
 // A rigid motion applied to a whole scene (every vertex and the camera), in double precision.
 struct Rigid {
@@ -116,7 +112,7 @@ TEST(Leaks, GrazingRaysOverAHugePlaneSeeExactlyAlbedoTimesSky) {
     set_camera(s, vec3(0, c.height, 0), vec3(0, c.height, 1), 0.5f);
     const float r = c.half_width;
     add_quad(s, add_material(s, "plane", vec3(0.5f)), vec3(-r, 0, -r), vec3(-r, 0, r), vec3(r, 0, r), vec3(r, 0, -r));
-    const Shot shot = shoot(s, 64, 11, 8);
+    const Shot shot = render_shot(s, render_options(64, 11, xi::Strategy::Mis, 8));
     EXPECT_EQ(shot.nonfinite, 0u);
     const View v(s);
     auto on_plane = [&](dvec3 d) {
@@ -200,7 +196,7 @@ TEST(Leaks, LightInAWallLightsTheFloorAsLambertsFormulaSays) {
   const double z_max = xi::stats::sidak_critical_z(0.01, 6);
   uint32_t seed = 21;
   for (xi::Strategy strategy : {xi::Strategy::Mis, xi::Strategy::Nee}) {
-    const Shot shot = shoot(scene, 512, seed++, 4, strategy);
+    const Shot shot = render_shot(scene, render_options(512, seed++, strategy, 4));
     EXPECT_EQ(shot.nonfinite, 0u);
     for (const Spot& s : spots) {
       const dvec2 f = v.film(s.p);
@@ -245,7 +241,8 @@ TEST(Leaks, LightInAWallLeaksNothingBehindIt) {
     add_conforming_floor(local, grey, 0.0f, false);
     add_wall_with_light(local, grey, light);
     set_camera(local, vec3(0.7f, 1.3f, 2.5f), vec3(0.0f, 0.5f, 0.0f), 60.0f);
-    const Shot shot = shoot(variant == kAxisAligned ? local : moved(local, kTurn), two_sided ? 16 : 64, 31, 16);
+    const Shot shot = render_shot(variant == kAxisAligned ? local : moved(local, kTurn),
+                                  render_options(two_sided ? 16 : 64, 31, xi::Strategy::Mis, 16));
     EXPECT_EQ(shot.nonfinite, 0u);
     double sum = 0.0, brightest = 0.0;
     int lit = 0;
@@ -289,7 +286,7 @@ TEST(Leaks, LightsInsideAClosedBoxLightNothingOutside) {
     for (size_t i = first; i < s.triangles.size(); ++i)
       for (vec3& p : s.triangles[i].v) p = vec3(turn(dvec3(p)));
     set_camera(s, vec3(3.5f, 2.0f, -4.5f), vec3(0.0f, -0.3f, 0.0f), 50.0f);
-    const Shot shot = shoot(s, closed ? 64 : 16, 41, 12);
+    const Shot shot = render_shot(s, render_options(closed ? 64 : 16, 41, xi::Strategy::Mis, 12));
     EXPECT_EQ(shot.nonfinite, 0u);
     int lit = 0;
     double sum = 0.0;
@@ -336,7 +333,7 @@ TEST(Leaks, CameraInsideAClosedMesh) {
       "materials": {"m": {"type": "diffuse", "albedo": [0.8, 0.8, 0.8]}},
       "shapes": [)" + std::string(shapes[which]) + "]}";
     const xi::Scene s = xi::parse_scene(json, which == 0 ? "icosphere" : "ellipsoid", mesh_dir());
-    const Shot shot = shoot(s, 32, 81 + which, 16);
+    const Shot shot = render_shot(s, render_options(32, 81 + which, xi::Strategy::Mis, 16));
     EXPECT_EQ(shot.nonfinite, 0u);
     int lit = 0;
     for (int y = 0; y < s.height; ++y)
@@ -353,7 +350,7 @@ TEST(Leaks, CameraInsideAClosedMesh) {
     "shapes": [{"type": "mesh", "material": "m", "file": "lumpy.obj"}]})";
   const xi::Scene s = xi::parse_scene(json, "lumpy furnace", mesh_dir());
   for (const xi::Triangle& t : s.triangles) ASSERT_FALSE(t.has_normals);
-  const Shot shot = shoot(s, 64, 83, 64);
+  const Shot shot = render_shot(s, render_options(64, 83, xi::Strategy::Mis, 64));
   EXPECT_EQ(shot.nonfinite, 0u);
   const double z_max = xi::stats::sidak_critical_z(0.01, 4);
   const int bands[4][2] = {{0, 32}, {0, 11}, {11, 22}, {22, 32}};
