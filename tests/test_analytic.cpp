@@ -16,13 +16,12 @@
 
 #include <glm/glm.hpp>
 
+#include "analytic.h"
+#include "fixtures.h"
 #include "sampling.h"
 #include "stats.h"
-#include "xi/compiled_scene.h"
-#include "xi/device.h"
 #include "xi/renderer.h"
 #include "xi/scene.h"
-#include "fixtures.h"
 
 namespace {
 
@@ -32,19 +31,8 @@ using namespace xi::stats;
 
 const fs::path kTestScenes = fs::path(XI_TEST_DATA_DIR) / "scenes";
 
-using xi::test::device;  // fixtures.h
-
-using Render = xi::test::Shot;
-
-Render render(const xi::Scene& scene, int spp, uint32_t seed, int sampler, xi::Strategy strategy, int max_depth) {
-  xi::RenderOptions o;
-  o.spp = spp;
-  o.seed = seed;
-  o.sampler = sampler;
-  o.strategy = strategy;
-  o.max_depth = max_depth;
-  return xi::test::render_shot(scene, o);
-}
+using xi::test::MeanSe;
+using xi::test::Shot;
 
 // A rectangle of pixels [x0, x1) × [y0, y1).
 struct Region {
@@ -53,22 +41,8 @@ struct Region {
   int pixels() const { return (x1 - x0) * (y1 - y0); }
 };
 
-// Mean of channel 0 over the region and its standard error (independent pixels: Var = Σ Var / R²).
-struct MeanSe {
-  double mean = 0.0, se = 0.0;
-};
-MeanSe region_stat(const Render& r, const Region& g) {
-  MeanSe s;
-  double var = 0.0;
-  for (int y = g.y0; y < g.y1; ++y)
-    for (int x = g.x0; x < g.x1; ++x) {
-      s.mean += r.mean.at(x, y).x;
-      var += r.variance.at(x, y).x;
-    }
-  s.mean /= g.pixels();
-  s.se = std::sqrt(var) / g.pixels();
-  return s;
-}
+// Mean of channel 0 over the region and its standard error.
+MeanSe region_stat(const Shot& r, const Region& g) { return xi::test::block_mean(r, g.x0, g.y0, g.x1, g.y1); }
 
 // ---------------------------------------------------------------------------------------------
 // Closed furnace: the camera inside a closed sphere (icosphere, 5 subdivisions) whose inside is
@@ -120,7 +94,8 @@ TEST_P(AnalyticClosedFurnace, RadianceIsLeOverOneMinusAlbedo) {
   const double z = sidak_critical_z(0.01, 8);
   uint32_t seed = 100 + sampler * 10;
   for (xi::Strategy strategy : {xi::Strategy::Mis, xi::Strategy::Bsdf}) {
-    Render r = render(scene, 64, seed++, sampler, strategy, scene.render.max_depth);
+    const Shot r =
+        xi::test::render_shot(scene, xi::test::render_options(64, seed++, strategy, scene.render.max_depth, sampler));
     EXPECT_EQ(r.nonfinite, 0u);
     for (const Region& g : regions) {
       MeanSe s = region_stat(r, g);
@@ -145,40 +120,8 @@ INSTANTIATE_TEST_SUITE_P(Analytic, AnalyticClosedFurnace,
 // down), nothing else: the plane's radiance at x is ρ/π · E(x), with E from Lambert's formula for
 // a polygonal luminaire, E(x) = L/2 · |Σ_i Θ_i (n · u_i)| over the edges (v_i, v_i+1): Θ_i the
 // angle the edge subtends at x, u_i the unit normal of the plane through x and the edge, n the
-// plane's normal. The light is black and the plane cannot see itself, so there is no other light.
-
-double lambert_irradiance(const std::vector<dvec3>& polygon, double radiance, dvec3 x, dvec3 n) {
-  double sum = 0.0;
-  for (size_t i = 0; i < polygon.size(); ++i) {
-    dvec3 a = glm::normalize(polygon[i] - x), b = glm::normalize(polygon[(i + 1) % polygon.size()] - x);
-    double theta = std::acos(std::clamp(glm::dot(a, b), -1.0, 1.0));
-    sum += theta * glm::dot(n, glm::normalize(glm::cross(a, b)));
-  }
-  return 0.5 * radiance * std::abs(sum);
-}
-
-// The camera ray through film point (fx, fy) in pixels (x right, y down from the top-left
-// corner), as the scene defines the camera: forward = normalize(look_at − position), right =
-// normalize(forward × up), up' = right × forward, vertical field of view.
-dvec3 camera_ray(const xi::Scene& s, double fx, double fy) {
-  const xi::Camera& c = s.camera;
-  dvec3 fwd = glm::normalize(dvec3(c.look_at) - dvec3(c.position));
-  dvec3 right = glm::normalize(glm::cross(fwd, dvec3(c.up))), up = glm::cross(right, fwd);
-  double t = std::tan(glm::radians((double)c.vfov_degrees) / 2.0), aspect = (double)s.width / s.height;
-  double sx = 2.0 * fx / s.width - 1.0, sy = 1.0 - 2.0 * fy / s.height;
-  return glm::normalize(fwd + sx * t * aspect * right + sy * t * up);
-}
-
-// The pixel that sees world point p (inverse of camera_ray).
-glm::ivec2 pixel_of(const xi::Scene& s, dvec3 p) {
-  const xi::Camera& c = s.camera;
-  dvec3 fwd = glm::normalize(dvec3(c.look_at) - dvec3(c.position));
-  dvec3 right = glm::normalize(glm::cross(fwd, dvec3(c.up))), up = glm::cross(right, fwd);
-  dvec3 d = p - dvec3(c.position);
-  double t = std::tan(glm::radians((double)c.vfov_degrees) / 2.0), aspect = (double)s.width / s.height;
-  double sx = glm::dot(d, right) / glm::dot(d, fwd) / (t * aspect), sy = glm::dot(d, up) / glm::dot(d, fwd) / t;
-  return {(int)std::floor((sx + 1.0) / 2.0 * s.width), (int)std::floor((1.0 - sy) / 2.0 * s.height)};
-}
+// plane's normal (analytic.h). The light is black and the plane cannot see itself, so there is no
+// other light.
 
 // A plane scene: the lit plane y = 0, one square light, and optionally a plane mirror z = const.
 struct PlaneScene {
@@ -231,8 +174,8 @@ double host_radiance(const PlaneScene& p, dvec3 o, dvec3 d) {
   if (d.y >= 0.0) return NAN;
   dvec3 x = o + (-o.y / d.y) * d;
   if (p.mirror && x.z >= p.mirror_min.z) return NAN;
-  double e = lambert_irradiance(p.light, p.radiance, x, dvec3(0, 1, 0));
-  if (p.mirror) e += lambert_irradiance(image, p.radiance, x, dvec3(0, 1, 0));
+  double e = xi::test::lambert_irradiance(p.light, p.radiance, x, dvec3(0, 1, 0));
+  if (p.mirror) e += xi::test::lambert_irradiance(image, p.radiance, x, dvec3(0, 1, 0));
   return p.albedo / M_PI * e;
 }
 
@@ -240,12 +183,8 @@ double host_radiance(const PlaneScene& p, dvec3 o, dvec3 d) {
 // by a 16 × 16 midpoint rule; the radiance is smooth over each footprint used, so the rule's error
 // is far below 1e-4 of the value.
 double expected_pixel(const PlaneScene& p, int px, int py) {
-  const int k = 16;
-  const dvec3 o(p.scene.camera.position);
-  double sum = 0.0;
-  for (int i = 0; i < k; ++i)
-    for (int j = 0; j < k; ++j) sum += host_radiance(p, o, camera_ray(p.scene, px + (i + 0.5) / k, py + (j + 0.5) / k));
-  return sum / (k * k);
+  const xi::test::View v(p.scene);
+  return xi::test::footprint_mean(v, px, py, [&](dvec3 d) { return host_radiance(p, v.o, d); });
 }
 
 struct Spot {
@@ -256,7 +195,7 @@ struct Spot {
 
 // For each spot a 3 × 3 block of pixels; per strategy and block, a z-test of the block mean
 // against the exact value: 3 blocks × 3 strategies = 9 tests, z = 3.2595. The standard errors
-// (printed) are ≈ 0.4-1.3% of the values with MIS and light sampling, 2-5% with BSDF sampling
+// (printed) are small next to the values with MIS and light sampling, larger with BSDF sampling
 // alone (4× the samples), so an error of a few percent in the direct light fails: a missing
 // cosine at either end, a wrong area-to-solid-angle conversion, MIS weights that do not sum to 1,
 // a one-sided light emitting from its back, light found through a mirror weighted as if light
@@ -269,7 +208,7 @@ void check_plane(const char* file, const std::vector<Spot>& spots, uint32_t seed
   for (const Spot& s : spots) {
     dvec3 q = s.point;
     if (s.mirrored) q.z = 2.0 * p.mirror_min.z - q.z;
-    glm::ivec2 c = pixel_of(p.scene, q);
+    const glm::ivec2 c = xi::test::View(p.scene).pixel(q);
     Block b{{s.name, c.x - 1, c.y - 1, c.x + 2, c.y + 2}, 0.0};
     ASSERT_TRUE(b.region.x0 >= 0 && b.region.y0 >= 0 && b.region.x1 <= p.scene.width && b.region.y1 <= p.scene.height);
     for (int y = b.region.y0; y < b.region.y1; ++y)
@@ -280,7 +219,8 @@ void check_plane(const char* file, const std::vector<Spot>& spots, uint32_t seed
   const double z = sidak_critical_z(0.01, 3 * (int)blocks.size());
   for (xi::Strategy strategy : {xi::Strategy::Mis, xi::Strategy::Nee, xi::Strategy::Bsdf}) {
     int spp = strategy == xi::Strategy::Bsdf ? 1024 : 256;
-    Render r = render(p.scene, spp, seed++, XI_SAMPLER_RANDOM, strategy, p.scene.render.max_depth);
+    const Shot r =
+        xi::test::render_shot(p.scene, xi::test::render_options(spp, seed++, strategy, p.scene.render.max_depth));
     EXPECT_EQ(r.nonfinite, 0u);
     for (const Block& b : blocks) {
       MeanSe s = region_stat(r, b.region);

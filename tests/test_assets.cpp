@@ -20,6 +20,7 @@
 #include <glm/gtc/matrix_transform.hpp>
 
 #include "cli_test.h"
+#include "fixtures.h"
 #include "stats.h"
 #include "xi/asset.h"
 #include "xi/error.h"
@@ -98,13 +99,7 @@ json diffuse(const std::string& name, double albedo) {
   return {{"name", name}, {"pbrMetallicRoughness", {{"baseColorFactor", {albedo, albedo, albedo, 1.0}}, {"metallicFactor", 0.0}}}};
 }
 
-fs::path temp_dir() {
-  const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
-  fs::path dir = fs::temp_directory_path() / (std::string("xi_assets_") + info->test_suite_name() + "_" + info->name());
-  fs::remove_all(dir);
-  fs::create_directories(dir);
-  return dir;
-}
+fs::path temp_dir() { return xi::test::fresh_test_dir("xi_assets_"); }  // fixtures.h
 
 // The glTF file's own JSON (a .glb's JSON chunk), read here to get the true numbers.
 json gltf_json(const fs::path& p) {

@@ -1,8 +1,6 @@
 // BVH build and host-side traversal: the tree's invariants (4- and 8-wide) on three kinds of input,
 // then closest- and any-hit queries of xi_trace (intersect.h, run on the host over the arrays
-// compile_scene lays out for the kernels, 4 wide) against a brute-force loop over every triangle;
-// and the one-float step that spawned ray origins take past their error bound (spawn.h's
-// xi_round_away).
+// compile_scene lays out for the kernels, 4 wide) against a brute-force loop over every triangle.
 #include <gtest/gtest.h>
 
 #include <algorithm>
@@ -18,7 +16,6 @@
 #include <glm/glm.hpp>
 
 #include "intersect.h"
-#include "spawn.h"
 #include "xi/bvh.h"
 #include "xi/compiled_scene.h"
 #include "xi/scene.h"
@@ -589,24 +586,6 @@ TEST(BvhBuild, ExponentialSpacing) {
     ASSERT_LT(pos, tris.size()) << "triangle " << i;
     EXPECT_EQ(bvh.order[pos], i);
   }
-}
-
-// Spawned origins step one float past their error box with xi_round_away, an integer step of the
-// bit pattern: it must be exactly nextafter toward ±∞ as offset's sign says (x unchanged for 0),
-// across zero, denormals, the smallest and largest normals and 10^5 random finite floats.
-TEST(Spawn, RoundAwayIsNextafter) {
-  std::vector<float> xs = {0.0f, -0.0f, 0x1p-149f, -0x1p-149f, 0x1p-126f, -0x1p-126f, 1.0f, -1.0f,
-                           0x1.fffffep+127f, -0x1.fffffep+127f, 3.0e-39f, -3.0e-39f};
-  std::mt19937 rng(0x5a17u);
-  while (xs.size() < 100000) {
-    const float x = as_float(rng());
-    if (std::isfinite(x)) xs.push_back(x);
-  }
-  for (float x : xs)
-    for (float offset : {1e-3f, -1e-3f, 0.0f}) {
-      const float want = offset > 0.0f ? std::nextafter(x, INFINITY) : offset < 0.0f ? std::nextafter(x, -INFINITY) : x;
-      ASSERT_EQ(as_uint(xi_round_away(x, offset)), as_uint(want)) << "x " << x << " offset " << offset;
-    }
 }
 
 }  // namespace

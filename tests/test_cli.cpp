@@ -114,11 +114,8 @@ TEST_F(CliRender, MatchesTheLibrary) {
   xi::Scene scene = xi::load_scene(kCornell);
   scene.width = 24;
   scene.height = 16;
-  xi::RenderOptions opt;
-  opt.spp = 3;
-  opt.seed = 17;
-  opt.max_depth = scene.render.max_depth;
-  opt.sampler = xi::parse_sampler(scene.render.sampler);
+  const xi::RenderOptions opt =
+      xi::test::render_options(3, 17, xi::Strategy::Mis, scene.render.max_depth, xi::parse_sampler(scene.render.sampler));
   xi::Device& device = xi::test::device();
   xi::Renderer renderer(device, scene, opt);
   renderer.render();

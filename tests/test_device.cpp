@@ -12,6 +12,7 @@
 #include "xi/device.h"
 #include "xi/kernel_config.h"
 #include "xi/error.h"
+#include "fixtures.h"
 
 namespace fs = std::filesystem;
 
@@ -42,14 +43,9 @@ std::vector<std::string> cornell_defines() {
 
 }  // namespace
 
-// Sets or unsets XI_DEVICE for one scope, restoring what the suite was started with.
-struct DeviceEnv {
-  std::optional<std::string> saved;
-  explicit DeviceEnv(const char* value) {
-    if (const char* env = std::getenv("XI_DEVICE")) saved = env;
-    value ? setenv("XI_DEVICE", value, 1) : unsetenv("XI_DEVICE");
-  }
-  ~DeviceEnv() { saved ? setenv("XI_DEVICE", saved->c_str(), 1) : unsetenv("XI_DEVICE"); }
+// Sets or unsets XI_DEVICE for one scope (fixtures.h).
+struct DeviceEnv : xi::test::ScopedEnv {
+  explicit DeviceEnv(const char* value) : ScopedEnv("XI_DEVICE", value) {}
 };
 
 TEST(Device, ListsAndSelects) {

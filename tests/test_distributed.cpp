@@ -37,10 +37,7 @@ TEST(FilmShares, SharesOfRowsPutTogetherAreTheFrameBitwise) {
   for (const char* file : {"cornell-box.json", "caustics.json"}) {
     const xi::Scene scene = small_scene(file, 19, 11);
     for (int sampler : {XI_SAMPLER_SOBOL, XI_SAMPLER_RANDOM}) {
-      xi::RenderOptions options;
-      options.spp = 6;
-      options.seed = 3;
-      options.sampler = sampler;
+      xi::RenderOptions options = xi::test::render_options(6, 3, xi::Strategy::Mis, 8, sampler);
       options.samples_per_pass = 4;  // two passes, the second shorter
       const xi::RenderState whole = render_state(scene, options);
       for (int shares = 1; shares <= 4; ++shares) {

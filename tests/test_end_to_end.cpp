@@ -34,6 +34,7 @@
 #include "xi/renderer.h"
 #include "xi/scene.h"
 #include "fixtures.h"
+#include "stats.h"
 
 namespace fs = std::filesystem;
 using json = nlohmann::json;
@@ -76,6 +77,8 @@ const Region kRegions[3] = {
 };
 
 using xi::test::device;  // fixtures.h
+using xi::test::render_options;
+using xi::stats::sidak_critical_z;
 
 struct Result {
   xi::Image mean;
@@ -102,15 +105,10 @@ Result render(int w, int h, xi::RenderOptions opt, const fs::path& scene_file = 
   return {std::move(film.mean), std::move(film.variance), r.nonfinite_samples(), device().info().name};
 }
 
-xi::RenderOptions options(int spp, uint32_t seed, const std::string& sampler = "sobol",
-                          xi::Strategy strategy = xi::Strategy::Mis) {
-  xi::RenderOptions o;
-  o.spp = spp;  // also tells grid / stratified / sobol how large the sample set is
-  o.seed = seed;
-  o.max_depth = xi::load_scene(kCornell).render.max_depth;  // as `xi render` does: the scene's 8
-  o.sampler = xi::parse_sampler(sampler);
-  o.strategy = strategy;
-  return o;
+// The Cornell box's depth (8), the one `xi render` renders it with.
+int cornell_depth() {
+  static const int depth = xi::load_scene(kCornell).render.max_depth;
+  return depth;
 }
 
 struct RegionStats {
@@ -118,42 +116,15 @@ struct RegionStats {
   double se[3];  // standard error of the region mean
 };
 
-// Region mean and its standard error. The pixels are independent estimates (each pixel has its own
-// random numbers), so Var(region mean) = sum_i Var(pixel mean i) / R^2.
+// Region mean and its standard error, per channel (fixtures.h's block_mean).
 RegionStats region_stats(const Result& r, const Region& reg) {
   RegionStats s{};
-  double var[3] = {0, 0, 0};
-  for (int y = reg.y0; y < reg.y1; ++y)
-    for (int x = reg.x0; x < reg.x1; ++x)
-      for (int c = 0; c < 3; ++c) {
-        s.mean[c] += r.mean.at(x, y)[c];
-        var[c] += r.variance.at(x, y)[c];
-      }
-  const double n = reg.pixels();
   for (int c = 0; c < 3; ++c) {
-    s.mean[c] /= n;
-    s.se[c] = std::sqrt(var[c]) / n;
+    const xi::test::MeanSe m = xi::test::block_mean(r.mean, r.variance, reg.x0, reg.y0, reg.x1, reg.y1, c);
+    s.mean[c] = m.mean;
+    s.se[c] = m.se;
   }
   return s;
-}
-
-// Inverse of the standard normal upper tail: the z with P(Z > z) = p, by bisection on erfc
-// (P(Z > z) = erfc(z / sqrt 2) / 2 is decreasing in z). Accurate to double precision.
-double normal_upper_quantile(double p) {
-  double lo = -40.0, hi = 40.0;
-  for (int i = 0; i < 200; ++i) {
-    const double mid = 0.5 * (lo + hi);
-    if (0.5 * std::erfc(mid / std::sqrt(2.0)) > p) lo = mid;
-    else hi = mid;
-  }
-  return 0.5 * (lo + hi);
-}
-
-// Two-sided critical value for `checks` tests with family-wise significance `alpha`, Šidák-corrected:
-// each test gets alpha_1 = 1 - (1 - alpha)^(1/checks), and z = Φ^-1(1 - alpha_1 / 2).
-double sidak_z(double alpha, int checks) {
-  const double alpha1 = 1.0 - std::pow(1.0 - alpha, 1.0 / checks);
-  return normal_upper_quantile(alpha1 / 2.0);
 }
 
 struct Reference {
@@ -192,18 +163,6 @@ size_t differing_pixels(const xi::Image& a, const xi::Image& b) {
 }  // namespace
 
 // ---------------------------------------------------------------------------------------------
-// The statistics helpers themselves, against textbook values.
-
-TEST(EndToEndStats, InverseNormalAndSidak) {
-  EXPECT_NEAR(normal_upper_quantile(0.025), 1.959963985, 1e-8);
-  EXPECT_NEAR(normal_upper_quantile(0.005), 2.575829304, 1e-8);
-  EXPECT_NEAR(normal_upper_quantile(0.5), 0.0, 1e-12);
-  EXPECT_NEAR(sidak_z(0.05, 1), 1.959963985, 1e-8);
-  // 9 checks at family-wise 0.01: alpha_1 = 1 - 0.99^(1/9) = 0.0011161, z = 3.2595.
-  EXPECT_NEAR(sidak_z(0.01, 9), 3.2595, 1e-3);
-}
-
-// ---------------------------------------------------------------------------------------------
 // Finite output.
 
 // 64×64, 16 spp for every light transport strategy: no NaN or infinity in the mean or the variance,
@@ -211,7 +170,7 @@ TEST(EndToEndStats, InverseNormalAndSidak) {
 TEST(EndToEndCornell, FiniteAtLowSpp) {
   for (xi::Strategy strategy : {xi::Strategy::Mis, xi::Strategy::Nee, xi::Strategy::Bsdf}) {
     SCOPED_TRACE(xi::strategy_name(strategy));
-    const Result r = render(kRes, kRes, options(16, 11, "sobol", strategy));
+    const Result r = render(kRes, kRes, render_options(16, 11, strategy, cornell_depth(), XI_SAMPLER_SOBOL));
     ASSERT_EQ(r.mean.width, kRes);
     ASSERT_EQ(r.mean.height, kRes);
     ASSERT_EQ(r.variance.width, kRes);
@@ -230,7 +189,7 @@ TEST(EndToEndCornell, FiniteAtLowSpp) {
     EXPECT_EQ(negative, 0u);
     // With light sampling nearly every pixel gets light at 16 spp: only the outermost rows and
     // columns look past the box. BSDF sampling alone has to hit the small light by chance (a few
-    // percent of paths do), so at 16 spp most pixels are still black (about 17% are lit); require 5%.
+    // percent of paths do), so at 16 spp most pixels are still black; require 5% lit.
     if (strategy != xi::Strategy::Bsdf) EXPECT_GT(lit, r.mean.pixels.size() * 9 / 10);
     else EXPECT_GT(lit, r.mean.pixels.size() / 20);
   }
@@ -241,16 +200,14 @@ TEST(EndToEndCornell, FiniteAtLowSpp) {
 //
 // For each of the 9 (region, channel) pairs: |mean - ref| <= z * sqrt(SE_test^2 + SE_ref^2), with
 // SE from the per-pixel variance of the mean (SE^2 = sum_i var_i / R^2). z is for a family-wise
-// significance of 0.01 Šidák-corrected over the 9 checks: z = 3.2595 (computed by sidak_z). With the
+// significance of 0.01 Šidák-corrected over the 9 checks: z = 3.2595 (sidak_critical_z, stats.h). With the
 // sobol sampler the per-pixel sample variance overstates the variance of a scrambled-QMC mean, which
 // only makes the test conservative; the random sampler's is unbiased.
 //
 // Each configuration is a separate family at 0.01; the seeds are fixed, so the outcome is
 // deterministic. What a wrong renderer would do: a bias of a few percent (a wrong pdf, a missing
 // cosine, MIS weights that do not sum to one, a sampler that is not uniform) moves a region mean by
-// many standard errors. At 256 spp the standard errors (printed) are about 0.3% of the mean for the
-// wall and floor and 0.02% for the light, so a bias above about 1.2% (3.26 × 0.35%) in the wall or
-// floor is detected; with BSDF sampling alone (1024 spp) the SE is about 1.6-3%.
+// many standard errors: a bias above 3.26 combined standard errors (printed) is detected.
 
 struct RegionCase {
   const char* sampler;
@@ -270,10 +227,11 @@ TEST_P(EndToEndRegions, MeansMatchReference) {
   const RegionCase& rc = GetParam();
   const Reference& ref = reference();
   ASSERT_NE(rc.seed, kRefSeed);  // the test must be independent of the reference
-  const Result r = render(kRes, kRes, options(rc.spp, rc.seed, rc.sampler, rc.strategy));
+  const Result r =
+      render(kRes, kRes, render_options(rc.spp, rc.seed, rc.strategy, cornell_depth(), xi::parse_sampler(rc.sampler)));
   ASSERT_EQ(r.nonfinite, 0u);
 
-  const double z = sidak_z(0.01, 9);
+  const double z = sidak_critical_z(0.01, 9);
   for (int i = 0; i < 3; ++i) {
     const RegionStats t = region_stats(r, kRegions[i]);
     for (int c = 0; c < 3; ++c) {
@@ -327,7 +285,8 @@ TEST(EndToEndReference, FileMatchesRegions) {
 
 // Generates tests/data/cornell_regions.json (see the top of this file).
 TEST(EndToEndReference, DISABLED_GenerateCornellRegions) {
-  const Result r = render(kRes, kRes, options(kRefSpp, kRefSeed, kRefSampler));
+  const Result r = render(
+      kRes, kRes, render_options(kRefSpp, kRefSeed, xi::Strategy::Mis, cornell_depth(), xi::parse_sampler(kRefSampler)));
   ASSERT_EQ(r.nonfinite, 0u);
   json doc;
   doc["description"] =
@@ -344,7 +303,7 @@ TEST(EndToEndReference, DISABLED_GenerateCornellRegions) {
   doc["seed"] = kRefSeed;
   doc["sampler"] = kRefSampler;
   doc["strategy"] = "mis";
-  doc["max_depth"] = options(1, 0).max_depth;
+  doc["max_depth"] = cornell_depth();
   doc["local_size"] = xi::RenderOptions{}.local_size;
   doc["device"] = r.device;
   // Written by hand rather than with dump(indent) so that each pixel row is one line.
@@ -392,15 +351,15 @@ TEST(EndToEndReference, DISABLED_GenerateCornellRegions) {
 constexpr int kDetW = 60, kDetH = 44;
 
 TEST(EndToEndDeterminism, SameSeedIsBitwiseIdentical) {
-  const Result a = render(kDetW, kDetH, options(4, 42));
-  const Result b = render(kDetW, kDetH, options(4, 42));
+  const Result a = render(kDetW, kDetH, render_options(4, 42, xi::Strategy::Mis, cornell_depth(), XI_SAMPLER_SOBOL));
+  const Result b = render(kDetW, kDetH, render_options(4, 42, xi::Strategy::Mis, cornell_depth(), XI_SAMPLER_SOBOL));
   EXPECT_TRUE(bitwise_equal(a.mean, b.mean)) << differing_pixels(a.mean, b.mean) << " pixels differ";
   EXPECT_TRUE(bitwise_equal(a.variance, b.variance)) << differing_pixels(a.variance, b.variance) << " pixels differ";
 }
 
 TEST(EndToEndDeterminism, DifferentSeedDiffers) {
-  const Result a = render(kDetW, kDetH, options(4, 42));
-  const Result b = render(kDetW, kDetH, options(4, 43));
+  const Result a = render(kDetW, kDetH, render_options(4, 42, xi::Strategy::Mis, cornell_depth(), XI_SAMPLER_SOBOL));
+  const Result b = render(kDetW, kDetH, render_options(4, 43, xi::Strategy::Mis, cornell_depth(), XI_SAMPLER_SOBOL));
   // Black in both renders: the columns left and right of the box (the film is wider than it is
   // tall, so the camera sees past the side walls) and, at 4 spp, some pixels in the blocks'
   // shadows. Every other pixel gets other random numbers and so another value; allow 1% to agree.
@@ -415,7 +374,7 @@ TEST(EndToEndDeterminism, DifferentSeedDiffers) {
 }
 
 TEST(EndToEndDeterminism, LocalSizeDoesNotChangePixels) {
-  xi::RenderOptions o = options(4, 42);
+  xi::RenderOptions o = render_options(4, 42, xi::Strategy::Mis, cornell_depth(), XI_SAMPLER_SOBOL);
   o.local_size = 64;
   const Result base = render(kDetW, kDetH, o);
   // 0 lets the driver choose; 7 is not a power of two.
@@ -443,7 +402,7 @@ TEST(EndToEndDeterminism, LaunchBoundsDoNotChangePixels) {
     size_t loose = 0;  // launches over more than their queue
   };
   auto run = [&](Bound bound) {
-    xi::RenderOptions o = options(4, 42);
+    xi::RenderOptions o = render_options(4, 42, xi::Strategy::Mis, cornell_depth(), XI_SAMPLER_SOBOL);
     o.launch_bound = bound;
     o.profile = true;
     xi::Renderer r(device(), scene, o);
@@ -501,7 +460,7 @@ TEST(EndToEndDeterminism, SpatialSplitsDoNotChangePixels) {
     }
   }
   auto run = [&](bool spatial_splits, size_t* references) {
-    xi::RenderOptions o = options(4, 42);
+    xi::RenderOptions o = render_options(4, 42, xi::Strategy::Mis, cornell_depth(), XI_SAMPLER_SOBOL);
     o.spatial_splits = spatial_splits;
     xi::Renderer r(device(), scene, o);
     *references = r.compiled().bvh.stats.references;
@@ -536,7 +495,7 @@ TEST(EndToEndDeterminism, LanesAgree) {
                         Case{"depth-of-field.json", "sobol", xi::Strategy::Mis},
                         Case{"cornell-box.json", "grid", xi::Strategy::Bsdf}}) {
     SCOPED_TRACE(testing::Message() << c.scene << ", " << c.sampler << ", " << xi::strategy_name(c.strategy));
-    xi::RenderOptions o = options(4, 42, c.sampler, c.strategy);
+    xi::RenderOptions o = render_options(4, 42, c.strategy, cornell_depth(), xi::parse_sampler(c.sampler));
     const fs::path file = fs::path(XI_SCENE_DIR) / c.scene;
     o.lanes = 1;
     const Result one = render(kDetW, kDetH, o, file);
@@ -549,7 +508,7 @@ TEST(EndToEndDeterminism, LanesAgree) {
       lit += largest(a) > 0.01f;
       differ += largest(glm::abs(a - b) - 1e-3f * (glm::abs(a) + 1e-2f)) > 0.0f;
     }
-    EXPECT_GT(lit, one.mean.pixels.size() / 20);  // so that agreeing says something (BSDF sampling alone lights 7%)
+    EXPECT_GT(lit, one.mean.pixels.size() / 20);  // so that agreeing says something
     EXPECT_LE(differ, one.mean.pixels.size() / 100) << differ << " pixels differ by more than 0.1%";
     EXPECT_EQ(one.nonfinite, 0u);
     EXPECT_EQ(eight.nonfinite, 0u);
@@ -577,7 +536,7 @@ static void expect_same_but_ties(const Result& a, const Result& b) {
 TEST(EndToEndDeterminism, BvhWidthsAgree) {
   for (const char* scene : {"cornell-box.json", "mirror.json"}) {
     SCOPED_TRACE(scene);
-    xi::RenderOptions o = options(4, 7);
+    xi::RenderOptions o = render_options(4, 7, xi::Strategy::Mis, cornell_depth(), XI_SAMPLER_SOBOL);
     const fs::path file = fs::path(XI_SCENE_DIR) / scene;
     o.bvh_width = 4;
     const Result four = render(kDetW, kDetH, o, file);
@@ -600,7 +559,7 @@ TEST(EndToEndDeterminism, RayPacketsAgree) {
     xi::Scene s = xi::load_scene(file);
     s.width = kDetW;
     s.height = kDetH;
-    xi::RenderOptions o = options(4, 11);
+    xi::RenderOptions o = render_options(4, 11, xi::Strategy::Mis, cornell_depth(), XI_SAMPLER_SOBOL);
     o.bvh_width = 8;
     EXPECT_EQ(xi::Renderer(device(), s, o).kernels().ray_packets, std::string(scene) == "cornell-box.json");
     o.ray_packets = Packets::Off;
@@ -614,7 +573,7 @@ TEST(EndToEndDeterminism, RayPacketsAgree) {
 // Paths in flight (how a pass is cut into waves of (pixel, sample) items) and samples per pass do
 // not change a bit of the image: every pixel's samples are summed in sample order.
 TEST(EndToEndDeterminism, PathsInFlightDoNotChangePixels) {
-  xi::RenderOptions o = options(4, 42);
+  xi::RenderOptions o = render_options(4, 42, xi::Strategy::Mis, cornell_depth(), XI_SAMPLER_SOBOL);
   o.samples_per_pass = 1;
   const Result whole = render(kDetW, kDetH, o);  // one wave per pass: 2640 pixels < the default budget
   struct Case { size_t paths; int per_pass; };
@@ -640,7 +599,7 @@ TEST(EndToEndDeterminism, SmallFramesPutSeveralSamplesInFlight) {
   xi::Scene scene = xi::load_scene(kCornell);
   scene.width = 16;
   scene.height = 16;
-  xi::RenderOptions o = options(64, 1);
+  xi::RenderOptions o = render_options(64, 1, xi::Strategy::Mis, cornell_depth(), XI_SAMPLER_SOBOL);
   o.paths_in_flight = 16 * 16 * 10;
   xi::Renderer r(device(), scene, o);
   EXPECT_EQ(r.samples_per_pass(), 10);
@@ -674,7 +633,7 @@ TEST(EndToEndDeterminism, SmallFramesPutSeveralSamplesInFlight) {
 TEST(EndToEndConvergence, RegionErrorFallsWithSpp) {
   const Reference& ref = reference();
   auto mse = [&](int spp, uint32_t seed) {
-    const Result r = render(kRes, kRes, options(spp, seed));
+    const Result r = render(kRes, kRes, render_options(spp, seed, xi::Strategy::Mis, cornell_depth(), XI_SAMPLER_SOBOL));
     double sum = 0.0;
     size_t n = 0;
     for (int i = 0; i < 3; ++i) {
@@ -721,8 +680,9 @@ TEST(EndToEndVariance, MatchesSpreadBetweenSeeds) {
     double ratio_sum = 0.0;
     int ratios = 0;
     for (uint32_t seed = 31; seed < (independent ? 39u : 35u); seed += 2) {
-      const Result a = render(kRes, kRes, options(16, seed, sampler));
-      const Result b = render(kRes, kRes, options(16, seed + 1, sampler));
+      const int sampler_id = xi::parse_sampler(sampler);
+      const Result a = render(kRes, kRes, render_options(16, seed, xi::Strategy::Mis, cornell_depth(), sampler_id));
+      const Result b = render(kRes, kRes, render_options(16, seed + 1, xi::Strategy::Mis, cornell_depth(), sampler_id));
       for (const Region& reg : kRegions)
         for (int c = 0; c < 3; ++c) {
           double diff2 = 0.0, var = 0.0;

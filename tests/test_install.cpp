@@ -17,6 +17,7 @@
 
 #include "xi/device.h"
 #include "xi/image.h"
+#include "fixtures.h"
 
 namespace fs = std::filesystem;
 
@@ -50,14 +51,9 @@ int cached_binaries(const fs::path& cache) {
   return n;
 }
 
-// Sets or unsets XI_KERNEL_DIR for one scope, restoring what the suite was started with.
-struct KernelDirEnv {
-  std::optional<std::string> saved;
-  explicit KernelDirEnv(const char* value) {
-    if (const char* env = std::getenv("XI_KERNEL_DIR")) saved = env;
-    value ? setenv("XI_KERNEL_DIR", value, 1) : unsetenv("XI_KERNEL_DIR");
-  }
-  ~KernelDirEnv() { saved ? setenv("XI_KERNEL_DIR", saved->c_str(), 1) : unsetenv("XI_KERNEL_DIR"); }
+// Sets or unsets XI_KERNEL_DIR for one scope (fixtures.h).
+struct KernelDirEnv : xi::test::ScopedEnv {
+  explicit KernelDirEnv(const char* value) : ScopedEnv("XI_KERNEL_DIR", value) {}
 };
 
 }  // namespace

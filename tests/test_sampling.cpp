@@ -605,6 +605,17 @@ TEST(SamplingStats, NormalQuantile) {
   for (double p = 1e-6; p < 1.0; p += 0.0371) EXPECT_NEAR(normal_cdf(normal_quantile(p)), p, 1e-14 + 1e-12 * p);
 }
 
+// The z-tests' critical values against textbook values: Φ⁻¹ at the usual upper tails, and the
+// Šidák-corrected two-sided value for one and for nine tests.
+TEST(SamplingStats, InverseNormalAndSidakTextbookValues) {
+  EXPECT_NEAR(-normal_quantile(0.025), 1.959963985, 1e-8);
+  EXPECT_NEAR(-normal_quantile(0.005), 2.575829304, 1e-8);
+  EXPECT_NEAR(-normal_quantile(0.5), 0.0, 1e-12);
+  EXPECT_NEAR(sidak_critical_z(0.05, 1), 1.959963985, 1e-8);
+  // 9 checks at family-wise 0.01: alpha_1 = 1 - 0.99^(1/9) = 0.0011161, z = 3.2595.
+  EXPECT_NEAR(sidak_critical_z(0.01, 9), 3.2595, 1e-3);
+}
+
 TEST(SamplingStats, SidakCorrection) {
   EXPECT_NEAR(sidak_alpha(0.01, 1), 0.01, 1e-16);
   EXPECT_NEAR(sidak_alpha(0.05, 2), 1.0 - std::sqrt(0.95), 1e-15);

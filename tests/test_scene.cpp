@@ -13,6 +13,7 @@
 #include "xi/compiled_scene.h"
 #include "xi/error.h"
 #include "xi/scene.h"
+#include "fixtures.h"
 
 namespace fs = std::filesystem;
 
@@ -29,13 +30,7 @@ std::string scene_text(const std::string& shapes, const std::string& materials =
 }
 
 // A fresh directory per test (ctest may run tests in parallel).
-fs::path temp_dir() {
-  const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
-  fs::path dir = fs::temp_directory_path() / (std::string("xi_scene_") + info->test_suite_name() + "_" + info->name());
-  fs::remove_all(dir);
-  fs::create_directories(dir);
-  return dir;
-}
+fs::path temp_dir() { return xi::test::fresh_test_dir("xi_scene_"); }  // fixtures.h
 
 xi::Scene parse(const std::string& text, const fs::path& dir = fs::temp_directory_path()) {
   return xi::parse_scene(text, "test.json", dir);

@@ -26,6 +26,7 @@
 #include "xi/kernel_config.h"
 #include "xi/renderer.h"
 #include "xi/scene.h"
+#include "analytic.h"
 #include "fixtures.h"
 
 namespace {
@@ -396,23 +397,9 @@ TEST(TransportBsdfSampling, GlassFollowsFresnelAndSnell) {
 // Renders
 
 using Render = xi::test::Shot;
-
-xi::RenderOptions options(int spp, uint32_t seed, xi::Strategy strategy = xi::Strategy::Mis, int max_depth = 8,
-                          int sampler = XI_SAMPLER_RANDOM) {
-  xi::RenderOptions o;
-  o.spp = spp;
-  o.seed = seed;
-  o.strategy = strategy;
-  o.max_depth = max_depth;
-  o.sampler = sampler;  // random by default: independent samples, so the variance is unbiased
-  return o;
-}
-
-Render render(xi::Scene scene, int w, int h, const xi::RenderOptions& o) {
-  scene.width = w;
-  scene.height = h;
-  return xi::test::render_shot(scene, o);
-}
+using xi::test::MeanSe;
+using xi::test::render_options;
+using xi::test::render_shot;
 
 // A rectangle of pixels [x0, x1) × [y0, y1) that sees one material of albedo `albedo` only.
 struct Region {
@@ -421,22 +408,9 @@ struct Region {
   vec3 albedo;
 };
 
-// The region's mean of channel c and the standard error of that mean: pixels are independent, so
-// Var = Σ Var(pixel mean) / pixels².
-struct MeanSe {
-  double mean = 0.0, se = 0.0;
-};
+// The region's mean of channel c and the standard error of that mean.
 MeanSe region_stat(const Render& r, const Region& g, int c) {
-  MeanSe s;
-  double var = 0.0, count = (g.x1 - g.x0) * (g.y1 - g.y0);
-  for (int y = g.y0; y < g.y1; ++y)
-    for (int x = g.x0; x < g.x1; ++x) {
-      s.mean += r.mean.at(x, y)[c];
-      var += r.variance.at(x, y)[c];
-    }
-  s.mean /= count;
-  s.se = std::sqrt(var) / count;
-  return s;
+  return xi::test::block_mean(r, g.x0, g.y0, g.x1, g.y1, c);
 }
 
 // Every pixel of the region saw only the intended surface (first-hit albedo), so the region is
@@ -447,20 +421,8 @@ void expect_region_sees(const Render& r, const Region& g) {
       ASSERT_LT(glm::length(r.albedo.at(x, y) - g.albedo), 1e-4f) << g.name << " pixel " << x << "," << y;
 }
 
-// Pixel coordinates of world point p (x right, y down from the top-left corner) for the scene's
-// pinhole camera at w × h: the camera frame as the scene defines it, with a vertical field of view.
-glm::dvec2 project(const xi::Scene& s, int w, int h, dvec3 p) {
-  const xi::Camera& c = s.camera;
-  dvec3 fwd = glm::normalize(dvec3(c.look_at) - dvec3(c.position));
-  dvec3 right = glm::normalize(glm::cross(fwd, dvec3(c.up))), up = glm::cross(right, fwd);
-  dvec3 d = p - dvec3(c.position);
-  double t = std::tan(glm::radians((double)c.vfov_degrees) / 2.0);
-  double sx = glm::dot(d, right) / glm::dot(d, fwd) / (t * w / h), sy = glm::dot(d, up) / glm::dot(d, fwd) / t;
-  return {(sx + 1.0) / 2.0 * w, (1.0 - sy) / 2.0 * h};
-}
-
 Region block_at(const char* name, const xi::Scene& s, int w, int h, dvec3 p, int size, vec3 albedo) {
-  glm::dvec2 q = project(s, w, h, p);
+  const glm::dvec2 q = xi::test::View(s, w, h).film(p);  // analytic.h
   int x0 = (int)std::lround(q.x) - size / 2, y0 = (int)std::lround(q.y) - size / 2;
   return {name, x0, y0, x0 + size, y0 + size, albedo};
 }
@@ -482,8 +444,7 @@ void expect_same_means(const Render& a, const Render& b, const std::vector<Regio
 // MIS, light sampling alone and BSDF sampling alone are three unbiased estimators of the same
 // image: region means must agree pairwise. Regions × 3 pairs × 3 channels z-tests per scene.
 // A wrong MIS weight (not summing to 1), a missing cosine or a wrong light pdf biases one
-// strategy against the others by far more than the standard errors printed (≈ 0.5-1.5% of the
-// means). BSDF sampling alone is noisier (it must hit the light by chance), hence 4× the samples.
+// strategy against the others by far more than the standard errors printed. BSDF sampling alone is noisier (it must hit the light by chance), hence 4× the samples.
 TEST(TransportMis, StrategiesAgreeCornellBox) {
   const xi::Scene scene = xi::load_scene(kScenes / "cornell-box.json");
   const int res = 48;
@@ -493,9 +454,9 @@ TEST(TransportMis, StrategiesAgreeCornellBox) {
                                        {"floor", 8, 43, 21, 46, white},
                                        {"light", 21, 6, 27, 7, vec3(0.78f)},
                                        {"red_wall", 2, 18, 7, 30, vec3(0.63f, 0.065f, 0.05f)}};
-  Render mis = render(scene, res, res, options(256, 11, xi::Strategy::Mis));
-  Render nee = render(scene, res, res, options(256, 12, xi::Strategy::Nee));
-  Render bsdf = render(scene, res, res, options(1024, 13, xi::Strategy::Bsdf));
+  Render mis = render_shot(scene, res, res, render_options(256, 11, xi::Strategy::Mis));
+  Render nee = render_shot(scene, res, res, render_options(256, 12, xi::Strategy::Nee));
+  Render bsdf = render_shot(scene, res, res, render_options(1024, 13, xi::Strategy::Bsdf));
   for (const Region& g : regions) expect_region_sees(mis, g);
   // 4 regions × 3 pairs × 3 channels = 36 tests: z = 3.6637.
   const double z = sidak_critical_z(0.01, 36);
@@ -514,9 +475,9 @@ TEST(TransportMis, StrategiesAgreeSoftShadows) {
                                        block_at("penumbra", scene, res, res, {0, 0, -25}, 4, vec3(0.7f)),
                                        block_at("occluder", scene, res, res, {0, 30.5, 0}, 4, vec3(0.6f, 0.3f, 0.2f))};
   const int depth = scene.render.max_depth;
-  Render mis = render(scene, res, res, options(256, 21, xi::Strategy::Mis, depth));
-  Render nee = render(scene, res, res, options(256, 22, xi::Strategy::Nee, depth));
-  Render bsdf = render(scene, res, res, options(1024, 23, xi::Strategy::Bsdf, depth));
+  Render mis = render_shot(scene, res, res, render_options(256, 21, xi::Strategy::Mis, depth));
+  Render nee = render_shot(scene, res, res, render_options(256, 22, xi::Strategy::Nee, depth));
+  Render bsdf = render_shot(scene, res, res, render_options(1024, 23, xi::Strategy::Bsdf, depth));
   for (const Region& g : regions) expect_region_sees(mis, g);
   const double z = sidak_critical_z(0.01, 27);
   expect_same_means(mis, nee, regions, z, "mis-nee");
@@ -567,7 +528,7 @@ TEST(TransportFurnace, DiffuseAndMirrorSpheresAreExact) {
     SCOPED_TRACE(file);
     xi::Scene scene = xi::load_scene(kTestScenes / file);
     for (const xi::Triangle& t : scene.triangles) ASSERT_FALSE(t.has_normals);
-    Render r = render(scene, 32, 32, options(16, 31, xi::Strategy::Mis, 8));
+    Render r = render_shot(scene, 32, 32, render_options(16, 31, xi::Strategy::Mis, 8));
     FurnaceStats s = furnace_stats(r);
     std::printf("  %s: sphere %zu px, background %zu px, edge %zu px; max |pixel − 1| = %.3g\n", file, s.sphere,
                 s.background, s.edge, s.worst);
@@ -595,7 +556,7 @@ TEST(TransportFurnace, SmoothDiffuseSphereLosesOnlyBelowTheFace) {
     for (const glm::vec3& n : t.n) cos_min = std::min(cos_min, glm::dot(ng, glm::normalize(dvec3(n))));
   }
   const double eps = (1.0 - cos_min) / 2.0, z = sidak_critical_z(0.01, 1);
-  Render r = render(scene, 32, 32, options(256, 35, xi::Strategy::Mis, 8));
+  Render r = render_shot(scene, 32, 32, render_options(256, 35, xi::Strategy::Mis, 8));
   FurnaceStats s = furnace_stats(r);
   double background_worst = 0.0;
   for (size_t i = 0; i < r.mean.pixels.size(); ++i)
@@ -626,7 +587,7 @@ TEST(TransportFurnace, GlassSphereConservesEnergy) {
     double b2 = (i + 0.5) / steps, R = fresnel(std::sqrt(1.0 - b2), 1.0, 1.5);
     loss += (1.0 - R) * std::pow(R, 63) / steps;
   }
-  Render r = render(scene, 32, 32, options(256, 41, xi::Strategy::Mis, 64));
+  Render r = render_shot(scene, 32, 32, render_options(256, 41, xi::Strategy::Mis, 64));
   FurnaceStats s = furnace_stats(r);
   const double z = sidak_critical_z(0.01, 1);
   double background_worst = 0.0;
@@ -651,8 +612,8 @@ TEST(TransportScenes, BundledScenesRenderFinite) {
   for (const char* name : {"cornell-box", "soft-shadows", "caustics", "depth-of-field", "mirror"}) {
     SCOPED_TRACE(name);
     xi::Scene scene = xi::load_scene(kScenes / (std::string(name) + ".json"));
-    Render r = render(scene, 48, 48,
-                      options(16, 51, xi::Strategy::Mis, scene.render.max_depth, xi::parse_sampler(scene.render.sampler)));
+    Render r = render_shot(scene, 48, 48,
+                      render_options(16, 51, xi::Strategy::Mis, scene.render.max_depth, xi::parse_sampler(scene.render.sampler)));
     EXPECT_EQ(r.nonfinite, 0u);
     size_t bad = 0, lit = 0;
     for (size_t i = 0; i < r.mean.pixels.size(); ++i) {
@@ -795,9 +756,9 @@ TEST(TransportFeatures, AllFeaturesBuildMatchesSpecialised) {
                                        {"floor", 8, 43, 21, 46, white},
                                        {"light", 21, 6, 27, 7, vec3(0.78f)},
                                        {"red_wall", 2, 18, 7, 30, vec3(0.63f, 0.065f, 0.05f)}};
-  xi::RenderOptions all = options(256, 62);
+  xi::RenderOptions all = render_options(256, 62);
   all.all_features = true;
-  Render a = render(scene, 48, 48, all), b = render(scene, 48, 48, options(256, 61));
+  Render a = render_shot(scene, 48, 48, all), b = render_shot(scene, 48, 48, render_options(256, 61));
   for (const Region& g : regions) expect_region_sees(a, g);
   EXPECT_EQ(a.nonfinite, 0u);
   expect_same_means(a, b, regions, sidak_critical_z(0.01, 12), "all-special");
