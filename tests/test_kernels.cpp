@@ -15,7 +15,6 @@
 
 #include <glm/glm.hpp>
 
-#include "intersect.h"
 #include "layout.h"
 #include "sampling.h"
 #include "xi/compiled_scene.h"

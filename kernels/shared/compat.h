@@ -124,6 +124,14 @@ static inline uint xi_lane_bits8(int8 m) { return xi_lane_bits(m.lo) | xi_lane_b
 #endif
 #endif
 
+// Before a loop over a vector's lanes: unrolled, each lane is taken with a constant index, from a
+// register. (Performance only; the host ignores it.)
+#ifdef __OPENCL_VERSION__
+#define XI_UNROLL _Pragma("unroll")
+#else
+#define XI_UNROLL
+#endif
+
 // XI_PREFETCH(p, rw): a hint to bring p's cache line in ahead of its use (rw 1: it will be
 // written). Only where clang compiles for a CPU (PoCL), whose work items run one after another and
 // wait for each miss in turn; a GPU hides the latency by switching warps. XI_HAS_PREFETCH says
