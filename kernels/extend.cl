@@ -68,7 +68,7 @@ __kernel void extend(XI_PATH_PARAMS __global const uint* restrict queue, __globa
   if (i >= count) return;  // launched over an upper bound
 #if XI_HAS_PREFETCH
   // The rays at the queue's slots 4 entries on, fetched while this one traverses: their loads and
-  // the write of their hit no longer wait on memory (renders' extend up to 9% faster on PoCL).
+  // the write of their hit no longer wait on memory.
   if (i + 4u < count) {
     uint ahead = queue[i + 4u];
     XI_PREFETCH(&ray_org[ahead], 0);

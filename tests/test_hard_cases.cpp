@@ -959,7 +959,7 @@ TEST(HardCases, NeedleAndDegenerateTriangles) {
 // hit, at a point within the mesh's radii (it hit the shell). Rays from inside start within most of
 // the BVH's boxes, a slow case: on 2 PoCL cores extend takes about 6 s for the icosphere's 1e7 and
 // 21 s for the uneven mesh's, whose long crossing slivers make the boxes large. Before the kernels'
-// fused multiply-adds were turned off in intersect.h, 8.4e-4 of these rays escaped the uneven mesh
+// fused multiply-adds were turned off in triangle.h, 8.4e-4 of these rays escaped the uneven mesh
 // (8395 in 1e7) and 2 in 1e7 the icosphere. Control: rays aimed into a triangle removed from the
 // uneven mesh all escape.
 namespace {

@@ -240,7 +240,7 @@ Program build_program(Device& device, const std::vector<std::string>& files,
     throw Error("the kernel folder's path contains a space, which OpenCL build options cannot carry", dir.string());
   std::string options = "-cl-std=CL1.2 -cl-mad-enable -I " + dir.string() + " -I " + (dir / "shared").string();
   for (auto& d : defines) options += " -D" + d;
-  // A CPU takes the triangle test's early exit before its error bound (intersect.h says why).
+  // A CPU takes the triangle test's early exit before its error bound (triangle.h says why).
   if (device.info().type == "CPU") options += " -DXI_CPU_DEVICE";
   key.add(options);
   for (auto& f : files) key.add(f);
