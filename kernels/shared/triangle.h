@@ -226,22 +226,27 @@ static inline XI_INLINE RayShear8 xi_ray_shear8(float8 ox, float8 oy, float8 oz,
   return s;
 }
 
+// Coordinate `axis` of vertex `vertex` of triangle j of a block, for all eight rays.
+static inline XI_INLINE float8 xi_packet_coord(__global const TriBlock* block, int axis, int vertex, uint j) {
+  __global const float* coord = (__global const float*)block->coord;  // [axis][vertex][triangle]
+  return (float8)(coord[(axis * 3 + vertex) * 4 + j]);
+}
+
 // Vertex `vertex` of triangle j of a block, for each ray: axes permuted as its own (`same_axes`: as
-// lane 0's, which all share) and relative to its origin.
+// lane 0's, which all share, by index) and relative to its origin.
 static inline XI_INLINE void xi_packet_vertex(__global const TriBlock* block, uint j, int vertex, const RayShear8* s,
                                               bool same_axes, float8* x, float8* y, float8* z) {
-  __global const float* coord = (__global const float*)block->coord;  // [axis][vertex][triangle]
-#define XI_COORD(axis) ((float8)coord[((axis) * 3 + vertex) * 4 + j])
   if (same_axes) {
-    *x = XI_COORD(s->to_x) - s->ox;
-    *y = XI_COORD(s->to_y) - s->oy;
-    *z = XI_COORD(s->kz) - s->oz;
+    *x = xi_packet_coord(block, s->to_x, vertex, j) - s->ox;
+    *y = xi_packet_coord(block, s->to_y, vertex, j) - s->oy;
+    *z = xi_packet_coord(block, s->kz, vertex, j) - s->oz;
   } else {
-    *x = xi_permuted_x(s, XI_COORD(0), XI_COORD(1), XI_COORD(2)) - s->ox;
-    *y = xi_permuted_y(s, XI_COORD(0), XI_COORD(1), XI_COORD(2)) - s->oy;
-    *z = xi_permuted_z(s, XI_COORD(0), XI_COORD(1), XI_COORD(2)) - s->oz;
+    const float8 vx = xi_packet_coord(block, 0, vertex, j), vy = xi_packet_coord(block, 1, vertex, j),
+                 vz = xi_packet_coord(block, 2, vertex, j);
+    *x = xi_permuted_x(s, vx, vy, vz) - s->ox;
+    *y = xi_permuted_y(s, vx, vy, vz) - s->oy;
+    *z = xi_permuted_z(s, vx, vy, vz) - s->oz;
   }
-#undef XI_COORD
 }
 
 // Triangle j of a block against eight rays, each as xi_intersect_block's test and then xi_edge_hit's
