@@ -1,9 +1,11 @@
 // Stage 2, extend: the closest hit of every queued ray against the BVH. Through an 8-wide tree,
-// camera rays (bounce 0) go in packets of eight, one packet per work item (intersect.h,
+// camera rays (bounce 0) go in packets of eight, one packet per work item (packet.h,
 // xi_trace_packet8), and so do bounce rays where the host chose it for a small tree
-// (XI_RAY_PACKETS, layout.h's XI_EXTEND_PACKET); every other ray alone, one per work item.
-#include "intersect.h"
+// (XI_RAY_PACKETS, layout.h's XI_EXTEND_PACKET); every other ray alone, one per work item
+// (traverse.h, xi_trace).
 #include "layout.h"
+#include "packet.h"
+#include "traverse.h"
 
 static inline void xi_store_hit(__global float4* hit, uint slot, uint tri, float t, float u, float v) {
   hit[slot] = tri == XI_NO_HIT ? (float4)(-1.0f, 0.0f, 0.0f, 0.0f) : (float4)(t, u, v, as_float(tri));
@@ -66,7 +68,7 @@ __kernel void extend(XI_PATH_PARAMS __global const uint* restrict queue, __globa
   if (i >= count) return;  // launched over an upper bound
 #if XI_HAS_PREFETCH
   // The rays at the queue's slots 4 entries on, fetched while this one traverses: their loads and
-  // the write of their hit no longer wait on memory (renders' extend up to 9% faster on PoCL).
+  // the write of their hit no longer wait on memory.
   if (i + 4u < count) {
     uint ahead = queue[i + 4u];
     XI_PREFETCH(&ray_org[ahead], 0);

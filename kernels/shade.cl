@@ -182,8 +182,8 @@ __kernel void shade(XI_PATH_PARAMS __global const uint* restrict queue_in, __glo
   uint count = counters[XI_COUNTER_RAYS(bounce)];
   xmask active = entry < count;  // launched over an upper bound
 #if XI_HAS_PREFETCH
-  // The next work item's paths, fetched while this one shades (as extend does): shade up to 7%
-  // faster on PoCL.
+  // The next work item's paths, fetched while this one shades (as extend does), so their loads no
+  // longer wait on memory.
   uint next = (uint)get_global_id(0) * XI_LANES + XI_LANES;
   for (uint k = 0u; k < XI_LANES && next + k < count; ++k) {
     uint ahead = queue_in[next + k];

@@ -1,9 +1,11 @@
 // Stage 4, shadow: any-hit test of every queued shadow ray; an unoccluded ray adds its
 // contribution to its path. A path queues at most one shadow ray per bounce, so the add is safe.
 // Through a small 8-wide tree (XI_RAY_PACKETS, layout.h's XI_SHADOW_PACKET) eight rays go
-// together, one packet per work item (intersect.h, xi_occluded_packet8); else one per work item.
-#include "intersect.h"
+// together, one packet per work item (packet.h, xi_occluded_packet8); else one per work item
+// (traverse.h, xi_trace's any-hit query).
 #include "layout.h"
+#include "packet.h"
+#include "traverse.h"
 
 static inline void xi_add_unoccluded(__global float4* radiance, float4 contrib) {
   radiance[as_uint(contrib.w)] += (float4)(contrib.xyz, 0.0f);
@@ -61,8 +63,8 @@ __kernel void shadow(XI_PATH_PARAMS XI_SHADOW_PARAMS __global const uint* restri
   uint i = get_global_id(0);
   if (i >= count) return;  // launched over an upper bound
 #if XI_HAS_PREFETCH
-  // The radiance of the path 4 entries on, which its ray adds to if unoccluded (as extend does):
-  // shadow up to 8% faster on PoCL.
+  // The radiance of the path 4 entries on, which its ray adds to if unoccluded, fetched while this
+  // one traverses (as extend does), so that add no longer waits on memory.
   if (i + 4u < count) XI_PREFETCH(&radiance[as_uint(shadow_contrib[i + 4u].w)], 1);
 #endif
   xi_shadow_one(radiance, shadow_org, shadow_dir, shadow_contrib, i, nodes, tri_blocks);

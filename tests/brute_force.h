@@ -4,7 +4,7 @@
 #include <cstdint>
 #include <vector>
 
-#include "intersect.h"
+#include "triangle.h"
 #include "xi/scene.h"
 
 namespace xi::test {

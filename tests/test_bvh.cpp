@@ -1,5 +1,5 @@
 // BVH build and host-side traversal: the tree's invariants (4- and 8-wide) on three kinds of input,
-// then closest- and any-hit queries of xi_trace (intersect.h, run on the host over the arrays
+// then closest- and any-hit queries of xi_trace (traverse.h, run on the host over the arrays
 // compile_scene lays out for the kernels, 4 wide) against a brute-force loop over every triangle.
 #include <gtest/gtest.h>
 
@@ -15,7 +15,7 @@
 
 #include <glm/glm.hpp>
 
-#include "intersect.h"
+#include "traverse.h"
 #include "xi/bvh.h"
 #include "xi/compiled_scene.h"
 #include "xi/scene.h"

@@ -546,7 +546,7 @@ TEST(EndToEndDeterminism, BvhWidthsAgree) {
   }
 }
 
-// Bounce and shadow rays in packets (extend.cl, shadow.cl, xi_packet8) find each ray's hit (or
+// Bounce and shadow rays in packets (extend.cl, shadow.cl, packet.h) find each ray's hit (or
 // occluder) as one ray at a time does, bitwise but for ties, so the images agree bit for bit but
 // where two triangles are hit at exactly the same t. The automatic choice takes packets for the
 // Cornell box's tree of 2 nodes and not for mirror.json's hundreds; mirror.json is rendered with

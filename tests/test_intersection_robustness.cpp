@@ -232,7 +232,7 @@ TEST(IntersectionRobustness, NeedleAndDegenerateTriangles) {
 // centre to a face's plane), so each origin sees the inside of every face it can hit. Every ray must
 // hit, at a point within the mesh's radii (it hit the shell). Rays from inside start within most of
 // the BVH's boxes, a slow case, slowest for the uneven mesh, whose long crossing slivers make the
-// boxes large. Fused multiply-adds in the triangle test (intersect.h turns them off) let rays escape
+// boxes large. Fused multiply-adds in the triangle test (triangle.h turns them off) let rays escape
 // the uneven mesh. Control: rays aimed into a triangle removed from the uneven mesh all escape.
 
 TEST(IntersectionRobustness, TenMillionRaysFromInsideClosedMeshesNoneEscapes) {

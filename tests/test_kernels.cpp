@@ -15,7 +15,6 @@
 
 #include <glm/glm.hpp>
 
-#include "intersect.h"
 #include "layout.h"
 #include "sampling.h"
 #include "xi/compiled_scene.h"
@@ -713,7 +712,8 @@ TEST_F(Kernel, ShadeFirstHitsFromTheCamera) {
 // force: only unoccluded rays add their contribution to their path's radiance (4- and 8-wide BVHs,
 // and 8 wide with rays in packets, XI_RAY_PACKETS). Every other group of eight rays is a fan
 // between two small neighbourhoods, which share their axis permutation and signs, so packets take
-// both paths of xi_trace_packet8_as; 500 rays leave a last packet of four, traced one by one.
+// both the coherent and the per-ray traversal (packet.h); 500 rays leave a last packet of four,
+// traced one by one.
 TEST_F(Kernel, ShadowAddsOnlyUnoccluded) {
   xi::Scene scene = xi::load_scene(XI_SCENE_DIR "/cornell-box.json");
   for (int config : {4, 8, 80}) {

@@ -110,8 +110,8 @@ static inline float as_float_i(int i) { float f; std::memcpy(&f, &i, 4); return 
 // Bit k set where lane k of a comparison (−1 true, 0 false) is true; xi_lane_bits8 for 8 lanes.
 // Compiled for x86 with AVX (PoCL on a CPU), one movmskps reads the lanes' sign bits: LLVM does
 // not find it in the portable form, which became some twenty shuffles, ands, ors and extracts per
-// node test. extend 6–13% faster on PoCL (bench/xi_kernel_ab), every hit the same. (A test builds
-// with XI_PORTABLE_LANE_BITS to check the other devices' form on PoCL too.)
+// node test; every hit is the same either way. (A test builds with XI_PORTABLE_LANE_BITS to check
+// the other devices' form on PoCL too.)
 #if defined(__OPENCL_VERSION__) && defined(__clang__) && defined(__AVX__) && !defined(XI_PORTABLE_LANE_BITS)
 typedef float xi_m128 __attribute__((vector_size(16)));
 typedef float xi_m256 __attribute__((vector_size(32)));
@@ -122,6 +122,14 @@ static inline uint xi_lane_bits(int4 m) { return (uint)((m.x & 1) | (m.y & 2) | 
 #ifdef __OPENCL_VERSION__
 static inline uint xi_lane_bits8(int8 m) { return xi_lane_bits(m.lo) | xi_lane_bits(m.hi) << 4; }
 #endif
+#endif
+
+// Before a loop over a vector's lanes: unrolled, each lane is taken with a constant index, from a
+// register. (Performance only; the host ignores it.)
+#ifdef __OPENCL_VERSION__
+#define XI_UNROLL _Pragma("unroll")
+#else
+#define XI_UNROLL
 #endif
 
 // XI_PREFETCH(p, rw): a hint to bring p's cache line in ahead of its use (rw 1: it will be

@@ -41,7 +41,7 @@ typedef struct {
 #define XI_LANE_INDEX ((uint8)(0u, 1u, 2u, 3u, 4u, 5u, 6u, 7u))
 // Every function here is forced inline: left as calls, the structs of float8 went through memory.
 // Lane loops: unrolled, so every lane access has a constant index and stays in registers (left as
-// a loop, PoCL went through the stack for each lane and shade ran 2.5× slower).
+// a loop, PoCL went through the stack for each lane).
 #define XI_FOR_LANES(k) _Pragma("unroll") for (int k = 0; k < 8; ++k)
 
 static inline XI_INLINE xfloat2 make_xfloat2(xfloat x, xfloat y) {

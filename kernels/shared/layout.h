@@ -18,13 +18,21 @@ typedef struct {
 
 // A BVH node: the boxes of its children side by side, one lane each, so one vector operation
 // tests a ray against all of them. 4 wide (float4) for GPUs; 8 wide (float8, one AVX register) on
-// CPU devices, where a node of eight costs what one of four does and the tree is shallower (extend
-// 5–8% faster, shadow 5–12%, on PoCL). An unused lane has an inverted box (lo = +inf, hi = −inf,
-// which no ray enters) and child XI_BVH_EMPTY.
+// CPU devices, where a node of eight costs what one of four does and the tree is shallower. An
+// unused lane has an inverted box (lo = +inf, hi = −inf, which no ray enters) and child
+// XI_BVH_EMPTY.
 #define XI_BVH_LEAF 0x80000000u   // child: leaf flag | (block count - 1) << 27 | first block
 #define XI_BVH_LEAF_MAX 16u       // triangle blocks in one leaf, at most
 #define XI_BVH_FIRST_MASK 0x07ffffffu
 #define XI_BVH_EMPTY 0xffffffffu
+// The width of the nodes the kernels traverse, set by the host (RenderOptions::bvh_width): 8 on CPU
+// devices, 4 elsewhere and on the host (its tests' xi_trace).
+#ifndef XI_BVH_WIDTH
+#define XI_BVH_WIDTH 4
+#endif
+#if XI_BVH_WIDTH != 4 && XI_BVH_WIDTH != 8
+#error "XI_BVH_WIDTH must be 4 or 8"
+#endif
 // Rays per extend work item (extend.cl): packets of 8 through an 8-wide tree for camera rays
 // (bounce 0), and for bounce rays too where the host chose ray packets (XI_RAY_PACKETS: a small
 // tree, RenderOptions::ray_packets); otherwise one. The host launches extend accordingly.

@@ -5,7 +5,7 @@
 #define XI_SPAWN_H
 #include "lanes.h"
 
-// Each product rounded on its own, as the bound below assumes (see intersect.h).
+// Each product rounded on its own, as the bound below assumes (as in triangle.h).
 #ifdef __OPENCL_VERSION__
 #pragma OPENCL FP_CONTRACT OFF
 #endif
@@ -23,9 +23,11 @@ static inline xfloat3 xi_interpolate(xfloat3 p0, xfloat3 p1, xfloat3 p2, xfloat 
 }
 
 // nextafter(x, ±inf) by the sign of offset, for finite x: one step of the bit pattern, up in
-// magnitude when offset points away from zero. (PoCL's nextafter took 7% of shade.)
+// magnitude when offset points away from zero. (PoCL's nextafter is far slower.)
 static inline xfloat xi_round_away(xfloat x, xfloat offset) {
-  xfloat stepped = xi_as_float(xi_as_int(x) + ((x > 0.0f) == (offset > 0.0f) ? (xint)1 : (xint)-1));
+  // Zero takes from_zero below; stepping its bits is never used, and −0's (INT_MIN) would overflow.
+  xfloat nonzero = x == 0.0f ? (xfloat)1.0f : x;
+  xfloat stepped = xi_as_float(xi_as_int(nonzero) + ((x > 0.0f) == (offset > 0.0f) ? (xint)1 : (xint)-1));
   xfloat from_zero = offset > 0.0f ? (xfloat)0x1p-149f : (xfloat)-0x1p-149f;
   return offset == 0.0f ? x : (x == 0.0f ? from_zero : stepped);
 }

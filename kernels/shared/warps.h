@@ -59,8 +59,8 @@ static inline float2 xi_square_to_disc_naive(float2 u) {
 #endif
 
 // cos(πx) and sin(πx) for |x| ≤ 1/4, by their Taylor series: the first terms left out are below
-// 2e-9 there. A few multiply-adds, where the library's cospi and sinpi reduce any argument (they
-// took 6% of shade on PoCL).
+// 2e-9 there. A few multiply-adds, where the library's cospi and sinpi reduce any argument, which
+// costs far more.
 static inline xfloat xi_cospi_quarter(xfloat x) {
   xfloat y = XI_PI * x, y2 = y * y;
   return 1.0f + y2 * (-1.0f / 2.0f + y2 * (1.0f / 24.0f + y2 * (-1.0f / 720.0f +

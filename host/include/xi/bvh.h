@@ -1,6 +1,6 @@
 // Bounding volume hierarchy over triangles: a binary binned-SAH build with spatial splits on the
 // host, collapsed into 4- or 8-wide nodes by their own SAH cost, siblings side by side, the array the
-// kernels traverse (kernels/shared/intersect.h).
+// kernels traverse (kernels/shared/traverse.h).
 #pragma once
 #include <cstdint>
 #include <vector>

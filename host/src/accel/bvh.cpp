@@ -13,7 +13,7 @@
 #include <string>
 #include <thread>
 
-#include "intersect.h"
+#include "traverse.h"
 #include "xi/error.h"
 
 namespace xi {
