@@ -20,6 +20,11 @@
 
 namespace xi::test {
 
+// The vector types the hard-case tests build their scenes and rays with.
+using glm::dvec2;
+using glm::dvec3;
+using glm::vec3;
+
 inline uint32_t add_material(Scene& s, const std::string& name, glm::vec3 albedo, glm::vec3 emission = glm::vec3(0.0f),
                              bool two_sided = false) {
   Material m;

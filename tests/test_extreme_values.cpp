@@ -29,11 +29,7 @@ namespace fs = std::filesystem;
 
 namespace {
 
-using glm::dvec2;
-using glm::dvec3;
-using glm::vec3;
-// fixtures.h (render_shot, render_options: the random sampler by default), analytic.h, scene_builder.h
-using namespace xi::test;
+using namespace xi::test;  // fixtures.h, analytic.h, scene_builder.h (its vector types too)
 
 // Lights 1e-10, 1e-6 and 1e3 times the scene's size: a diffuse plane y = 0 (albedo 1/2,
 // half-width 20) under a square light centred 1 above it (the scene's unit), facing down, of side

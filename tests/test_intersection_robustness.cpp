@@ -33,11 +33,7 @@ namespace fs = std::filesystem;
 
 namespace {
 
-using glm::dvec2;
-using glm::dvec3;
-using glm::vec3;
-// fixtures.h (render_shot, render_options: the random sampler by default), analytic.h, scene_builder.h
-using namespace xi::test;
+using namespace xi::test;  // fixtures.h, analytic.h, scene_builder.h (its vector types too)
 
 
 // Area of a convex polygon clipped to the rectangle [x0, x1] × [y0, y1] (Sutherland–Hodgman).

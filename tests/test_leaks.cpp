@@ -27,15 +27,9 @@
 #include "xi/renderer.h"
 #include "xi/scene.h"
 
-namespace fs = std::filesystem;
-
 namespace {
 
-using glm::dvec2;
-using glm::dvec3;
-using glm::vec3;
-// fixtures.h (render_shot, render_options: the random sampler by default), analytic.h, scene_builder.h
-using namespace xi::test;
+using namespace xi::test;  // fixtures.h, analytic.h, scene_builder.h (its vector types too)
 
 // A rigid motion applied to a whole scene (every vertex and the camera), in double precision.
 struct Rigid {

@@ -339,8 +339,12 @@ void print_kernels(const Job& job, const Team& team) {
               !renderer.generic_shading()        ? ""
               : renderer.scene_shading_pending() ? "; the generic ones shade while this scene's own build"
                                                  : "; the generic ones shade");
-  if (job.opt.profile)
+  if (job.opt.profile) {
     std::printf("kernel options: %s (key %s)\n", renderer.kernels().describe().c_str(), renderer.program().key.c_str());
+    const Renderer::KernelTimes& t = renderer.kernel_times();
+    std::printf("kernel time: tracing program %.3f s, shading program %.3f s, first launches %.3f s\n",
+                t.trace_program, t.shading_program, t.first_launches);
+  }
   std::printf("paths in flight: %zu, %d spp per pass%s\n", renderer.paths_in_flight(), renderer.samples_per_pass(),
               team.size() > 1 ? " (rank 0)" : "");
   if (!job.resume.empty())

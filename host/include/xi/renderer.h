@@ -121,6 +121,12 @@ class Renderer {
   const std::vector<Launch>& launches() const { return launches_; }
   const Program& program() const { return program_; }
   const KernelConfig& kernels() const { return kernels_; }
+  // Where the constructor's kernel time went: building (or loading) the tracing and the shading
+  // program, and the first launches (where PoCL generates each kernel's code). Seconds.
+  struct KernelTimes {
+    double trace_program = 0.0, shading_program = 0.0, first_launches = 0.0;
+  };
+  const KernelTimes& kernel_times() const { return kernel_times_; }
   // Whether the generic shading program is rendering now (RenderOptions::shading_program), and
   // the number of passes it rendered before the scene's own took over (-1: none took over).
   bool generic_shading() const { return generic_shading_; }
@@ -172,6 +178,7 @@ class Renderer {
   CompiledScene scene_;
   KernelConfig kernels_;
   Program program_;  // every stage's kernels (two OpenCL programs; key and build time of both)
+  KernelTimes kernel_times_;
   bool generic_shading_ = false;
   int shading_switch_pass_ = -1;
   std::future<ShadingKernels> pending_shading_;

@@ -113,7 +113,8 @@ Renderer::Renderer(Device& device, const Scene& scene, const RenderOptions& opti
   allocate();
   auto start = std::chrono::steady_clock::now();
   warm_up();
-  program_.build_seconds += std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  kernel_times_.first_launches = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  program_.build_seconds += kernel_times_.first_launches;
   if (generic_shading_ && options.shading_program == RenderOptions::ShadingProgram::Auto)
     pending_shading_ = std::async(std::launch::async, &Renderer::build_scene_shading, this, kernels_.shading_defines());
 }
@@ -135,6 +136,8 @@ void Renderer::build_kernels() {
   // One key, build time and cache state for all the kernels (checkpoints and `xi render` use them).
   // The key is the scene's own program's whichever shades, since both render the same image.
   program_.key += program_key(device_, kLaneFiles, own);
+  kernel_times_.trace_program = program_.build_seconds;
+  kernel_times_.shading_program = shading.build_seconds;
   program_.build_seconds += shading.build_seconds;
   program_.from_cache = program_.from_cache && shading.from_cache;
 }
