@@ -9,6 +9,7 @@
 #include <cstring>
 #include <fstream>
 #include <sstream>
+#include <thread>
 #include <unistd.h>
 
 #include "xi/error.h"
@@ -108,7 +109,9 @@ void write_cache(const std::filesystem::path& file, uint64_t key, const std::vec
   h.add(binary.data(), binary.size());
   uint64_t size = binary.size();
   auto tmp = file;
-  tmp += ".tmp" + std::to_string(::getpid());
+  // Unique per process and thread: a program may be built on a background thread (Renderer).
+  const size_t thread = std::hash<std::thread::id>{}(std::this_thread::get_id());
+  tmp += ".tmp" + std::to_string(::getpid()) + "." + std::to_string(thread);
   {
     std::ofstream out(tmp, std::ios::binary);
     out.write(kMagic, 8);
