@@ -11,6 +11,7 @@ xi=(
   build-essential cmake pkg-config
   pocl-opencl-icd ocl-icd-opencl-dev opencl-clhpp-headers opencl-c-headers
   libglm-dev nlohmann-json3-dev libopenexr-dev libassimp-dev libpng-dev zlib1g-dev
+  libstb-dev  # stb_image: the textures of glTF and other assets (PNG, JPEG, Radiance .hdr)
 )
 test=(
   libgtest-dev googletest

@@ -8,13 +8,72 @@
 #define XI_MATERIAL_DIFFUSE 0u
 #define XI_MATERIAL_MIRROR 1u
 #define XI_MATERIAL_DIELECTRIC 2u
+#define XI_MATERIAL_PBR 3u  // glTF 2.0 metallic-roughness (microfacet.h)
+
+#define XI_ALPHA_OPAQUE 0u
+#define XI_ALPHA_MASK 1u   // cut out where alpha < alpha_cutoff
+#define XI_ALPHA_BLEND 2u  // stochastic transparency: passed through with probability 1 - alpha
+
+#define XI_NO_TEXTURE 0xffffffffu
 
 typedef struct {
-  float4 albedo;    // rgb; w: index of refraction (dielectric)
-  float4 emission;  // rgb radiance; w: 1 when both faces emit
-  uint type;        // XI_MATERIAL_*
-  uint pad0, pad1, pad2;
+  float4 albedo;     // rgb: diffuse albedo, mirror or glass tint, base colour (pbr); w: index of refraction
+  float4 emission;   // rgb radiance; w: 1 when both faces emit
+  uint type;         // XI_MATERIAL_*
+  uint alpha_mode;   // XI_ALPHA_*
+  float alpha_cutoff;
+  float alpha;       // the base colour's alpha factor
+  float4 pbr;        // metallic, roughness (perceptual: GGX alpha = roughness²), transmission, normal map scale
+  uint textures[4];  // TextureRef index or XI_NO_TEXTURE: base colour, metallic-roughness, normal, emissive
 } MaterialData;
+#define XI_TEXTURE_BASE_COLOR 0
+#define XI_TEXTURE_METALLIC_ROUGHNESS 1
+#define XI_TEXTURE_NORMAL 2
+#define XI_TEXTURE_EMISSIVE 3
+
+// Textures: every image's texels in one buffer of uints (RGBA, 8 bits each, red in the low byte),
+// found through its header; a material refers to an image through a TextureRef, which adds the
+// texture coordinate set, the wrap modes and KHR_texture_transform.
+#define XI_IMAGE_SRGB8 0u    // colour: sRGB-encoded RGB, linear alpha
+#define XI_IMAGE_LINEAR8 1u  // data: metallic-roughness, normals
+typedef struct {
+  uint offset;  // first texel in the texel buffer
+  uint width;
+  uint height;
+  uint format;  // XI_IMAGE_*
+} ImageHeader;
+#define XI_WRAP_REPEAT 0u
+#define XI_WRAP_CLAMP 1u
+#define XI_WRAP_MIRROR 2u
+typedef struct {
+  float4 transform_u;  // u' = x u + y v + z (KHR_texture_transform, texture coordinates as the file has them)
+  float4 transform_v;  // v' = x u + y v + z
+  uint image;          // ImageHeader index
+  uint texcoord;       // 0 or 1
+  uint wrap_s;         // XI_WRAP_*
+  uint wrap_t;
+} TextureRef;
+
+// The environment: an equirectangular image of radiance around the scene, at infinity, in
+// Mitsuba 3's orientation (environment.h), rotated about the world's up axis.
+typedef struct {
+  float4 to_local[3];  // rows of the rotation from world directions to the map's frame
+  float4 scale;        // rgb: strength (times the texels); w: probability of picking it among the lights
+  uint width;
+  uint height;
+  uint pad0, pad1;
+} EnvironmentData;
+
+// Punctual lights (KHR_lights_punctual and JSON): reached by light sampling only.
+#define XI_LIGHT_POINT 0u
+#define XI_LIGHT_SPOT 1u
+#define XI_LIGHT_DIRECTIONAL 2u  // sun with angular radius 0
+typedef struct {
+  float4 position;   // xyz (point, spot); w: probability of picking it among the lights
+  float4 direction;  // xyz: unit direction the light shines in (spot, directional); w: cos of the sun's angular radius
+  float4 intensity;  // rgb: radiant intensity (point, spot) or irradiance (directional)
+  float4 cone;       // spot: cos of the inner and outer cone angles; w: type (XI_LIGHT_*) as a float
+} PunctualLightData;
 
 // A BVH node: the boxes of its children side by side, one lane each, so one vector operation
 // tests a ray against all of them. 4 wide (float4) for GPUs; 8 wide (float8, one AVX register) on

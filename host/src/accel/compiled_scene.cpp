@@ -7,7 +7,10 @@
 #include "xi/error.h"
 
 // shade's xi_gather_material (bsdf.h) reads a material as three float4s with the type first in the third.
-static_assert(sizeof(MaterialData) == 48 && offsetof(MaterialData, type) == 32, "MaterialData layout");
+static_assert(sizeof(MaterialData) == 80 && offsetof(MaterialData, type) == 32 && offsetof(MaterialData, pbr) == 48 &&
+                  offsetof(MaterialData, textures) == 64,
+              "MaterialData layout");
+static_assert(sizeof(TextureRef) == 48 && sizeof(EnvironmentData) == 80 && sizeof(PunctualLightData) == 64, "layout");
 
 namespace xi {
 namespace {
