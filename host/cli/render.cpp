@@ -26,14 +26,7 @@
 namespace xi::cli {
 namespace {
 
-std::filesystem::path default_scene() {
-  std::error_code ec;
-  auto exe = std::filesystem::read_symlink("/proc/self/exe", ec).parent_path();
-  for (auto dir : {exe.parent_path() / "scenes", exe.parent_path() / "share/xi/scenes",
-                   std::filesystem::path(XI_SOURCE_SCENE_DIR)})
-    if (std::filesystem::exists(dir / "cornell-box.json")) return dir / "cornell-box.json";
-  throw Error("cannot find the bundled Cornell box", "pass a scene file");
-}
+std::filesystem::path default_scene() { return bundled_scene_file("cornell-box.json"); }
 
 void parse_resolution(const std::string& text, Scene* scene) {
   // Digits, 'x', digits: nothing else (no sign, spaces or overflow).

@@ -22,7 +22,8 @@ bool is_asset_file(const std::filesystem::path& path);
 std::vector<std::string> asset_extensions();
 
 // A whole scene from an asset file. Camera: the chosen one, or without one, the bounding box framed
-// from +z (looking down -z, up +y, vfov 40). No emissive material: Scene::background is white (1).
+// from +z (looking down -z, up +y, vfov 40). No light of any kind (emissive material, punctual
+// light): lit by AssetOptions::environment, else the bundled sky.
 // Both decisions are stated in Scene::notes; what xi does not model is in Scene::warnings.
 // Throws xi::Error naming the file (and, for an unknown camera, listing the file's cameras).
 Scene load_asset(const std::filesystem::path& path, const AssetOptions& options = {});
@@ -31,7 +32,9 @@ Scene load_asset(const std::filesystem::path& path, const AssetOptions& options 
 // the JSON scene's "asset" shape. Triangle::material indexes `materials` (only the used ones).
 struct AssetGeometry {
   std::vector<Material> materials;
+  std::vector<TextureImage> images;  // the materials' textures (TextureSlot::image indexes them)
   std::vector<Triangle> triangles;
+  std::vector<Light> lights;  // punctual lights (glTF's KHR_lights_punctual, through Assimp's aiLight)
   std::vector<std::string> warnings;  // one line per kind of thing xi does not model
 };
 AssetGeometry load_asset_geometry(const std::filesystem::path& path);

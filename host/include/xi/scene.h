@@ -19,23 +19,82 @@ struct Camera {
   float focus_distance = 0.0f;    // distance to the plane in focus (thin lens only)
 };
 
-enum class MaterialType : uint32_t { Diffuse = 0, Mirror = 1, Dielectric = 2 };
+enum class MaterialType : uint32_t { Diffuse = 0, Mirror = 1, Dielectric = 2, Pbr = 3 };
+enum class AlphaMode : uint32_t { Opaque = 0, Mask = 1, Blend = 2 };
+enum class Wrap : uint32_t { Repeat = 0, Clamp = 1, Mirror = 2 };
+
+// An image a material reads, decoded to 8-bit RGBA (red in the low byte of each texel).
+struct TextureImage {
+  std::string source;  // file, or "<model>: image N" for an embedded one, for messages
+  int width = 0, height = 0;
+  bool srgb = true;    // colour (sRGB-encoded) or data (metallic-roughness, normals)
+  std::vector<uint32_t> texels;  // row 0 first: the top row, where texture coordinate v is 0
+};
+
+// One use of an image by a material: which texture coordinates, how they wrap, and glTF's
+// KHR_texture_transform, as a matrix applied to (u, v, 1) in the file's convention (v down).
+struct TextureSlot {
+  int image = -1;  // index into Scene::images; -1: none
+  int texcoord = 0;
+  Wrap wrap_s = Wrap::Repeat, wrap_t = Wrap::Repeat;
+  glm::mat3 transform{1.0f};
+  bool used() const { return image >= 0; }
+};
 
 struct Material {
   std::string name;
   MaterialType type = MaterialType::Diffuse;
-  glm::vec3 albedo{0.0f};    // diffuse reflectance, or the tint of a mirror / glass
-  glm::vec3 emission{0.0f};  // emitted radiance (front face, or both with two_sided)
-  float ior = 1.5f;          // dielectric only
+  glm::vec3 albedo{0.0f};    // diffuse reflectance, the tint of a mirror / glass, the base colour (pbr)
+  glm::vec3 emission{0.0f};  // emitted radiance (front face, or both with two_sided); times the emissive texture
+  float ior = 1.5f;          // dielectric and pbr
   bool two_sided = false;    // emission from both faces
-  bool is_emitter() const { return emission.x > 0.0f || emission.y > 0.0f || emission.z > 0.0f; }
+  // The glTF 2.0 metallic-roughness model (type Pbr): factors, multiplied by their textures.
+  float metallic = 0.0f;
+  float roughness = 1.0f;    // perceptual: the microfacet distribution's alpha is roughness²
+  float transmission = 0.0f;
+  float normal_scale = 1.0f;
+  float alpha = 1.0f;        // the base colour's alpha factor
+  AlphaMode alpha_mode = AlphaMode::Opaque;
+  float alpha_cutoff = 0.5f;
+  TextureSlot base_color_texture;          // diffuse too
+  TextureSlot metallic_roughness_texture;  // G: roughness, B: metallic
+  TextureSlot normal_texture;              // tangent space
+  TextureSlot emissive_texture;
+  bool is_emitter() const {
+    return emission.x > 0.0f || emission.y > 0.0f || emission.z > 0.0f;
+  }
+  bool cuts_out() const { return alpha_mode != AlphaMode::Opaque; }
 };
 
 struct Triangle {
   glm::vec3 v[3];
   glm::vec3 n[3];            // per-vertex shading normals, valid when has_normals
+  glm::vec2 uv[2][3] = {};   // texture coordinates, sets 0 and 1, as the file has them (v down)
   bool has_normals = false;
   uint32_t material = 0;     // index into Scene::materials
+};
+
+// Punctual lights, reached by light sampling only. Units as glTF's KHR_lights_punctual: a point or
+// spot light's intensity is radiant intensity (glTF: candela), giving irradiance I / r² facing it;
+// a directional light's is irradiance (glTF: lux). A sun is a directional light whose angular
+// radius > 0 spreads it over a cone of directions, so its shadows are soft.
+enum class LightType : uint32_t { Point = 0, Spot = 1, Directional = 2 };
+struct Light {
+  std::string name;
+  LightType type = LightType::Point;
+  glm::vec3 position{0.0f};
+  glm::vec3 direction{0.0f, 0.0f, -1.0f};  // where it shines (spot, directional)
+  glm::vec3 intensity{1.0f};               // colour × intensity
+  float inner_cone = 0.0f, outer_cone = 0.7853982f;  // spot, radians from the axis
+  float angular_radius = 0.0f;             // directional: 0 is a delta direction, > 0 a sun
+};
+
+// An equirectangular map of radiance around the scene (Mitsuba 3's orientation, +y up), scaled by
+// strength and turned about +y by rotation_degrees.
+struct Environment {
+  std::filesystem::path file;
+  float strength = 1.0f;
+  float rotation_degrees = 0.0f;
 };
 
 // Defaults for `xi render`; command-line flags override them.
@@ -53,8 +112,11 @@ struct Scene {
   int height = 512;
   glm::vec3 background{0.0f};  // radiance of rays that leave the scene
   RenderSettings render;
+  std::optional<Environment> environment;  // replaces the background where set
   std::vector<Material> materials;
+  std::vector<TextureImage> images;
   std::vector<Triangle> triangles;
+  std::vector<Light> lights;
   std::vector<std::string> notes;     // what the loader chose for the user (camera, framing, background)
   std::vector<std::string> warnings;  // what xi does not model and how it was mapped, one line per kind
 };
@@ -66,6 +128,9 @@ Scene load_scene(const std::filesystem::path& path);
 // Same, from text already in memory; base_dir resolves mesh paths.
 Scene parse_scene(const std::string& json_text, const std::string& source_name,
                   const std::filesystem::path& base_dir);
+// A file shipped in xi's scenes/ folder (the Cornell box, the sky): beside the program, where it
+// is installed, or in the source tree. Throws xi::Error naming the file if it is in none.
+std::filesystem::path bundled_scene_file(const std::string& name);
 // Throws xi::Error if the scene breaks the limits within which single precision stays finite: a
 // vertex not finite or beyond +-1e9, geometry spanning less than 1e-6, a negative or non-finite
 // radiance (emitters, background). The loaders check these where they read them; compile_scene

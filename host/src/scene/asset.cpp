@@ -17,6 +17,7 @@
 #include <nlohmann/json.hpp>
 
 #include "geometry.h"
+#include "gltf.h"
 #include "mesh_check.h"
 #include "xi/error.h"
 
@@ -24,7 +25,7 @@ namespace xi {
 
 namespace scene_detail {
 
-std::vector<Triangle> mesh_triangles(const aiMesh& mesh, uint32_t material) {
+std::vector<Triangle> mesh_triangles(const aiMesh& mesh, uint32_t material, bool flip_v) {
   std::vector<Triangle> out;
   out.reserve(mesh.mNumFaces);
   for (unsigned f = 0; f < mesh.mNumFaces; ++f) {
@@ -40,6 +41,11 @@ std::vector<Triangle> mesh_triangles(const aiMesh& mesh, uint32_t material) {
         const aiVector3D& n = mesh.mNormals[face.mIndices[k]];
         t.n[k] = {n.x, n.y, n.z};
       }
+      for (int set = 0; set < 2; ++set)
+        if (mesh.HasTextureCoords(set)) {
+          const aiVector3D& uv = mesh.mTextureCoords[set][face.mIndices[k]];
+          t.uv[set][k] = {uv.x, flip_v ? 1.0f - uv.y : uv.y};
+        }
     }
     out.push_back(t);
   }
@@ -93,53 +99,6 @@ glm::dmat4 global_transform(const aiNode* node) {
   return m;
 }
 
-// Assimp 5.2 does not read KHR_materials_emissive_strength (its glTF2 importer knows no such
-// extension: the emissive colour it gives is emissiveFactor alone), so the strength of each
-// material is read here from the file's JSON (the .gltf text, or a .glb's JSON chunk). Assimp keeps
-// the file's material order (and appends its default material), so index i is material i.
-// Empty when the JSON cannot be read here; otherwise one entry per material of the file.
-std::optional<std::vector<float>> gltf_emissive_strengths(const fs::path& path) {
-  std::vector<float> out;
-  try {
-    std::ifstream in(path, std::ios::binary);
-    std::string text((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
-    if (lower_extension(path) == ".glb") {  // 12-byte header, then chunk 0: length, "JSON", text
-      uint32_t length = 0, type = 0;
-      if (text.size() < 20 || text.compare(0, 4, "glTF") != 0) return std::nullopt;
-      std::memcpy(&length, text.data() + 12, 4);
-      std::memcpy(&type, text.data() + 16, 4);
-      if (type != 0x4E4F534Au || length > text.size() - 20) return std::nullopt;
-      text = text.substr(20, length);
-    }
-    const json doc = json::parse(text);
-    if (!doc.is_object()) return std::nullopt;
-    if (!doc.contains("materials") || !doc["materials"].is_array()) return out;  // no materials
-    for (const json& m : doc["materials"]) {
-      float strength = 1.0f;
-      const json* s = nullptr;
-      if (m.is_object() && m.contains("extensions") && m["extensions"].is_object() &&
-          m["extensions"].contains("KHR_materials_emissive_strength")) {
-        const json& ext = m["extensions"]["KHR_materials_emissive_strength"];
-        if (ext.is_object() && ext.contains("emissiveStrength")) s = &ext["emissiveStrength"];
-      }
-      if (s && s->is_number() && std::isfinite(s->get<double>()) && s->get<double>() >= 0.0)
-        strength = float(s->get<double>());
-      out.push_back(strength);
-    }
-  } catch (const std::exception&) {
-    return std::nullopt;  // Assimp read the file; what it cannot give stays at strength 1
-  }
-  return out;
-}
-
-// One line per kind of thing xi does not model, in the order first met.
-struct Warnings {
-  std::vector<std::string> lines;
-  void add(const std::string& line) {
-    if (std::find(lines.begin(), lines.end(), line) == lines.end()) lines.push_back(line);
-  }
-};
-
 float get_float(const aiMaterial& m, const char* key, unsigned type, unsigned index, float def) {
   float v = def;
   return m.Get(key, type, index, v) == aiReturn_SUCCESS && std::isfinite(v) ? v : def;
@@ -157,23 +116,18 @@ bool has_property(const aiMaterial& m, const char* key) {
   return aiGetMaterialProperty(&m, key, 0, 0, &p) == aiReturn_SUCCESS;
 }
 
-// glTF's metallic-roughness model (as Assimp hands it over) onto xi's materials:
-//   emissiveFactor x strength > 0      -> emitter (base colour as its diffuse albedo)
-//   transmission > 0                   -> glass with the material's ior (KHR_materials_ior, default 1.5)
-//   metallic 1, roughness 0            -> mirror tinted by the base colour
-//   anything else                      -> diffuse with the base colour
-// What that loses (textures, rough or partly metallic lobes, partial transmission, alpha) is one
-// warning per kind.
-Material convert_material(const aiMaterial& am, size_t index, float emissive_strength, Warnings& warn) {
+// A material of a format other than glTF (whose materials gltf.cpp reads from the file itself), as
+// Assimp hands it over: metallic-roughness factors where the file has them, else a diffuse surface
+// with the diffuse colour; transmission makes it transmissive with the file's ior. Textures and
+// opacity are warnings.
+Material convert_material(const aiMaterial& am, size_t index, Warnings& warn) {
   Material m;
   m.name = am.GetName().length ? am.GetName().C_Str() : "material " + std::to_string(index);
   const glm::vec3 diffuse = get_color(am, AI_MATKEY_COLOR_DIFFUSE, glm::vec3(0.8f));
   const glm::vec3 base = glm::clamp(get_color(am, AI_MATKEY_BASE_COLOR, diffuse), 0.0f, 1.0f);
   const glm::vec3 emissive = glm::max(get_color(am, AI_MATKEY_COLOR_EMISSIVE, glm::vec3(0.0f)), 0.0f);
-  const float transmission = get_float(am, AI_MATKEY_TRANSMISSION_FACTOR, 0.0f);
+  const float transmission = std::clamp(get_float(am, AI_MATKEY_TRANSMISSION_FACTOR, 0.0f), 0.0f, 1.0f);
   const bool pbr = has_property(am, "$mat.metallicFactor");
-  const float metallic = get_float(am, AI_MATKEY_METALLIC_FACTOR, 0.0f);
-  const float roughness = get_float(am, AI_MATKEY_ROUGHNESS_FACTOR, 1.0f);
   const float opacity = get_float(am, AI_MATKEY_OPACITY, 1.0f);
   int two_sided = 0;
   am.Get(AI_MATKEY_TWOSIDED, two_sided);
@@ -181,23 +135,19 @@ Material convert_material(const aiMaterial& am, size_t index, float emissive_str
   for (aiTextureType t : {aiTextureType_BASE_COLOR, aiTextureType_DIFFUSE, aiTextureType_EMISSIVE,
                           aiTextureType_METALNESS, aiTextureType_DIFFUSE_ROUGHNESS, aiTextureType_NORMALS,
                           aiTextureType_TRANSMISSION, aiTextureType_SPECULAR})
-    if (am.GetTextureCount(t) > 0) warn.add("textures are not modelled: their materials use their constant factors");
-  if (opacity < 1.0f) warn.add("alpha (opacity < 1) is not modelled: such surfaces are opaque");
+    if (am.GetTextureCount(t) > 0)
+      warn.add("textures are read from glTF files only: other formats' materials use their constant factors");
+  if (opacity < 1.0f) warn.add("opacity below 1 is read from glTF files only: such surfaces are opaque");
 
   m.albedo = base;
-  if (emissive_strength * std::max({emissive.x, emissive.y, emissive.z}) > 0.0f) {
-    m.type = MaterialType::Diffuse;
-    m.emission = emissive * emissive_strength;
-    m.two_sided = two_sided != 0;  // emissive metal or glass: a diffuse emitter (its reflection is minor)
-  } else if (transmission > 0.0f) {
-    m.type = MaterialType::Dielectric;
+  m.emission = emissive;
+  m.two_sided = two_sided != 0;
+  if (pbr || transmission > 0.0f) {
+    m.type = MaterialType::Pbr;
+    m.metallic = std::clamp(get_float(am, AI_MATKEY_METALLIC_FACTOR, 0.0f), 0.0f, 1.0f);
+    m.roughness = std::clamp(get_float(am, AI_MATKEY_ROUGHNESS_FACTOR, 1.0f), 0.0f, 1.0f);
+    m.transmission = transmission;
     m.ior = std::clamp(get_float(am, AI_MATKEY_REFRACTI, 1.5f), 1.0f, 4.0f);
-    if (transmission < 1.0f) warn.add("partial transmission (factor < 1) is not modelled: rendered as clear glass");
-    if (roughness > 0.0f) warn.add("rough transmission is not modelled: rendered as smooth glass");
-  } else if (pbr && metallic >= 1.0f && roughness <= 0.0f) {
-    m.type = MaterialType::Mirror;
-  } else if (pbr && metallic > 0.0f) {
-    warn.add("rough or partly metallic surfaces are not modelled: rendered as diffuse with the base colour");
   }
   return m;
 }
@@ -252,30 +202,65 @@ void read_file(const fs::path& path, Loaded& l, bool whole_scene) {
   if (auto what = null_entry(*l.scene)) throw Error("cannot load asset: Assimp's reader left " + *what, path.string());
 }
 
+// The file's point, spot and directional lights, placed by their nodes (glTF: KHR_lights_punctual,
+// whose node holds the light at its origin, shining down its -z). Assimp gives colour × intensity.
+std::vector<Light> punctual_lights(const fs::path& path, const aiScene& scene, Warnings& warn) {
+  std::vector<Light> out;
+  for (unsigned i = 0; i < scene.mNumLights; ++i) {
+    const aiLight* l = scene.mLights[i];
+    if (!l) continue;
+    Light light;
+    light.name = l->mName.C_Str();
+    switch (l->mType) {
+      case aiLightSource_POINT: light.type = LightType::Point; break;
+      case aiLightSource_SPOT: light.type = LightType::Spot; break;
+      case aiLightSource_DIRECTIONAL: light.type = LightType::Directional; break;
+      default: warn.add("area and ambient lights of asset files are not read: model them as emissive meshes"); continue;
+    }
+    const aiNode* node = scene.mRootNode->FindNode(l->mName);
+    const glm::dmat4 m = node ? global_transform(node) : glm::dmat4(1.0);
+    const glm::dvec3 pos(l->mPosition.x, l->mPosition.y, l->mPosition.z), dir(l->mDirection.x, l->mDirection.y, l->mDirection.z);
+    light.position = glm::vec3(m * glm::dvec4(pos, 1.0));
+    const glm::dvec3 d = glm::dmat3(m) * (glm::length(dir) > 0.0 ? dir : glm::dvec3(0, 0, -1));
+    light.direction = glm::vec3(glm::normalize(d));
+    light.intensity = glm::max(glm::vec3(l->mColorDiffuse.r, l->mColorDiffuse.g, l->mColorDiffuse.b), 0.0f);
+    light.outer_cone = std::clamp(l->mAngleOuterCone, 1e-4f, 1.5707963f);
+    light.inner_cone = std::clamp(l->mAngleInnerCone, 0.0f, light.outer_cone);
+    if (!within_range(light.position) || !std::isfinite(light.intensity.x + light.intensity.y + light.intensity.z) ||
+        !std::isfinite(light.direction.x + light.direction.y + light.direction.z))
+      throw Error("light '" + light.name + "' has a non-finite or out-of-range position, direction or intensity",
+                  path.string());
+    out.push_back(light);
+  }
+  return out;
+}
+
 AssetGeometry geometry(const fs::path& path, const aiScene& scene) {
   AssetGeometry g;
   Warnings warn;
-  const auto file_materials = is_gltf(path) ? gltf_emissive_strengths(path) : std::nullopt;
-  const std::vector<float> strengths = file_materials.value_or(std::vector<float>{});
+  const bool gltf = is_gltf(path);
+  std::optional<GltfMaterials> file_materials;
+  if (gltf)
+    if (const auto file = read_gltf(path)) file_materials = gltf_materials(*file, warn);
   std::vector<int> remap(scene.mNumMaterials, -1);  // Assimp's index -> ours (only used materials)
   auto material = [&](unsigned i) -> uint32_t {
     if (i >= scene.mNumMaterials) throw Error("mesh names material " + std::to_string(i) + ", which does not exist", path.string());
     if (remap[i] < 0) {
       remap[i] = int(g.materials.size());
-      if (file_materials && i >= strengths.size()) {
-        // Assimp's default material, for primitives without one: glTF's default is a rough white
-        // metal, which xi does not model; a plain grey diffuse, without a warning for what the
-        // file never asked for.
+      // Assimp keeps a glTF file's material order and appends its default material, for
+      // primitives without one: glTF's default, a rough white metal.
+      if (file_materials && i >= file_materials->materials.size()) {
         Material m;
         m.name = "default";
-        m.albedo = glm::vec3(0.8f);
+        m.type = MaterialType::Pbr;
+        m.albedo = glm::vec3(1.0f);
+        m.metallic = 1.0f;
         g.materials.push_back(m);
       } else {
-        g.materials.push_back(convert_material(*scene.mMaterials[i], i, i < strengths.size() ? strengths[i] : 1.0f, warn));
+        g.materials.push_back(file_materials ? file_materials->materials[i] : convert_material(*scene.mMaterials[i], i, warn));
         const glm::vec3 e = g.materials.back().emission;
-        if (!std::isfinite(e.x + e.y + e.z))  // a strength of 1e300 is infinite as a float
-          throw Error("material '" + g.materials.back().name + "' has a non-finite emissive factor x strength",
-                      path.string());
+        if (!std::isfinite(e.x + e.y + e.z))
+          throw Error("material '" + g.materials.back().name + "' has a non-finite emissive colour", path.string());
       }
     }
     return uint32_t(remap[i]);
@@ -290,7 +275,7 @@ AssetGeometry geometry(const fs::path& path, const aiScene& scene) {
     for (unsigned k = 0; k < node->mNumMeshes; ++k) {
       if (node->mMeshes[k] >= scene.mNumMeshes) throw Error("node names a mesh that does not exist", path.string());
       const aiMesh& mesh = *scene.mMeshes[node->mMeshes[k]];
-      std::vector<Triangle> tris = mesh_triangles(mesh, material(mesh.mMaterialIndex));
+      std::vector<Triangle> tris = mesh_triangles(mesh, material(mesh.mMaterialIndex), gltf);
       if (place_mesh(make_transform(m), tris) >= 0)
         throw Error("mesh '" + std::string(mesh.mName.C_Str()) +
                         "' has a non-finite vertex coordinate or one beyond +-1e9 (after its node transforms)",
@@ -299,6 +284,8 @@ AssetGeometry geometry(const fs::path& path, const aiScene& scene) {
     }
   }
   if (g.triangles.empty()) throw Error("asset has no triangles (after dropping degenerate ones)", path.string());
+  if (file_materials) g.images = std::move(file_materials->images);
+  g.lights = punctual_lights(path, scene, warn);
   g.warnings = std::move(warn.lines);
   return g;
 }
@@ -446,10 +433,15 @@ Scene load_asset(const fs::path& path, const AssetOptions& options) {
   s.height = options.height;
   s.width = int(std::clamp(std::lround(options.height * double(aspect)), 1L, 16384L));
 
-  const bool lit = std::any_of(s.materials.begin(), s.materials.end(), [](const Material& m) { return m.is_emitter(); });
+  s.images = std::move(g.images);
+  s.lights = std::move(g.lights);
+  const bool lit = !s.lights.empty() ||
+                   std::any_of(s.materials.begin(), s.materials.end(), [](const Material& m) { return m.is_emitter(); });
   if (!lit) {
-    s.background = glm::vec3(1.0f);
-    s.notes.push_back("no emissive material: lit by a constant white background (radiance 1)");
+    // As glTF viewers light a model without lights: by an environment.
+    s.environment = Environment{bundled_scene_file("sky.hdr"), 1.0f, 0.0f};
+    s.notes.push_back("no light in the file: lit by xi's bundled sky (" + s.environment->file.string() +
+                      "); --env FILE names another, --background R,G,B a constant one");
   }
   return s;
 }

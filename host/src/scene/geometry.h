@@ -90,7 +90,8 @@ inline bool degenerate(const Triangle& t) {
 
 // The triangles of an Assimp mesh, in the mesh's own coordinates, with its vertex normals if it has
 // them; points and lines (which survive triangulation) are skipped. Defined in asset.cpp.
-std::vector<Triangle> mesh_triangles(const aiMesh& mesh, uint32_t material = 0);
+// flip_v: v = 1 - v, undoing the flip Assimp applies to glTF files (glTF's v runs down the image).
+std::vector<Triangle> mesh_triangles(const aiMesh& mesh, uint32_t material = 0, bool flip_v = false);
 
 // Transforms loaded triangles in place, then checks them as every mesh is checked: a vertex beyond
 // +-1e9 (or not finite) is an error (the index of the first such triangle is returned, else -1),

@@ -383,9 +383,18 @@ void read_asset_shape(const Node& n, const fs::path& base_dir, Scene& s) {
               " has a coordinate beyond +-1e9 (after its transform)");
   if (g.triangles.empty()) file.fail("asset has no triangles (after dropping degenerate ones)");
   const uint32_t first = uint32_t(s.materials.size());
+  const int first_image = int(s.images.size());
   for (Material& m : g.materials) {
     m.name = file.string() + ":" + m.name;
+    for (TextureSlot* slot : {&m.base_color_texture, &m.metallic_roughness_texture, &m.normal_texture, &m.emissive_texture})
+      if (slot->used()) slot->image += first_image;
     s.materials.push_back(std::move(m));
+  }
+  s.images.insert(s.images.end(), g.images.begin(), g.images.end());
+  for (Light light : g.lights) {
+    light.position = glm::vec3(xf.m * glm::dvec4(light.position, 1.0));
+    light.direction = glm::vec3(glm::normalize(glm::dmat3(xf.m) * glm::dvec3(light.direction)));
+    s.lights.push_back(light);
   }
   for (Triangle& t : g.triangles) t.material += first;
   s.triangles.insert(s.triangles.end(), g.triangles.begin(), g.triangles.end());
@@ -394,6 +403,16 @@ void read_asset_shape(const Node& n, const fs::path& base_dir, Scene& s) {
 }
 
 }  // namespace
+
+fs::path bundled_scene_file(const std::string& name) {
+  std::error_code ec;
+  const fs::path exe = fs::read_symlink("/proc/self/exe", ec).parent_path();
+  for (const fs::path& dir : {exe.parent_path() / "scenes", exe.parent_path() / "share/xi/scenes",
+                              fs::path(XI_INSTALL_SCENE_DIR), fs::path(XI_SOURCE_SCENE_DIR)})
+    if (fs::is_regular_file(dir / name, ec)) return dir / name;
+  throw Error("cannot find xi's bundled " + name + " (looked beside the program, in " XI_INSTALL_SCENE_DIR
+              " and in " XI_SOURCE_SCENE_DIR ")");
+}
 
 Scene parse_scene(const std::string& json_text, const std::string& source_name, const fs::path& base_dir) {
   // nlohmann rejects numbers beyond double range (1e999) during parsing, so follow the JSON path
