@@ -1,22 +1,115 @@
 // Stage 3, shade: at each queued hit, adds emitted radiance (MIS-weighted against light
 // sampling), queues one shadow ray toward a light (next-event estimation), samples the BSDF for
 // the next ray, applies Russian roulette and appends surviving paths to the next ray queue.
-// What it does beyond diffuse surfaces is the shading word's (shading.h): mirrors, glass,
-// interpolated shading normals, emitters, light sampling (NEE) and MIS.
+// What it does beyond diffuse surfaces is the shading word's (shading.h): mirrors, glass, the
+// metallic-roughness material, textures, interpolated shading normals, emitters, punctual lights,
+// the environment, light sampling (NEE) and MIS.
 // Each work item shades XI_LANES paths at once (lanes.h): branches that differ between paths are
 // lane masks, and every path of one launch is at the same depth, `bounce`.
 #include "bsdf.h"
 #include "lanes.h"
 #include "layout.h"
 #include "lights.h"
+#include "microfacet.h"
 #include "sampling.h"
 #include "shading.h"
 #include "spawn.h"
+#include "textures.h"
 #include "warps.h"
 
 // Russian roulette from this bounce on, as in Mitsuba 3 (rr_depth 5): earlier bounces carry most
 // of the image, and ending them early adds more variance than it saves time.
 #define XI_ROULETTE_DEPTH 5u
+
+// The scene's buffers and records shade reads, beyond the path state.
+#define XI_SCENE_PARAMS                                                                                     \
+  __global const MaterialData *restrict materials, __global const float4 *restrict tri_verts,              \
+      __global const uint *restrict tri_material, __global const float4 *restrict tri_normals,             \
+      __global const float *restrict light_cdf, __global const uint *restrict light_tri,                   \
+      __global const float *restrict tri_light_pdf, uint light_count, __global const float4 *restrict tri_uv, \
+      __global const TextureRef *restrict texture_refs, __global const uint *restrict images,              \
+      __global const uint *restrict texels, __global const PunctualLightData *restrict punctual,           \
+      EnvironmentData env, __global const float4 *restrict env_texels, __global const float *restrict env_cdf
+#define XI_SCENE_ARGS                                                                                        \
+  materials, tri_verts, tri_material, tri_normals, light_cdf, light_tri, tri_light_pdf, light_count, tri_uv, \
+      texture_refs, images, texels, punctual, env, env_texels, env_cdf
+
+// Material i's texture in slot k (XI_TEXTURE_*) at the hit's texture coordinates.
+static inline XI_INLINE xfloat3 xi_material_texture(XI_SCENE_PARAMS, xuint i, uint k, xfloat2 uv0, xfloat2 uv1,
+                                                    xfloat* alpha) {
+  xuint ref = xi_gather_uint((__global const uint*)materials, 20u * i + 16u + k);
+  return xi_texture(texture_refs, images, texels, ref, uv0, uv1, alpha);
+}
+
+// The metallic-roughness inputs at a hit: factors times textures.
+typedef struct {
+  xfloat3 base_color;
+  xfloat metallic, roughness, transmission, normal_scale;
+} PbrInputs;
+
+static inline XI_INLINE PbrInputs xi_pbr_inputs(XI_SCENE_PARAMS, uint shading, xuint mi, xfloat3 albedo, xfloat2 uv0,
+                                                xfloat2 uv1) {
+  PbrInputs in;
+  in.base_color = albedo;
+  in.metallic = 0.0f;
+  xfloat3 f = xi_gather_xyz((__global const float4*)materials, 5u * mi + 3u, &in.normal_scale);
+  in.metallic = f.x;
+  in.roughness = f.y;
+  in.transmission = f.z;
+  if (xi_uses(shading, XI_USE_TEXTURES)) {
+    xfloat a;
+    in.base_color = xi_mul3(in.base_color, xi_material_texture(XI_SCENE_ARGS, mi, XI_TEXTURE_BASE_COLOR, uv0, uv1, &a));
+    xfloat3 mr = xi_material_texture(XI_SCENE_ARGS, mi, XI_TEXTURE_METALLIC_ROUGHNESS, uv0, uv1, &a);
+    in.roughness = in.roughness * mr.y;
+    in.metallic = in.metallic * mr.z;
+  }
+  return in;
+}
+
+// The shading normal with material mi's normal map applied (tangent space: the tangent along
+// increasing u of the map's texture coordinates, from the triangle, as glTF viewers do for a file
+// without tangents), then turned toward wo where it would face away from it: a shading normal
+// seen from behind would make the lobes' local frame invalid (black fringes) or light leak
+// through; bending it until wo is just above keeps both away. (Sample directions are still
+// checked against the geometric normal.)
+static inline XI_INLINE xfloat3 xi_pbr_normal(XI_SCENE_PARAMS, uint shading, xuint mi, xuint tri, xfloat3 n,
+                                              xfloat3 wo, xfloat normal_scale, xfloat3 p0, xfloat3 p1, xfloat3 p2,
+                                              xfloat2 uv0, xfloat2 uv1) {
+  if (xi_uses(shading, XI_USE_TEXTURES)) {
+    xuint ref = xi_gather_uint((__global const uint*)materials, 20u * mi + 16u + XI_TEXTURE_NORMAL);
+    xmask mapped = ref != XI_NO_TEXTURE;
+    if (XI_ANY(mapped)) {
+      xfloat a;
+      xfloat3 t = xi_texture(texture_refs, images, texels, ref, uv0, uv1, &a);
+      xuint r = mapped ? ref : (xuint)0u;
+      xuint set = xi_gather_uint((__global const uint*)texture_refs, 12u * r + 9u);
+      xfloat w0, w1, w2;
+      xfloat3 ta = xi_gather_xyz(tri_uv, 3u * tri, &w0), tb = xi_gather_xyz(tri_uv, 3u * tri + 1u, &w1),
+              tc = xi_gather_xyz(tri_uv, 3u * tri + 2u, &w2);
+      // The set's (u, v) at the three vertices.
+      xfloat ua = set == 1u ? ta.z : ta.x, va = set == 1u ? w0 : ta.y;
+      xfloat ub = set == 1u ? tb.z : tb.x, vb = set == 1u ? w1 : tb.y;
+      xfloat uc = set == 1u ? tc.z : tc.x, vc = set == 1u ? w2 : tc.y;
+      xfloat du1 = ub - ua, dv1 = vb - va, du2 = uc - ua, dv2 = vc - va;
+      xfloat det = du1 * dv2 - du2 * dv1;
+      xfloat3 dp1 = xi_sub3(p1, p0), dp2 = xi_sub3(p2, p0);
+      xfloat3 dpdu = xi_scale3(xi_sub3(xi_scale3(dp1, dv2), xi_scale3(dp2, dv1)), 1.0f / (det != 0.0f ? det : (xfloat)1.0f));
+      xfloat3 tangent = xi_sub3(dpdu, xi_scale3(n, xi_dot3(n, dpdu)));
+      xfloat tl = xi_length3(tangent);
+      mapped = mapped && det != 0.0f && tl > 0.0f;
+      tangent = xi_scale3(tangent, 1.0f / (tl > 0.0f ? tl : (xfloat)1.0f));
+      xfloat3 bitangent = xi_cross3(n, tangent);
+      xfloat x = (2.0f * t.x - 1.0f) * normal_scale, y = (2.0f * t.y - 1.0f) * normal_scale, z = 2.0f * t.z - 1.0f;
+      xfloat3 nm = xi_add3(xi_add3(xi_scale3(tangent, x), xi_scale3(bitangent, y)), xi_scale3(n, z));
+      xfloat nl = xi_length3(nm);
+      mapped = mapped && nl > 0.0f;
+      n = xi_select3(mapped, xi_scale3(nm, 1.0f / (nl > 0.0f ? nl : (xfloat)1.0f)), n);
+    }
+  }
+  xfloat c = xi_dot3(n, wo);
+  xmask away = c < 0.01f;
+  return xi_select3(away, xi_normalize3(xi_add3(n, xi_scale3(wo, 0.01f - c))), n);
+}
 
 // What shading the paths produced: which go on (their new rays are in the path state) and which
 // queue a shadow ray.
@@ -29,14 +122,7 @@ typedef struct {
   xfloat3 shadow_contrib;
 } ShadeResult;
 
-static inline XI_INLINE ShadeResult xi_shade_paths(XI_PATH_PARAMS xuint slot, xmask active, uint d,
-                                                   __global const MaterialData* restrict materials,
-                                                   __global const float4* restrict tri_verts,
-                                                   __global const uint* restrict tri_material,
-                                                   __global const float4* restrict tri_normals,
-                                                   __global const float* restrict light_cdf,
-                                                   __global const uint* restrict light_tri,
-                                                   __global const float* restrict tri_light_pdf, uint light_count,
+static inline XI_INLINE ShadeResult xi_shade_paths(XI_PATH_PARAMS xuint slot, xmask active, uint d, XI_SCENE_PARAMS,
                                                    SamplerParams sampler, uint shading, xuint pixel,
                                                    xuint sample_index, uint max_depth, float4 background) {
   const int sampler_kind = xi_sampler_of(shading);
@@ -52,9 +138,24 @@ static inline XI_INLINE ShadeResult xi_shade_paths(XI_PATH_PARAMS xuint slot, xm
   xfloat3 beta = xi_gather_xyz(throughput, slot, &prev_pdf);
   xfloat3 L = xi_gather_xyz(radiance, slot, 0);
 
-  // Escaped: the background is not sampled as a light, so it has weight 1.
   xmask escaped = h.x < 0.0f;
-  L = xi_select3(escaped, xi_add3(L, xi_mul3(beta, xi_splat3(xyz(background)))), L);
+  if (xi_uses(shading, XI_USE_ENVIRONMENT) && env.width > 0u) {
+    // The environment, MIS-weighted against light sampling where the ray was a BSDF sample.
+    xmask seen = active && escaped;
+    if (XI_ANY(seen)) {
+      xfloat3 dir = xi_gather_xyz(ray_dir, slot, 0);
+      xfloat3 le = xi_env_radiance(env_texels, env, dir);
+      xfloat w = 1.0f;
+      if (xi_uses(shading, XI_USE_MIS))
+        w = prev_pdf > 0.0f ? xi_power_heuristic(prev_pdf, env.scale.w * xi_env_pdf(env_cdf, env, dir)) : w;
+      else if (xi_uses(shading, XI_USE_NEE))
+        w = prev_pdf > 0.0f && env.scale.w > 0.0f ? (xfloat)0.0f : w;
+      L = xi_select3(seen, xi_add3(L, xi_scale3(xi_mul3(beta, le), w)), L);
+    }
+  } else {
+    // Escaped: the background is not sampled as a light, so it has weight 1.
+    L = xi_select3(escaped, xi_add3(L, xi_mul3(beta, xi_splat3(xyz(background)))), L);
+  }
   xmask at_surface = active && !escaped;
   if (!XI_ANY(at_surface)) {
     xi_scatter4(radiance, slot, L, (xfloat)0.0f, active);
@@ -67,9 +168,25 @@ static inline XI_INLINE ShadeResult xi_shade_paths(XI_PATH_PARAMS xuint slot, xm
   xfloat3 wo = xi_neg3(xi_gather_xyz(ray_dir, slot, 0));
   xfloat3 ng = xi_normalize3(xi_cross3(xi_sub3(p1, p0), xi_sub3(p2, p0)));
   xmask front = xi_dot3(ng, wo) > 0.0f;
-  ShadingMaterial m = xi_gather_material(materials, xi_gather_uint(tri_material, tri));
+  xuint mi = xi_gather_uint(tri_material, tri);
+  ShadingMaterial m = xi_gather_material(materials, mi);
   xfloat3 p_error;
   xfloat3 p = xi_interpolate(p0, p1, p2, h.y, h.z, &p_error);
+  // Texture coordinates, sets 0 and 1, interpolated as p is.
+  xfloat2 uv0 = make_xfloat2((xfloat)0.0f, (xfloat)0.0f), uv1 = uv0;
+  if (xi_uses(shading, XI_USE_TEXTURES)) {
+    xi_hit_uv(tri_uv, tri, h.y, h.z, &uv0, &uv1);
+    xfloat a;
+    m.emission = xi_mul3(m.emission, xi_material_texture(XI_SCENE_ARGS, mi, XI_TEXTURE_EMISSIVE, uv0, uv1, &a));
+  }
+  // Cut-out and transparent surfaces: the path goes on through, unchanged (throughput, the last
+  // BSDF pdf for MIS), from the far side; it counts as a bounce against max_depth.
+  xmask passes = XI_FALSE;
+  if (xi_uses(shading, XI_USE_ALPHA)) {
+    xfloat u_alpha = xi_sample_2d(sampler_kind, sampler, pixel, sample_index, XI_PAIR_BOUNCE(d, XI_BOUNCE_LOBE)).y;
+    passes = at_surface && xi_passes_through(materials, texture_refs, images, texels, mi, uv0, uv1, u_alpha);
+    at_surface = at_surface && !passes;
+  }
 
   xmask emits = at_surface && (front || m.two_sided > 0.0f) && xi_max3(m.emission) > 0.0f;
   if (xi_uses(shading, XI_USE_EMITTERS) && XI_ANY(emits)) {
@@ -101,6 +218,30 @@ static inline XI_INLINE ShadeResult xi_shade_paths(XI_PATH_PARAMS xuint slot, xm
     }
   }
 
+  // The metallic-roughness material: its inputs, shading normal and local frame (n = +z, wo above).
+  xmask pbr = XI_FALSE;
+  PbrLobes lobes;
+  lobes.base_color = m.albedo;
+  lobes.metallic = lobes.alpha = lobes.transmission = 0.0f;
+  lobes.eta = 1.5f;
+  xfloat3 frame_t = n, frame_b = n, wo_local = wo;
+  if (xi_uses(shading, XI_USE_PBR)) {
+    pbr = at_surface && m.type == XI_MATERIAL_PBR;
+    if (XI_ANY(pbr)) {
+      PbrInputs in = xi_pbr_inputs(XI_SCENE_ARGS, shading, mi, m.albedo, uv0, uv1);
+      xfloat3 np = xi_pbr_normal(XI_SCENE_ARGS, shading, mi, tri, n, wo, in.normal_scale, p0, p1, p2, uv0, uv1);
+      n = xi_select3(pbr, np, n);
+      xi_basis(n, &frame_t, &frame_b);
+      wo_local = make_xfloat3(xi_dot3(wo, frame_t), xi_dot3(wo, frame_b), xi_dot3(wo, n));
+      lobes.base_color = in.base_color;
+      lobes.metallic = in.metallic;
+      lobes.alpha = in.roughness * in.roughness;
+      lobes.eta = front ? m.ior : 1.0f / m.ior;
+      lobes.transmission = in.transmission;
+      m.albedo = xi_select3(pbr, in.base_color, m.albedo);  // for the albedo AOV
+    }
+  }
+
   if (d == 0u) {
     xi_scatter4(aov_albedo, slot, m.albedo, (xfloat)0.0f, at_surface);
     xi_scatter4(aov_normal, slot, n, (xfloat)0.0f, at_surface);
@@ -110,14 +251,17 @@ static inline XI_INLINE ShadeResult xi_shade_paths(XI_PATH_PARAMS xuint slot, xm
   xfloat pdf = 0.0f;  // stays 0 for specular lobes
   xmask goes_on = XI_FALSE;
   xmask diffuse = at_surface && m.type == XI_MATERIAL_DIFFUSE && xi_max3(m.albedo) > 0.0f;
-  if (xi_uses(shading, XI_USE_NEE) && light_count > 0u && XI_ANY(diffuse)) {
+  // A metal whose lobes are all delta has nothing for a light sample to reach.
+  xmask pbr_nee = pbr && !(lobes.alpha < XI_DELTA_ALPHA && lobes.metallic >= 1.0f);
+  if (xi_uses(shading, XI_USE_NEE) && light_count > 0u && XI_ANY(diffuse || pbr_nee)) {
     xfloat2 ul = xi_sample_2d(sampler_kind, sampler, pixel, sample_index, XI_PAIR_BOUNCE(d, XI_BOUNCE_LIGHT));
     xfloat3 org = xi_offset_ray_origin(p, p_error, n_geo, n_geo);  // lights behind n_geo are skipped
     LightSample ls = xi_sample_light(light_cdf, light_tri, tri_light_pdf, tri_verts, tri_material, materials,
-                                     light_count, org, ul);
+                                     punctual, env, env_texels, env_cdf, shading, light_count, org, ul);
     xfloat cos_s = xi_dot3(n, ls.wi);
     xfloat w = 1.0f;
     if (xi_uses(shading, XI_USE_MIS)) w = xi_power_heuristic(ls.pdf, xi_lambert_pdf(n, ls.wi));
+    if (xi_uses(shading, XI_USE_PUNCTUAL)) w = ls.delta ? (xfloat)1.0f : w;
     r.shadow = diffuse && ls.pdf > 0.0f && cos_s > 0.0f && xi_dot3(n_geo, ls.wi) > 0.0f;
     r.shadow_contrib = xi_scale3(xi_mul3(xi_scale3(xi_mul3(beta, m.albedo), XI_INV_PI), ls.radiance),
                                  cos_s * w / ls.pdf);
@@ -125,6 +269,22 @@ static inline XI_INLINE ShadeResult xi_shade_paths(XI_PATH_PARAMS xuint slot, xm
     r.shadow_org = org;
     r.shadow_tmax = ls.dist * (1.0f - 1e-4f);
     r.shadow_dir = ls.wi;
+    if (xi_uses(shading, XI_USE_PBR) && XI_ANY(pbr_nee)) {
+      // Lights on either side: reflection above the surface, transmission below (the shadow ray
+      // then starts below it), the shading and geometric normals agreeing on the side.
+      xfloat3 wi_local = make_xfloat3(xi_dot3(ls.wi, frame_t), xi_dot3(ls.wi, frame_b), cos_s);
+      xfloat bsdf_pdf;
+      xfloat3 f = xi_pbr_eval_pdf(lobes, wo_local, wi_local, &bsdf_pdf);
+      xfloat wp = 1.0f;
+      if (xi_uses(shading, XI_USE_MIS)) wp = ls.delta ? (xfloat)1.0f : xi_power_heuristic(ls.pdf, bsdf_pdf);
+      xfloat side = xi_dot3(n_geo, ls.wi);
+      xmask ok = pbr_nee && ls.pdf > 0.0f && side * cos_s > 0.0f && xi_max3(f) > 0.0f;
+      r.shadow = r.shadow || ok;
+      r.shadow_contrib = xi_select3(pbr_nee, xi_scale3(xi_mul3(xi_mul3(beta, f), ls.radiance),
+                                                       fabs(cos_s) * wp / (ls.pdf > 0.0f ? ls.pdf : (xfloat)1.0f)),
+                                    r.shadow_contrib);
+      r.shadow_org = xi_select3(pbr_nee && side < 0.0f, xi_offset_ray_origin(p, p_error, n_geo, ls.wi), r.shadow_org);
+    }
   }
   if (XI_ANY(diffuse)) {
     xfloat2 ub = xi_sample_2d(sampler_kind, sampler, pixel, sample_index, XI_PAIR_BOUNCE(d, XI_BOUNCE_BSDF_DIR));
@@ -148,8 +308,25 @@ static inline XI_INLINE ShadeResult xi_shade_paths(XI_PATH_PARAMS xuint slot, xm
     wi = xi_select3(glass, xi_dielectric_sample(wo, n, m.ior, front, uc.x, &reflected), wi);
     goes_on = goes_on || glass;
   }
+  xfloat3 pbr_weight = xi_splat3(make_float3(1.0f, 1.0f, 1.0f));
+  if (xi_uses(shading, XI_USE_PBR) && XI_ANY(pbr)) {
+    xfloat2 ub = xi_sample_2d(sampler_kind, sampler, pixel, sample_index, XI_PAIR_BOUNCE(d, XI_BOUNCE_BSDF_DIR));
+    xfloat2 uc = xi_sample_2d(sampler_kind, sampler, pixel, sample_index, XI_PAIR_BOUNCE(d, XI_BOUNCE_LOBE));
+    xfloat3 wi_local;
+    xfloat pdf_local;
+    xmask delta;
+    pbr_weight = xi_pbr_sample(lobes, wo_local, uc.x, ub, &wi_local, &pdf_local, &delta);
+    xfloat3 wp = xi_add3(xi_add3(xi_scale3(frame_t, wi_local.x), xi_scale3(frame_b, wi_local.y)),
+                         xi_scale3(n, wi_local.z));
+    wi = xi_select3(pbr, wp, wi);
+    pdf = pbr ? (delta ? (xfloat)0.0f : pdf_local) : pdf;
+    // The geometric normal must agree with the lobe's side, or light would leak through.
+    goes_on = goes_on || (pbr && xi_max3(pbr_weight) > 0.0f && xi_dot3(wp, n_geo) * wi_local.z > 0.0f);
+  }
   // (A material the shading word leaves out ends its path.)
+  xfloat3 beta_in = beta;
   beta = xi_mul3(beta, m.albedo);
+  if (xi_uses(shading, XI_USE_PBR)) beta = xi_select3(pbr, xi_mul3(beta_in, pbr_weight), beta);
 
   if (d + 1u >= XI_ROULETTE_DEPTH) {
     // The decision takes an independent uniform, whatever the sampler: a deterministic sample set
@@ -160,6 +337,12 @@ static inline XI_INLINE ShadeResult xi_shade_paths(XI_PATH_PARAMS xuint slot, xm
     beta = xi_div3(beta, q);
   }
   goes_on = goes_on && xi_max3(beta) > 0.0f;
+  if (xi_uses(shading, XI_USE_ALPHA)) {
+    goes_on = goes_on || passes;
+    wi = xi_select3(passes, xi_neg3(wo), wi);
+    beta = xi_select3(passes, beta_in, beta);
+    pdf = passes ? prev_pdf : pdf;
+  }
 
   xi_scatter4(ray_org, slot, xi_offset_ray_origin(p, p_error, n_geo, wi), (xfloat)0.0f, goes_on);
   xi_scatter4(ray_dir, slot, wi, (xfloat)0.0f, goes_on);
@@ -175,7 +358,11 @@ __kernel void shade(XI_PATH_PARAMS __global const uint* restrict queue_in, __glo
                     __global const uint* restrict tri_material, __global const float4* restrict tri_normals,
                     __global const float* restrict light_cdf, __global const uint* restrict light_tri,
                     __global const float* restrict tri_light_pdf, uint light_count,
-                    SamplerParams sampler, uint shading_argument, uint max_depth, float4 background) {
+                    SamplerParams sampler, uint shading_argument, uint max_depth, float4 background,
+                    __global const float4* restrict tri_uv, __global const TextureRef* restrict texture_refs,
+                    __global const uint* restrict images, __global const uint* restrict texels,
+                    __global const PunctualLightData* restrict punctual, EnvironmentData env,
+                    __global const float4* restrict env_texels, __global const float* restrict env_cdf) {
   const uint shading = xi_shading(shading_argument);
   volatile __local uint group_count[2], group_base[2];  // for the queue appends below
   xuint entry = (uint)get_global_id(0) * XI_LANES + XI_LANE_INDEX;
@@ -195,9 +382,8 @@ __kernel void shade(XI_PATH_PARAMS __global const uint* restrict queue_in, __glo
 #endif
   xuint slot = xi_gather_uint(queue_in, active ? entry : (xuint)0u);
   slot = active ? slot : (xuint)0u;  // queue_in[0] may be unwritten when the queue is empty
-  ShadeResult r = xi_shade_paths(XI_PATH_ARGS slot, active, bounce, materials, tri_verts, tri_material, tri_normals,
-                                 light_cdf, light_tri, tri_light_pdf, light_count, sampler,
-                                 shading, xi_gather_uint(item_pixel, slot), xi_gather_uint(item_sample, slot), max_depth,
+  ShadeResult r = xi_shade_paths(XI_PATH_ARGS slot, active, bounce, XI_SCENE_ARGS, sampler, shading,
+                                 xi_gather_uint(item_pixel, slot), xi_gather_uint(item_sample, slot), max_depth,
                                  background);
   // Append to the ray and shadow queues: entries are counted in local memory and reserved with one
   // global atomic per work group, since a global atomic per item serialises the cores on one line.

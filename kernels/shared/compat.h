@@ -64,6 +64,7 @@ using std::sin;
 using std::sqrt;
 using std::acos;
 using std::atan2;
+using std::pow;
 
 static inline float2 make_float2(float x, float y) { return float2(x, y); }
 static inline uint2 make_uint2(uint x, uint y) { return uint2(x, y); }
@@ -83,6 +84,7 @@ static inline float3 fabs(const float3& a) { return glm::abs(a); }
 static inline float4 fabs(const float4& a) { return glm::abs(a); }
 static inline uint clz(uint x) { return x ? (uint)__builtin_clz(x) : 32u; }
 static inline float clamp(float x, float lo, float hi) { return std::fmin(std::fmax(x, lo), hi); }
+static inline int clamp(int x, int lo, int hi) { return x < lo ? lo : x > hi ? hi : x; }
 static inline uint as_uint(float f) { uint u; std::memcpy(&u, &f, 4); return u; }
 static inline float as_float(uint u) { float f; std::memcpy(&f, &u, 4); return f; }
 static inline int as_int(float f) { int i; std::memcpy(&i, &f, 4); return i; }

@@ -32,6 +32,8 @@ typedef struct {
 } xfloat3;
 
 #define xi_to_float(v) convert_float8(v)
+#define convert_xint(v) convert_int8(v)
+#define convert_xuint(v) convert_uint8(v)
 #define xi_as_uint(v) as_uint8(v)
 #define xi_as_int(v) as_int8(v)
 #define xi_as_float(v) as_float8(v)
@@ -154,6 +156,8 @@ typedef float2 xfloat2;
 typedef float3 xfloat3;
 
 #define xi_to_float(v) ((float)(v))
+#define convert_xint(v) ((int)(v))
+#define convert_xuint(v) ((uint)(v))
 #define xi_as_uint(v) as_uint(v)
 #define xi_as_int(v) as_int(v)
 #define xi_as_float(v) as_float_i(v)

@@ -68,6 +68,8 @@ typedef struct {
 #define XI_LIGHT_POINT 0u
 #define XI_LIGHT_SPOT 1u
 #define XI_LIGHT_DIRECTIONAL 2u  // sun with angular radius 0
+#define XI_LIGHT_PUNCTUAL 0x80000000u    // a light list entry: punctual light (index in the low bits)
+#define XI_LIGHT_ENVIRONMENT 0xffffffffu  // a light list entry: the environment
 typedef struct {
   float4 position;   // xyz (point, spot); w: probability of picking it among the lights
   float4 direction;  // xyz: unit direction the light shines in (spot, directional); w: cos of the sun's angular radius

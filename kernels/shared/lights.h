@@ -1,10 +1,14 @@
-// Area lights: every emissive triangle, picked in proportion to its power, then a point uniform on
-// its area, both from one 2D sample; the pdf is converted from area to solid angle at the shading
-// point. Written on lane types (lanes.h).
+// Light sampling. The lights (emissive triangles, punctual lights, the environment) are picked in
+// proportion to their power, then a point on the chosen one, both from one 2D sample: uniform on a
+// triangle's area (the pdf converted from area to solid angle at the shading point), the light's
+// position (point, spot), a direction within a sun's cone, or the environment's own distribution.
+// Written on lane types (lanes.h).
 #ifndef XI_LIGHTS_H
 #define XI_LIGHTS_H
 #include "bsdf.h"
+#include "environment.h"
 #include "lanes.h"
+#include "shading.h"
 #include "layout.h"
 #include "spawn.h"
 #include "warps.h"
@@ -14,6 +18,7 @@ typedef struct {
   xfloat dist;       // distance to it, the point moved off the light by its rounding error
   xfloat pdf;        // solid-angle density of wi; 0 when the point's emitting side faces away
   xfloat3 radiance;  // emitted toward the origin
+  xmask delta;       // no BSDF sample can reach it (punctual lights): weight 1, not combined by MIS
 } LightSample;
 
 // Binary search of the normalised CDF over the n emissive triangles with *u, which is then
@@ -40,13 +45,50 @@ static inline xfloat xi_light_pdf(__global const float* tri_light_pdf, xuint tri
   return cos_l > 0.0f ? xi_gather_float(tri_light_pdf, tri) * dist * dist / cos_l : (xfloat)0.0f;
 }
 
+// Lane k's sample of punctual light `index`: its intensity over the squared distance (point, spot,
+// with the spot's smooth cone falloff as glTF's KHR_lights_punctual gives it), or a directional
+// light's irradiance, spread over a sun's cone of directions (uniform in solid angle, radiance
+// E / (π sin² of its angular radius)).
+static inline LightSample xi_sample_punctual(__global const PunctualLightData* lights, xuint index, xfloat3 org,
+                                             xfloat2 u) {
+  __global const float4* f = (__global const float4*)lights;
+  xfloat pick, cos_sun, type;
+  xfloat3 pos = xi_gather_xyz(f, 4u * index, &pick), dir = xi_gather_xyz(f, 4u * index + 1u, &cos_sun);
+  xfloat3 intensity = xi_gather_xyz(f, 4u * index + 2u, 0);
+  xfloat3 cone = xi_gather_xyz(f, 4u * index + 3u, &type);
+  LightSample ls;
+  xmask directional = type == (float)XI_LIGHT_DIRECTIONAL;
+  xfloat3 to = xi_sub3(pos, org);
+  xfloat dist = xi_length3(to);
+  xfloat3 wi_point = xi_div3(to, dist);
+  xfloat falloff = clamp((-xi_dot3(dir, wi_point) - cone.y) / fmax(cone.x - cone.y, (xfloat)1e-3f), 0.0f, 1.0f);
+  falloff = type == (float)XI_LIGHT_SPOT ? falloff * falloff : (xfloat)1.0f;
+  xfloat3 radiance_point = xi_scale3(intensity, falloff / (dist * dist));
+  xfloat one_minus_cos = 1.0f - cos_sun;
+  xfloat cos_t = 1.0f - u.x * one_minus_cos, phi = 2.0f * XI_PI * u.y;
+  xfloat sin_t = xi_safe_sqrt(1.0f - cos_t * cos_t);
+  xfloat3 wi_sun = xi_to_world(make_xfloat3(sin_t * cos(phi), sin_t * sin(phi), cos_t), xi_neg3(dir));
+  xmask sun = one_minus_cos > 0.0f;
+  xfloat sin2 = fmax(1.0f - cos_sun * cos_sun, (xfloat)1e-30f);
+  ls.wi = xi_select3(directional, xi_select3(sun, wi_sun, xi_neg3(dir)), wi_point);
+  ls.dist = directional ? (xfloat)FLT_MAX : dist;
+  ls.radiance = xi_select3(directional, xi_scale3(intensity, sun ? 1.0f / (XI_PI * sin2) : (xfloat)1.0f), radiance_point);
+  ls.pdf = directional && sun ? pick / (2.0f * XI_PI * one_minus_cos) : pick;
+  ls.delta = XI_TRUE;
+  return ls;
+}
+
 static inline LightSample xi_sample_light(__global const float* light_cdf, __global const uint* light_tri,
                                           __global const float* tri_light_pdf, __global const float4* tri_verts,
                                           __global const uint* tri_material, __global const MaterialData* materials,
-                                          uint light_count, xfloat3 org, xfloat2 u) {
+                                          __global const PunctualLightData* punctual, EnvironmentData env,
+                                          __global const float4* env_texels, __global const float* env_cdf,
+                                          uint shading, uint light_count, xfloat3 org, xfloat2 u) {
   LightSample ls;
   xfloat u_pick = u.x;
-  xuint lt = xi_gather_uint(light_tri, xi_pick_light(light_cdf, light_count, &u_pick));
+  xuint entry = xi_gather_uint(light_tri, xi_pick_light(light_cdf, light_count, &u_pick));
+  xmask triangle = entry < XI_LIGHT_PUNCTUAL;
+  xuint lt = triangle ? entry : (xuint)0u;  // other lanes read triangle 0, unused
   xfloat3 q0 = xi_gather_xyz(tri_verts, 3u * lt, 0), q1 = xi_gather_xyz(tri_verts, 3u * lt + 1u, 0),
           q2 = xi_gather_xyz(tri_verts, 3u * lt + 2u, 0);
   xfloat2 b = xi_square_to_triangle(make_xfloat2(u_pick, u.y));
@@ -62,6 +104,31 @@ static inline LightSample xi_sample_light(__global const float* light_cdf, __glo
   cos_l = m.two_sided > 0.0f ? fabs(cos_l) : cos_l;
   ls.pdf = xi_light_pdf(tri_light_pdf, lt, ls.dist, cos_l);
   ls.radiance = m.emission;
+  ls.delta = XI_FALSE;
+  if (xi_uses(shading, XI_USE_PUNCTUAL)) {
+    xmask is_punctual = !triangle && entry != XI_LIGHT_ENVIRONMENT;
+    if (XI_ANY(is_punctual)) {
+      LightSample lp = xi_sample_punctual(punctual, is_punctual ? entry & ~XI_LIGHT_PUNCTUAL : (xuint)0u, org,
+                                          make_xfloat2(u_pick, u.y));
+      ls.wi = xi_select3(is_punctual, lp.wi, ls.wi);
+      ls.dist = is_punctual ? lp.dist : ls.dist;
+      ls.pdf = is_punctual ? lp.pdf : ls.pdf;
+      ls.radiance = xi_select3(is_punctual, lp.radiance, ls.radiance);
+      ls.delta = is_punctual;
+    }
+  }
+  if (xi_uses(shading, XI_USE_ENVIRONMENT)) {
+    xmask is_env = entry == XI_LIGHT_ENVIRONMENT;
+    if (XI_ANY(is_env)) {
+      xfloat env_pdf;
+      xfloat3 env_radiance;
+      xfloat3 wi = xi_env_sample(env_texels, env_cdf, env, make_xfloat2(u_pick, u.y), &env_pdf, &env_radiance);
+      ls.wi = xi_select3(is_env, wi, ls.wi);
+      ls.dist = is_env ? (xfloat)FLT_MAX : ls.dist;
+      ls.pdf = is_env ? env.scale.w * env_pdf : ls.pdf;
+      ls.radiance = xi_select3(is_env, env_radiance, ls.radiance);
+    }
+  }
   return ls;
 }
 

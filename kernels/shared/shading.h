@@ -15,7 +15,12 @@
 #define XI_USE_LENS 16u      // a thin-lens camera
 #define XI_USE_NEE 32u       // light sampling (next-event estimation), where there are emitters
 #define XI_USE_MIS 64u       // light and BSDF sampling combined by the power heuristic, with NEE
-#define XI_SAMPLER_SHIFT 8u  // the sampler (XI_SAMPLER_*) in the bits above
+#define XI_USE_PBR 128u      // the metallic-roughness material (microfacet.h)
+#define XI_USE_TEXTURES 256u
+#define XI_USE_ENVIRONMENT 512u  // an environment map (environment.h) instead of a constant background
+#define XI_USE_PUNCTUAL 1024u    // point, spot and directional lights
+#define XI_USE_ALPHA 2048u       // cut-out (alpha mask) and stochastically transparent surfaces
+#define XI_SAMPLER_SHIFT 16u     // the sampler (XI_SAMPLER_*) in the bits above
 
 #ifdef XI_DEVICE
 // The shading word in force: the program's own, or in the generic program the argument's.

@@ -17,8 +17,14 @@ struct Features {
   bool mirror = false;
   bool dielectric = false;
   bool normals = false;   // interpolated vertex normals
-  bool emitters = false;
+  bool emitters = false;  // emissive triangles
   bool lens = false;
+  bool pbr = false;       // the metallic-roughness material
+  bool textures = false;
+  bool environment = false;
+  bool punctual = false;  // point, spot, directional lights
+  bool alpha = false;     // alpha-masked or blended materials
+  bool lights() const { return emitters || environment || punctual; }
   static Features everything();
   std::string describe() const;  // e.g. "diffuse mirror emitters"
   bool operator==(const Features&) const = default;
@@ -30,8 +36,21 @@ struct CompiledScene {
   std::vector<glm::vec4> tri_normals;  // 3 per triangle; w = 1 where the triangle has vertex normals
   std::vector<uint32_t> tri_material;
   std::vector<MaterialData> materials;
-  std::vector<float> light_cdf;        // over emissive triangles, by power; last entry 1
-  std::vector<uint32_t> light_tri;     // their positions in BVH order, listed in the scene's order
+  // Textures (where the scene has some; else one unused entry each, as OpenCL needs buffers):
+  std::vector<glm::vec4> tri_uv;       // 3 per triangle: texture coordinates u0, v0 (set 0), u1, v1 (set 1)
+  std::vector<TextureRef> texture_refs;
+  std::vector<ImageHeader> images;
+  std::vector<uint32_t> texels;        // every image's RGBA8 texels
+  std::vector<PunctualLightData> punctual;  // one unused entry when there are none
+  // The environment (one unused texel and CDF entry when there is none):
+  EnvironmentData environment{};
+  std::vector<glm::vec4> environment_texels;
+  std::vector<float> environment_cdf;
+  // The lights, picked in proportion to their power: emissive triangles, then punctual lights,
+  // then the environment.
+  std::vector<float> light_cdf;        // over the lights; last entry 1
+  std::vector<uint32_t> light_tri;     // a triangle's position in BVH order (listed in the scene's order), or
+                                       // XI_LIGHT_PUNCTUAL | index, or XI_LIGHT_ENVIRONMENT
   std::vector<float> tri_light_pdf;    // per triangle: P(pick it) / its area, 0 if not emissive
   float light_power = 0.0f;            // total emitted power (luminance), for reports
   CameraData camera{};

@@ -4,6 +4,7 @@
 #include <cmath>
 #include <cstddef>
 
+#include "xi/environment.h"
 #include "xi/error.h"
 
 // shade's xi_gather_material (bsdf.h) reads a material as three float4s with the type first in the third.
@@ -22,9 +23,91 @@ double triangle_area(const Triangle& t) {
   return 0.5 * glm::length(glm::cross(glm::dvec3(t.v[1]) - v0, glm::dvec3(t.v[2]) - v0));
 }
 
+TextureRef texture_ref(const TextureSlot& slot) {
+  TextureRef r{};
+  // glm is column-major: row i of the transform is (m[0][i], m[1][i], m[2][i]).
+  const glm::mat3& m = slot.transform;
+  r.transform_u = glm::vec4(m[0][0], m[1][0], m[2][0], 0.0f);
+  r.transform_v = glm::vec4(m[0][1], m[1][1], m[2][1], 0.0f);
+  r.image = (uint32_t)slot.image;
+  r.texcoord = (uint32_t)slot.texcoord;
+  r.wrap_s = (uint32_t)slot.wrap_s;
+  r.wrap_t = (uint32_t)slot.wrap_t;
+  return r;
+}
+
+void upload_images(const Scene& scene, CompiledScene& cs) {
+  for (const TextureImage& img : scene.images) {
+    if (img.width < 1 || img.height < 1 || img.texels.size() != (size_t)img.width * img.height)
+      throw Error("texture image '" + img.source + "' has no texels or the wrong number", scene.source);
+    if (cs.texels.size() + img.texels.size() > UINT32_MAX)
+      throw Error("the scene's textures hold over 2^32 texels", scene.source);
+    cs.images.push_back(ImageHeader{(uint32_t)cs.texels.size(), (uint32_t)img.width, (uint32_t)img.height,
+                                    img.srgb ? XI_IMAGE_SRGB8 : XI_IMAGE_LINEAR8});
+    cs.texels.insert(cs.texels.end(), img.texels.begin(), img.texels.end());
+  }
+}
+
+// The radius of the scene's bounding sphere: light arriving from infinity (the environment, a
+// directional light) is picked by the power it brings onto a sphere that size.
+double scene_radius(const Scene& scene) {
+  glm::dvec3 lo(INFINITY), hi(-INFINITY);
+  for (const Triangle& t : scene.triangles)
+    for (const glm::vec3& v : t.v) lo = glm::min(lo, glm::dvec3(v)), hi = glm::max(hi, glm::dvec3(v));
+  return scene.triangles.empty() ? 1.0 : std::max(0.5 * glm::length(hi - lo), 1e-6);
+}
+
+double luminance(glm::vec3 c) { return 0.2126 * c.x + 0.7152 * c.y + 0.0722 * c.z; }
+
+void add_punctual_lights(const Scene& scene, CompiledScene& cs, std::vector<double>& power) {
+  const double r = scene_radius(scene);
+  for (const Light& l : scene.lights) {
+    PunctualLightData d{};
+    d.position = glm::vec4(l.position, 0.0f);
+    d.direction = glm::vec4(glm::normalize(l.direction), std::cos(l.angular_radius));
+    d.intensity = glm::vec4(l.intensity, 0.0f);
+    const bool sun = l.type == LightType::Directional;
+    d.cone = glm::vec4(std::cos(l.inner_cone), std::cos(l.outer_cone), 0.0f,
+                       (float)(sun ? XI_LIGHT_DIRECTIONAL : l.type == LightType::Spot ? XI_LIGHT_SPOT : XI_LIGHT_POINT));
+    // Emitted power: 4π I (point), about 2π (1 - cos of the mean cone angle) I (spot); a directional
+    // light's irradiance over the scene's cross-section.
+    const double lum = luminance(l.intensity);
+    const double p = sun ? lum * M_PI * r * r
+                   : l.type == LightType::Spot ? lum * 2.0 * M_PI * (1.0 - 0.5 * (d.cone.x + d.cone.y))
+                                               : lum * 4.0 * M_PI;
+    if (!(p > 0.0) || !std::isfinite(p)) continue;
+    cs.light_tri.push_back(XI_LIGHT_PUNCTUAL | (uint32_t)cs.punctual.size());
+    cs.punctual.push_back(d);
+    power.push_back(p);
+  }
+  cs.features.punctual = !cs.punctual.empty();
+}
+
+void add_environment(const Scene& scene, CompiledScene& cs, std::vector<double>& power) {
+  if (!scene.environment) return;
+  const Environment& e = *scene.environment;
+  if (!(e.strength >= 0.0f) || !std::isfinite(e.strength))
+    throw Error("the environment's strength must be finite and >= 0", e.file.string());
+  if (!std::isfinite(e.rotation_degrees)) throw Error("the environment's rotation is not finite", e.file.string());
+  EnvironmentMap map = load_environment(e.file);
+  const bool samplable = map.has_distribution();
+  cs.environment = make_environment_data(map, e.strength, e.rotation_degrees, 0.0f);
+  cs.environment_texels = std::move(map.texels);
+  cs.environment_cdf = std::move(map.cdf);
+  cs.features.environment = true;
+  // The power a uniform environment of the same mean radiance sends onto the scene's bounding
+  // sphere: π L over its area 4π r².
+  const double r = scene_radius(scene);
+  const double p = samplable ? M_PI * map.mean_luminance * e.strength * 4.0 * M_PI * r * r : 0.0;
+  if (p > 0.0 && std::isfinite(p)) {
+    cs.light_tri.push_back(XI_LIGHT_ENVIRONMENT);
+    power.push_back(p);
+  }
+}
+
 }  // namespace
 
-Features Features::everything() { return Features{true, true, true, true, true}; }
+Features Features::everything() { return Features{true, true, true, true, true, true, true, true, true, true}; }
 
 std::string Features::describe() const {
   std::string s = "diffuse";
@@ -33,6 +116,11 @@ std::string Features::describe() const {
   if (normals) s += " normals";
   if (emitters) s += " emitters";
   if (lens) s += " lens";
+  if (pbr) s += " pbr";
+  if (textures) s += " textures";
+  if (environment) s += " environment";
+  if (punctual) s += " punctual";
+  if (alpha) s += " alpha";
   return s;
 }
 
@@ -47,10 +135,29 @@ CompiledScene compile_scene(const Scene& scene, int bvh_width, bool spatial_spli
     md.albedo = glm::vec4(m.albedo, m.ior);
     md.emission = glm::vec4(m.emission, m.two_sided ? 1.0f : 0.0f);
     md.type = (uint32_t)m.type;
+    md.alpha_mode = (uint32_t)m.alpha_mode;
+    md.alpha_cutoff = m.alpha_cutoff;
+    md.alpha = m.alpha;
+    md.pbr = glm::vec4(m.metallic, m.roughness, m.transmission, m.normal_scale);
+    const TextureSlot* slots[4] = {&m.base_color_texture, &m.metallic_roughness_texture, &m.normal_texture,
+                                   &m.emissive_texture};
+    for (int k = 0; k < 4; ++k) {
+      md.textures[k] = XI_NO_TEXTURE;
+      if (!slots[k]->used()) continue;
+      if (slots[k]->image >= (int)scene.images.size())
+        throw Error("material '" + m.name + "' names texture image " + std::to_string(slots[k]->image) +
+                        ", which does not exist", scene.source);
+      md.textures[k] = (uint32_t)cs.texture_refs.size();
+      cs.texture_refs.push_back(texture_ref(*slots[k]));
+    }
     cs.materials.push_back(md);
     cs.features.mirror |= m.type == MaterialType::Mirror;
     cs.features.dielectric |= m.type == MaterialType::Dielectric;
+    cs.features.pbr |= m.type == MaterialType::Pbr;
+    cs.features.alpha |= m.cuts_out();
   }
+  cs.features.textures = !cs.texture_refs.empty();
+  upload_images(scene, cs);
 
   cs.tri_verts.resize(3 * n);
   cs.tri_material.resize(n);
@@ -65,6 +172,13 @@ CompiledScene compile_scene(const Scene& scene, int bvh_width, bool spatial_spli
       if (t.has_normals) cs.tri_normals[3 * i + k] = glm::vec4(t.n[k], 1.0f);
     }
     cs.tri_material[i] = t.material;
+  }
+  if (cs.features.textures) {
+    cs.tri_uv.resize(3 * n);
+    for (size_t i = 0; i < n; ++i) {
+      const Triangle& t = scene.triangles[cs.bvh.order[i]];
+      for (int k = 0; k < 3; ++k) cs.tri_uv[3 * i + k] = glm::vec4(t.uv[0][k], t.uv[1][k]);
+    }
   }
   // The lights in the scene's order, not the BVH's, so that a light sample does not depend on
   // how the BVH was built (spatial splits or not): only a tie between two hits can.
@@ -85,6 +199,11 @@ CompiledScene compile_scene(const Scene& scene, int bvh_width, bool spatial_spli
     }
   }
 
+  const size_t emissive_triangles = cs.light_tri.size();
+  cs.features.emitters = emissive_triangles > 0;
+  add_punctual_lights(scene, cs, power);
+  add_environment(scene, cs, power);
+
   double total = 0.0;
   for (double p : power) total += p;
   cs.light_power = (float)total;
@@ -92,15 +211,27 @@ CompiledScene compile_scene(const Scene& scene, int bvh_width, bool spatial_spli
   for (size_t k = 0; k < power.size(); ++k) {
     acc += power[k];
     cs.light_cdf.push_back(k + 1 == power.size() ? 1.0f : (float)(acc / total));
-    const Triangle& t = scene.triangles[cs.bvh.order[cs.light_tri[k]]];
-    double area = triangle_area(t);
-    cs.tri_light_pdf[cs.light_tri[k]] = (float)(power[k] / total / area);
+    const float pick = (float)(power[k] / total);
+    if (k < emissive_triangles) {
+      const Triangle& t = scene.triangles[cs.bvh.order[cs.light_tri[k]]];
+      cs.tri_light_pdf[cs.light_tri[k]] = (float)(power[k] / total / triangle_area(t));
+    } else if (cs.light_tri[k] == XI_LIGHT_ENVIRONMENT) {
+      cs.environment.scale.w = pick;
+    } else {
+      cs.punctual[cs.light_tri[k] & ~XI_LIGHT_PUNCTUAL].position.w = pick;
+    }
   }
-  cs.features.emitters = !cs.light_tri.empty();
   if (cs.light_cdf.empty()) {  // OpenCL needs non-empty buffers
     cs.light_cdf.push_back(1.0f);
     cs.light_tri.push_back(0);
   }
+  if (cs.punctual.empty()) cs.punctual.push_back(PunctualLightData{});
+  if (cs.tri_uv.empty()) cs.tri_uv.push_back(glm::vec4(0.0f));
+  if (cs.texture_refs.empty()) cs.texture_refs.push_back(TextureRef{});
+  if (cs.images.empty()) cs.images.push_back(ImageHeader{});
+  if (cs.texels.empty()) cs.texels.push_back(0u);
+  if (cs.environment_texels.empty()) cs.environment_texels.push_back(glm::vec4(0.0f));
+  if (cs.environment_cdf.empty()) cs.environment_cdf.push_back(1.0f);
 
   const Camera& c = scene.camera;
   glm::vec3 forward = glm::normalize(c.look_at - c.position);
@@ -115,7 +246,7 @@ CompiledScene compile_scene(const Scene& scene, int bvh_width, bool spatial_spli
   cs.camera.width = (uint32_t)scene.width;
   cs.camera.height = (uint32_t)scene.height;
   cs.features.lens = c.aperture_radius > 0.0f;
-  cs.background = glm::vec4(scene.background, 0.0f);
+  cs.background = glm::vec4(scene.background, 0.0f);  // (the environment replaces it where there is one)
   return cs;
 }
 

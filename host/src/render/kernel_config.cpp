@@ -59,7 +59,8 @@ KernelConfig KernelConfig::make(const DeviceInfo& device, const CompiledScene& s
   c.lanes = options.lanes ? options.lanes : (is_cpu(device) ? 8 : 1);
   if (c.lanes != 1 && c.lanes != 8) throw Error("lanes must be 1 or 8, not " + std::to_string(c.lanes), "--lanes");
   c.bvh_width = scene.bvh.width;
-  c.ray_packets = c.bvh_width == 8 && (options.ray_packets == RenderOptions::RayPackets::Auto
+  // Shadow rays through cut-out surfaces go one at a time (shadow.cl).
+  c.ray_packets = c.bvh_width == 8 && !c.features.alpha && (options.ray_packets == RenderOptions::RayPackets::Auto
                                            ? scene.bvh.nodes8.size() <= kRayPacketNodes
                                            : options.ray_packets == RenderOptions::RayPackets::On);
   c.cpu_device = is_cpu(device);
@@ -72,9 +73,14 @@ uint32_t KernelConfig::shading_word() const {
   if (features.dielectric) word |= XI_USE_DIELECTRIC;
   if (features.normals) word |= XI_USE_NORMALS;
   if (features.lens) word |= XI_USE_LENS;
-  if (features.emitters) {
-    word |= XI_USE_EMITTERS;
-    if (strategy != Strategy::Bsdf) word |= XI_USE_NEE;
+  if (features.pbr) word |= XI_USE_PBR;
+  if (features.textures) word |= XI_USE_TEXTURES;
+  if (features.environment) word |= XI_USE_ENVIRONMENT;
+  if (features.punctual) word |= XI_USE_PUNCTUAL;
+  if (features.alpha) word |= XI_USE_ALPHA;
+  if (features.emitters) word |= XI_USE_EMITTERS;
+  if (features.lights()) {
+    if (strategy != Strategy::Bsdf) word |= XI_USE_NEE;  // (so BSDF sampling alone never reaches a punctual light)
     if (strategy == Strategy::Mis) word |= XI_USE_MIS;
   }
   return word;
@@ -84,6 +90,7 @@ std::vector<std::string> KernelConfig::trace_defines() const {
   std::vector<std::string> d{"XI_BVH_WIDTH=" + std::to_string(bvh_width),
                              std::string("XI_RAY_PACKETS=") + (ray_packets ? "1" : "0")};
   if (cpu_device) d.push_back("XI_CPU_DEVICE");
+  if (features.alpha) d.push_back("XI_ALPHA");
   return d;
 }
 

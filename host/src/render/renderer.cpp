@@ -201,7 +201,11 @@ void Renderer::check_memory() const {
                    sizeof(TriBlock) * bvh.blocks.size(), sizeof(glm::vec4) * scene_.tri_verts.size(),
                    sizeof(glm::vec4) * scene_.tri_normals.size(), sizeof(uint32_t) * scene_.tri_material.size(),
                    sizeof(MaterialData) * scene_.materials.size(), sizeof(float) * scene_.light_cdf.size(),
-                   sizeof(uint32_t) * scene_.light_tri.size(), sizeof(float) * scene_.tri_light_pdf.size()}) {
+                   sizeof(uint32_t) * scene_.light_tri.size(), sizeof(float) * scene_.tri_light_pdf.size(),
+                   sizeof(glm::vec4) * scene_.tri_uv.size(), sizeof(TextureRef) * scene_.texture_refs.size(),
+                   sizeof(ImageHeader) * scene_.images.size(), sizeof(uint32_t) * scene_.texels.size(),
+                   sizeof(PunctualLightData) * scene_.punctual.size(),
+                   sizeof(glm::vec4) * scene_.environment_texels.size(), sizeof(float) * scene_.environment_cdf.size()}) {
     needs.scene_bytes += b;
     needs.largest_scene_buffer = std::max(needs.largest_scene_buffer, b);
   }
@@ -228,6 +232,13 @@ void Renderer::allocate() {
   light_cdf_ = upload(ctx, scene_.light_cdf);
   light_tri_ = upload(ctx, scene_.light_tri);
   tri_light_pdf_ = upload(ctx, scene_.tri_light_pdf);
+  tri_uv_ = upload(ctx, scene_.tri_uv);
+  texture_refs_ = upload(ctx, scene_.texture_refs);
+  images_ = upload(ctx, scene_.images);
+  texels_ = upload(ctx, scene_.texels);
+  punctual_ = upload(ctx, scene_.punctual);
+  environment_texels_ = upload(ctx, scene_.environment_texels);
+  environment_cdf_ = upload(ctx, scene_.environment_cdf);
   film_sum_ = cl::Buffer(ctx, CL_MEM_READ_WRITE, sizeof(glm::vec4) * pixels_);
   film_sum_sq_ = cl::Buffer(ctx, CL_MEM_READ_WRITE, sizeof(glm::vec4) * pixels_);
   film_albedo_ = cl::Buffer(ctx, CL_MEM_READ_WRITE, sizeof(glm::vec4) * pixels_);
@@ -307,11 +318,19 @@ void Renderer::bind_shade(cl::Kernel& kernel, const cl::Buffer& queue_in, const 
   kernel.setArg(arg++, light_cdf_);
   kernel.setArg(arg++, light_tri_);
   kernel.setArg(arg++, tri_light_pdf_);
-  kernel.setArg(arg++, scene_.features.emitters ? (uint32_t)scene_.light_tri.size() : 0u);
+  kernel.setArg(arg++, scene_.features.lights() ? (uint32_t)scene_.light_tri.size() : 0u);
   kernel.setArg(arg++, sampler_params());
   kernel.setArg(arg++, kernels_.shading_word());
   kernel.setArg(arg++, (uint32_t)options_.max_depth);
   kernel.setArg(arg++, scene_.background);
+  kernel.setArg(arg++, tri_uv_);
+  kernel.setArg(arg++, texture_refs_);
+  kernel.setArg(arg++, images_);
+  kernel.setArg(arg++, texels_);
+  kernel.setArg(arg++, punctual_);
+  kernel.setArg(arg++, scene_.environment);
+  kernel.setArg(arg++, environment_texels_);
+  kernel.setArg(arg++, environment_cdf_);
 }
 
 void Renderer::shade(const cl::Buffer& queue_in, const cl::Buffer& queue_out, int bounce, size_t global) {
@@ -325,6 +344,12 @@ void Renderer::shadow(int bounce, size_t global) {
   shadow_.setArg(arg++, (uint32_t)bounce);
   shadow_.setArg(arg++, nodes_);
   shadow_.setArg(arg++, tri_blocks_);
+  shadow_.setArg(arg++, materials_);
+  shadow_.setArg(arg++, tri_material_);
+  shadow_.setArg(arg++, tri_uv_);
+  shadow_.setArg(arg++, texture_refs_);
+  shadow_.setArg(arg++, images_);
+  shadow_.setArg(arg++, texels_);
   launch(shadow_, "shadow", bounce, global, XI_SHADOW_PACKET(kernels_.bvh_width, kernels_.ray_packets));
 }
 

@@ -435,8 +435,11 @@ Scene load_asset(const fs::path& path, const AssetOptions& options) {
 
   s.images = std::move(g.images);
   s.lights = std::move(g.lights);
-  const bool lit = !s.lights.empty() ||
-                   std::any_of(s.materials.begin(), s.materials.end(), [](const Material& m) { return m.is_emitter(); });
+  // A glTF file's lights are its KHR_lights_punctual ones: emissive materials there are glowing
+  // surfaces (labels, screens), not what lights the model. Other formats have no such convention.
+  const bool emitters =
+      std::any_of(s.materials.begin(), s.materials.end(), [](const Material& m) { return m.is_emitter(); });
+  const bool lit = !s.lights.empty() || (emitters && !is_gltf(path));
   if (!lit) {
     // As glTF viewers light a model without lights: by an environment.
     s.environment = Environment{bundled_scene_file("sky.hdr"), 1.0f, 0.0f};
