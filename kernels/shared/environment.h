@@ -148,10 +148,10 @@ static inline xfloat3 xi_env_sample(__global const float4* texels, __global cons
   mu = fmin(mu, (xfloat)XI_ONE_MINUS_EPSILON);
   mv = fmin(mv, (xfloat)XI_ONE_MINUS_EPSILON);
   xfloat sin_theta;
-  xfloat3 local = xi_env_uv_to_direction(make_xfloat2(mu, mv), &sin_theta);
+  xfloat3 dl = xi_env_uv_to_direction(make_xfloat2(mu, mv), &sin_theta);
   *pdf = sin_theta > 0.0f ? py * px * (wf * hf * XI_ENV_INV_2PI2) / sin_theta : (xfloat)0.0f;
   *radiance = xi_env_lookup(texels, env, mu, mv);
-  return xi_env_to_world(env, local);
+  return xi_env_to_world(env, dl);
 }
 
 // The solid-angle density with which xi_env_sample returns the world direction d (unit).
