@@ -470,6 +470,18 @@ TEST(EnvironmentFiles, LoadsHdrAndExr) {
   EXPECT_FLOAT_EQ(h.texels[0].y, 0.5f);
   EXPECT_FLOAT_EQ(h.texels[0].z, 255.0f / 128.0f);
   EXPECT_EQ(h.texels[1].y, 0.0f);
+  // Run-length encoded, 16 × 2: per line the marker, then each channel as runs (a run of 10 and a
+  // literal run of 6 for red, one run of 16 for the others); all texels (1, 0.5, 0.25).
+  std::string rle = "#?RADIANCE\nFORMAT=32-bit_rle_rgbe\n\n-Y 2 +X 16\n";
+  for (int y = 0; y < 2; ++y) {
+    rle += std::string("\x02\x02\x00\x10", 4);
+    rle += std::string("\x8a\x80\x06", 3) + std::string(6, '\x80');
+    rle += std::string("\x90\x40\x90\x20\x90\x81", 6);
+  }
+  h = xi::load_environment(dir.write("rle.hdr", rle));
+  ASSERT_EQ(h.width, 16);
+  ASSERT_EQ(h.height, 2);
+  for (const glm::vec4& t : h.texels) EXPECT_EQ(glm::vec3(t), glm::vec3(1.0f, 0.5f, 0.25f));
 }
 
 TEST(EnvironmentFiles, BadInputGivesErrors) {
@@ -482,6 +494,17 @@ TEST(EnvironmentFiles, BadInputGivesErrors) {
   expect(load_error(dir.write("garbage.hdr", "this is not an image at all")), "not a Radiance HDR");
   expect(load_error(dir.write("badsize.hdr", "#?RADIANCE\nFORMAT=32-bit_rle_rgbe\n\n-Y x +X 8\n")), "corrupt");
   expect(load_error(dir.write("garbage.exr", std::string(200, 'x'))), "corrupt");
+  // Truncated RGBE files: flat (the bundled sky cut short) and run-length encoded (a 16-wide line
+  // whose red channel is one run of 16 and the rest missing), and a zero-length literal run.
+  {
+    std::ifstream sky(fs::path(XI_SCENE_DIR) / "sky.hdr", std::ios::binary);
+    std::string bytes((std::istreambuf_iterator<char>(sky)), std::istreambuf_iterator<char>());
+    expect(load_error(dir.write("cut_flat.hdr", bytes.substr(0, 300000))), "row 146 of 256 is missing");
+  }
+  std::string rle = "#?RADIANCE\nFORMAT=32-bit_rle_rgbe\n\n-Y 2 +X 16\n";
+  rle += std::string("\x02\x02\x00\x10\x90\x80", 6);
+  expect(load_error(dir.write("cut_rle.hdr", rle)), "row 0 of 2 is missing or malformed");
+  expect(load_error(dir.write("zero_run.hdr", rle.substr(0, rle.size() - 2) + std::string(20, '\0'))), "row 0 of 2");
   expect(load_error(dir.write("empty.hdr", "")), "empty");
   expect(load_error(dir.write("sky.txt", "x")), "unknown environment map format");
 

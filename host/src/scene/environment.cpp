@@ -36,6 +36,53 @@ void check_size(long long w, long long h, const std::string& where) {
                 where);
 }
 
+// stb_image reads past the end of a truncated RGBE file without a word (repeating the last pixel,
+// or looping for ever on a zero-length literal run), so the data is walked here first, the way stb
+// decodes it: if the first scanline starts with the new-style run-length marker (2, 2, width) and
+// 8 ≤ width < 32768, every scanline is run-length encoded; otherwise the file holds 4·W·H flat
+// bytes. Throws naming the first row whose data is missing or malformed.
+void check_hdr_body(const std::filesystem::path& path, int w, int h) {
+  std::FILE* f = std::fopen(path.c_str(), "rb");
+  if (!f) throw Error("cannot open the environment map", path.string());
+  std::unique_ptr<std::FILE, int (*)(std::FILE*)> guard(f, std::fclose);
+  std::vector<unsigned char> data;
+  unsigned char buf[65536];
+  for (size_t got; (got = std::fread(buf, 1, sizeof buf, f)) > 0;) data.insert(data.end(), buf, buf + got);
+  // The header ends with an empty line; the resolution line follows it.
+  size_t at = 0;
+  while (at + 1 < data.size() && !(data[at] == '\n' && data[at + 1] == '\n')) ++at;
+  at += 2;
+  while (at < data.size() && data[at] != '\n') ++at;
+  at = std::min(at + 1, data.size());
+  auto bad_row = [&](int y) {
+    return Error("truncated or corrupt Radiance HDR file: the data of row " + std::to_string(y) + " of " +
+                     std::to_string(h) + " is missing or malformed",
+                 path.string());
+  };
+  auto rle_marker = [&] {
+    return at + 4 <= data.size() && data[at] == 2 && data[at + 1] == 2 && !(data[at + 2] & 0x80);
+  };
+  if (w < 8 || w >= 32768 || !rle_marker()) {
+    size_t need = (size_t)4 * w * h;
+    if (data.size() - at < need) throw bad_row((int)((data.size() - at) / ((size_t)4 * w)));
+    return;
+  }
+  for (int y = 0; y < h; ++y) {
+    if (!rle_marker() || (data[at + 2] << 8 | data[at + 3]) != w) throw bad_row(y);
+    at += 4;
+    for (int c = 0; c < 4; ++c)
+      for (int x = 0; x < w;) {
+        if (at >= data.size()) throw bad_row(y);
+        int count = data[at++];
+        size_t bytes = count > 128 ? 1 : (size_t)count;
+        count = count > 128 ? count - 128 : count;
+        if (count == 0 || x + count > w || data.size() - at < bytes) throw bad_row(y);
+        at += bytes;
+        x += count;
+      }
+  }
+}
+
 std::vector<glm::vec4> read_hdr(const std::filesystem::path& path, int& w, int& h) {
   const std::string where = path.string();
   int n = 0;
@@ -46,6 +93,7 @@ std::vector<glm::vec4> read_hdr(const std::filesystem::path& path, int& w, int& 
     throw Error(std::string("corrupt Radiance HDR file: ") + (why ? why : "unreadable header"), where);
   }
   check_size(w, h, where);
+  check_hdr_body(path, w, h);
   std::unique_ptr<float, void (*)(void*)> data(stbi_loadf(path.c_str(), &w, &h, &n, 3), stbi_image_free);
   if (!data) {
     const char* why = stbi_failure_reason();
