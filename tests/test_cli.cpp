@@ -681,3 +681,78 @@ TEST_F(CliTest, WarpWritesPointsInTheDomain) {
   expect_user_error(run_xi({"warp", "--map", "torus", "-o", "q.png"}), {"torus"}, before);
   expect_user_error(run_xi({"warp", "--map", "disc", "-o", "q.txt"}), {".png or .csv"}, before);
 }
+
+// ---------------------------------------------------------------------------------------------
+// What lies around the scene: --env, --env-strength, --env-rotate, --background.
+
+class CliEnvironment : public CliTest {
+ protected:
+  // A quad far off the view's axis: nearly every pixel sees what lies around the scene.
+  void write_open_scene(const std::string& name) {
+    write_text(work_ / name, R"({
+      "camera": {"position": [0, 0, -5], "look_at": [0, 0, 0], "up": [0, 1, 0], "fov": 40},
+      "materials": {"white": {"type": "diffuse", "albedo": [0.5, 0.5, 0.5]}},
+      "shapes": [{"type": "quad", "material": "white", "vertices": [[0.5,0.5,0], [1,0.5,0], [1,1,0], [0.5,1,0]]}]})");
+  }
+};
+
+TEST_F(CliEnvironment, BadFlagsFailBeforeTheRender) {
+  write_open_scene("open.json");
+  xi::write_png(work_ / "sky.png", xi::Image(4, 2));
+  const auto before = files();
+  auto render = [&](std::vector<std::string> flags) {
+    return run_xi(concat(concat({"render", "open.json", "-o", "out.exr"}, kFast), flags));
+  };
+  expect_user_error(render({"--env-strength", "2"}), {"--env-strength 2", "needs an environment"}, before);
+  expect_user_error(render({"--env-rotate", "30"}), {"--env-rotate 30", "needs an environment"}, before);
+  expect_user_error(render({"--env", "none", "--env-strength", "2"}), {"--env-strength", "needs an environment"}, before);
+  expect_user_error(render({"--env", "missing.hdr"}), {"--env missing.hdr", "not found"}, before);
+  expect_user_error(render({"--env", "sky.png", "--background", "1"}), {"--background", "not both"}, before);
+  for (const std::string s : {"-1", "abc", "inf", "nan", ""}) {
+    SCOPED_TRACE(s);
+    expect_user_error(render({"--env", "sky.png", "--env-strength", s}), {"--env-strength", "number >= 0"}, before);
+  }
+  expect_user_error(render({"--env", "sky.png", "--env-rotate", "north"}), {"--env-rotate north"}, before);
+  for (const std::string b : {"1,2", "1,2,3,4", "-1", "0.5,-0.5,1", "red", "1,,2", ""}) {
+    SCOPED_TRACE(b);
+    expect_user_error(render({"--background", b}), {"--background"}, before);
+  }
+}
+
+TEST_F(CliEnvironment, BackgroundIsSeenWhereRaysLeave) {
+  write_open_scene("open.json");
+  const Outcome r = run_xi({"render", "open.json", "-o", "out.exr", "--quiet", "--resolution", "8x8", "--spp", "1",
+                            "--background", "0.5,0.25,2"});
+  ASSERT_EQ(r.code, 0) << r.err;
+  const xi::Image img = xi::read_exr(work_ / "out.exr");
+  ASSERT_EQ(img.width, 8);
+  const glm::vec3 corner = img.pixels[7 * 8 + 7];  // the bottom right: away from the quad
+  EXPECT_FLOAT_EQ(corner.x, 0.5f);
+  EXPECT_FLOAT_EQ(corner.y, 0.25f);
+  EXPECT_FLOAT_EQ(corner.z, 2.0f);
+}
+
+TEST_F(CliCommands, HelpListsTheEnvironmentFlags) {
+  const Outcome r = run_xi({"help"});
+  for (const char* word : {"--env FILE|none", "--env-strength", "--env-rotate", "--background R,G,B|V"})
+    EXPECT_NE(r.out.find(word), std::string::npos) << word;
+}
+
+// An asset file without lights would be lit by the bundled sky: --background gives a constant
+// radiance instead (and --env-strength then has no environment to scale).
+TEST_F(CliEnvironment, BackgroundReplacesTheSkyOfAnUnlitAsset) {
+  write_text(work_ / "tri.obj", "v 0.5 0.5 0\nv 1 0.5 0\nv 1 1 0\nf 1 2 3\n");
+  const auto before = files();
+  expect_user_error(run_xi(concat({"render", "tri.obj", "-o", "out.exr", "--background", "1", "--env-strength", "2"},
+                                  kFast)),
+                    {"--env-strength 2", "needs an environment"}, before);
+  const Outcome r = run_xi({"render", "tri.obj", "-o", "out.exr", "--resolution", "8x8", "--spp", "1", "--background",
+                            "0.5"});
+  ASSERT_EQ(r.code, 0) << r.err;
+  EXPECT_EQ(r.out.find("bundled sky"), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("no light in the file and no environment"), std::string::npos) << r.out;
+  const xi::Image img = xi::read_exr(work_ / "out.exr");
+  ASSERT_EQ(img.width, 8);
+  for (const glm::vec3& corner : {img.pixels[0], img.pixels[7], img.pixels[56], img.pixels[63]})
+    for (int c = 0; c < 3; ++c) EXPECT_FLOAT_EQ(corner[c], 0.5f);
+}

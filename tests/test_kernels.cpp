@@ -665,11 +665,13 @@ TEST_F(Kernel, ShadeFirstHitsFromTheCamera) {
     // (Kernel arguments do not keep buffers alive: each is named until the launch.)
     cl::Buffer materials = buffer(cs.materials), verts = buffer(cs.tri_verts), tri_material = buffer(cs.tri_material),
                normals = buffer(cs.tri_normals), light_cdf = buffer(cs.light_cdf), light_tri = buffer(cs.light_tri),
-               light_pdf = buffer(cs.tri_light_pdf);
+               light_pdf = buffer(cs.tri_light_pdf), tri_uv = buffer(cs.tri_uv), refs = buffer(cs.texture_refs),
+               images = buffer(cs.images), texels = buffer(cs.texels), punctual = buffer(cs.punctual),
+               env_texels = buffer(cs.environment_texels), env_cdf = buffer(cs.environment_cdf);
     cl::Kernel k((lanes == 8 ? lanes8_ : program_)->program, "shade");
     bind(k, b, queue_in, queue_out, shadow_org, shadow_dir, shadow_contrib, cb, 0u, materials, verts, tri_material,
          normals, light_cdf, light_tri, light_pdf, (uint32_t)cs.light_tri.size(), xi_make_sampler_params(3, 16), shading_word_, 8u,
-         background);
+         background, tri_uv, refs, images, texels, punctual, cs.environment, env_texels, env_cdf);
     launch(k, (count + lanes - 1) / lanes);
     PathState out = download(b, slots);
     const uint32_t next = read<uint32_t>(cb, XI_COUNTER_COUNT(8))[XI_COUNTER_RAYS(1)];
@@ -770,7 +772,9 @@ TEST_F(Kernel, ShadowAddsOnlyUnoccluded) {
     counters[XI_COUNTER_SHADOW(bounce)] = n;  // the entries past n must be ignored
     cl::Buffer cb = buffer(counters);
     cl::Kernel k = packets ? cl::Kernel(ray_packets8_->program, "shadow") : kernel("shadow", width);
-    bind(k, b, org_b, dir_b, contrib_b, cb, bounce, nodes, blocks);
+    cl::Buffer materials = buffer(cs.materials), tri_material = buffer(cs.tri_material), tri_uv = buffer(cs.tri_uv),
+               refs = buffer(cs.texture_refs), images = buffer(cs.images), texels = buffer(cs.texels);
+    bind(k, b, org_b, dir_b, contrib_b, cb, bounce, nodes, blocks, materials, tri_material, tri_uv, refs, images, texels);
     launch(k, (n + extra) / XI_SHADOW_PACKET(width, packets ? 1 : 0));  // over an upper bound, as the renderer launches
     std::vector<vec4> got = read<vec4>(b.radiance, slots);
 

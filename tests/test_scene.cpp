@@ -1,6 +1,7 @@
 // Scene loader: the Cornell box file, shape generation, transforms, meshes and every kind of bad input.
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
 #include <filesystem>
 #include <fstream>
@@ -12,7 +13,9 @@
 
 #include "xi/compiled_scene.h"
 #include "xi/error.h"
+#include "xi/image.h"
 #include "xi/scene.h"
+#include "xi/texture.h"
 #include "fixtures.h"
 
 namespace fs = std::filesystem;
@@ -567,4 +570,325 @@ TEST(MeshLimits, PlyCountsAgainstTheFileSize) {
   write_bytes(dir / "faces.ply", header("binary_little_endian", "3", "1000000000") + binary);
   expect_error([&] { parse(mesh_scene("faces.ply"), dir); }, "faces.ply: its header declares 3 'vertex', 1000000000 'face'");
   fs::remove_all(dir);
+}
+
+// ---------------------------------------------------------------------------------------------
+// Metallic-roughness materials, textures, texture coordinates, lights and the environment.
+
+namespace {
+
+// A w × h PNG of one grey level (xi's own writer: sRGB-encoded 8-bit).
+void write_test_png(const fs::path& p, int w = 2, int h = 2, float grey = 0.5f) {
+  xi::Image img(w, h);
+  for (auto& px : img.pixels) px = glm::vec3(grey);
+  xi::write_png(p, img);
+}
+
+// A scene in `dir` whose materials are `materials` (a JSON object's inside) and whose one quad uses
+// the first of them, named "m", plus `extra` top-level members (each ending in a comma).
+std::string pbr_scene(const std::string& materials, const std::string& extra = "") {
+  return "{" + kCamera + ", " + extra + R"("materials": {)" + materials + R"(}, "shapes": [
+      {"type": "quad", "material": "m", "vertices": [[0,0,0], [1,0,0], [1,1,0], [0,1,0]]}]})";
+}
+
+// The KHR_texture_transform of (u, v), spelt out: scale, then rotate (as the sample model and the
+// viewers do: counter-clockwise as drawn with v down), then offset.
+glm::vec2 khr_transform(glm::vec2 uv, glm::vec2 offset, float radians, glm::vec2 scale) {
+  const glm::vec2 s = uv * scale;
+  const float c = std::cos(radians), n = std::sin(radians);
+  return offset + glm::vec2(c * s.x + n * s.y, -n * s.x + c * s.y);
+}
+
+glm::vec2 apply_slot(const xi::TextureSlot& slot, glm::vec2 uv) {
+  const glm::vec3 r = slot.transform * glm::vec3(uv, 1.0f);
+  return {r.x, r.y};
+}
+
+}  // namespace
+
+TEST(ScenePbr, DefaultsOfEveryField) {
+  const xi::Scene s = parse(pbr_scene(R"("m": {"type": "pbr"})"));
+  const xi::Material& m = material(s, "m");
+  EXPECT_EQ(m.type, xi::MaterialType::Pbr);
+  expect_vec(m.albedo, {1, 1, 1}, 0.0f);
+  EXPECT_EQ(m.metallic, 0.0f);
+  EXPECT_EQ(m.roughness, 0.5f);
+  EXPECT_EQ(m.ior, 1.5f);
+  EXPECT_EQ(m.transmission, 0.0f);
+  EXPECT_EQ(m.alpha, 1.0f);
+  EXPECT_EQ(m.alpha_mode, xi::AlphaMode::Opaque);
+  EXPECT_EQ(m.alpha_cutoff, 0.5f);
+  EXPECT_EQ(m.normal_scale, 1.0f);
+  EXPECT_FALSE(m.two_sided);
+  EXPECT_FALSE(m.is_emitter());
+  for (const xi::TextureSlot* t : {&m.base_color_texture, &m.metallic_roughness_texture, &m.normal_texture, &m.emissive_texture})
+    EXPECT_FALSE(t->used());
+  EXPECT_TRUE(s.images.empty());
+  EXPECT_TRUE(s.lights.empty());
+  EXPECT_FALSE(s.environment.has_value());
+}
+
+TEST(ScenePbr, EveryFieldIsRead) {
+  const fs::path dir = temp_dir();
+  write_test_png(dir / "base.png");
+  write_test_png(dir / "mr.png");
+  write_test_png(dir / "n.png");
+  const xi::Scene s = parse(pbr_scene(R"("m": {"type": "pbr", "base_color": [0.1, 0.2, 0.3], "metallic": 0.7,
+      "roughness": 0.2, "ior": 1.8, "transmission": 0.4, "radiance": [5, 6, 7], "two_sided": true, "alpha": 0.25,
+      "alpha_mode": "mask", "alpha_cutoff": 0.3, "base_color_texture": "base.png",
+      "metallic_roughness_texture": {"file": "mr.png", "texcoord": 1, "wrap": "clamp"},
+      "normal_texture": {"file": "n.png", "wrap_s": "mirror", "wrap_t": "clamp"}, "normal_scale": 0.5,
+      "emissive_texture": "base.png"},
+      "b": {"type": "pbr", "alpha_mode": "blend", "emissive_texture": "base.png"})"),
+                            dir);
+  const xi::Material& m = material(s, "m");
+  expect_vec(m.albedo, {0.1f, 0.2f, 0.3f}, 0.0f);
+  EXPECT_FLOAT_EQ(m.metallic, 0.7f);
+  EXPECT_FLOAT_EQ(m.roughness, 0.2f);
+  EXPECT_FLOAT_EQ(m.ior, 1.8f);
+  EXPECT_FLOAT_EQ(m.transmission, 0.4f);
+  expect_vec(m.emission, {5, 6, 7}, 0.0f);
+  EXPECT_TRUE(m.two_sided);
+  EXPECT_FLOAT_EQ(m.alpha, 0.25f);
+  EXPECT_EQ(m.alpha_mode, xi::AlphaMode::Mask);
+  EXPECT_FLOAT_EQ(m.alpha_cutoff, 0.3f);
+  EXPECT_FLOAT_EQ(m.normal_scale, 0.5f);
+  // Colour images are decoded as sRGB, data as linear: the same file twice, each use once.
+  ASSERT_EQ(s.images.size(), 3u);  // base.png (sRGB), mr.png, n.png: "b" reuses base.png as a colour
+  ASSERT_TRUE(m.base_color_texture.used());
+  EXPECT_TRUE(s.images[m.base_color_texture.image].srgb);
+  EXPECT_EQ(m.emissive_texture.image, m.base_color_texture.image);
+  EXPECT_FALSE(s.images[m.metallic_roughness_texture.image].srgb);
+  EXPECT_FALSE(s.images[m.normal_texture.image].srgb);
+  EXPECT_EQ(s.images[m.base_color_texture.image].width, 2);
+  EXPECT_EQ(m.base_color_texture.texcoord, 0);
+  EXPECT_EQ(m.base_color_texture.wrap_s, xi::Wrap::Repeat);
+  EXPECT_EQ(m.metallic_roughness_texture.texcoord, 1);
+  EXPECT_EQ(m.metallic_roughness_texture.wrap_s, xi::Wrap::Clamp);
+  EXPECT_EQ(m.metallic_roughness_texture.wrap_t, xi::Wrap::Clamp);
+  EXPECT_EQ(m.normal_texture.wrap_s, xi::Wrap::Mirror);
+  EXPECT_EQ(m.normal_texture.wrap_t, xi::Wrap::Clamp);
+  const xi::Material& b = material(s, "b");
+  EXPECT_EQ(b.alpha_mode, xi::AlphaMode::Blend);
+  EXPECT_EQ(b.emissive_texture.image, m.base_color_texture.image);
+  expect_vec(b.emission, {1, 1, 1}, 0.0f);  // an emissive texture alone: radiance 1 times the texture
+}
+
+TEST(ScenePbr, DiffuseAlbedoMayBeAnImage) {
+  const fs::path dir = temp_dir();
+  write_test_png(dir / "wood.png", 3, 1);
+  const xi::Scene s = parse(pbr_scene(R"("m": {"type": "diffuse", "albedo": "wood.png"},
+      "n": {"type": "diffuse", "albedo": {"file": "wood.png", "scale": [2, 2]}})"), dir);
+  const xi::Material& m = material(s, "m");
+  EXPECT_EQ(m.type, xi::MaterialType::Diffuse);
+  expect_vec(m.albedo, {1, 1, 1}, 0.0f);
+  ASSERT_TRUE(m.base_color_texture.used());
+  ASSERT_EQ(s.images.size(), 1u);
+  EXPECT_EQ(s.images[0].width, 3);
+  EXPECT_TRUE(s.images[0].srgb);
+  EXPECT_EQ(material(s, "n").base_color_texture.image, 0);
+  expect_vec(material(s, "n").base_color_texture.transform[0], {2, 0, 0}, 0.0f);
+}
+
+TEST(ScenePbr, TextureTransformIsKhrTextureTransform) {
+  const glm::vec2 offset(0.25f, -0.5f), scale(2.0f, 0.5f);
+  const float degrees = 30.0f;
+  // The library's matrix on a few points.
+  const xi::TextureSlot direct{0, 0, xi::Wrap::Repeat, xi::Wrap::Repeat,
+                               xi::texture_transform(offset, glm::radians(degrees), scale)};
+  for (glm::vec2 uv : {glm::vec2(0, 0), glm::vec2(1, 0), glm::vec2(0, 1), glm::vec2(0.3f, 0.7f), glm::vec2(-2, 5)}) {
+    const glm::vec2 want = khr_transform(uv, offset, glm::radians(degrees), scale), got = apply_slot(direct, uv);
+    EXPECT_NEAR(got.x, want.x, 1e-5f);
+    EXPECT_NEAR(got.y, want.y, 1e-5f);
+  }
+  // A positive rotation of 90 degrees takes u = 1 to v = -1: counter-clockwise as drawn with v down.
+  const glm::vec2 turned = apply_slot({0, 0, xi::Wrap::Repeat, xi::Wrap::Repeat,
+                                       xi::texture_transform({0, 0}, glm::radians(90.0f), {1, 1})},
+                                      {1, 0});
+  EXPECT_NEAR(turned.x, 0.0f, 1e-6f);
+  EXPECT_NEAR(turned.y, -1.0f, 1e-6f);
+
+  // The JSON object's offset, rotation (degrees) and scale give the same matrix.
+  const fs::path dir = temp_dir();
+  write_test_png(dir / "t.png");
+  const xi::Scene s = parse(pbr_scene(R"("m": {"type": "pbr", "base_color_texture": {"file": "t.png",
+      "offset": [0.25, -0.5], "rotation": 30, "scale": [2, 0.5]}})"), dir);
+  const xi::TextureSlot& slot = material(s, "m").base_color_texture;
+  for (int c = 0; c < 3; ++c) expect_vec(slot.transform[c], direct.transform[c], 1e-6f);
+  // Without a transform: the identity.
+  const xi::Scene plain = parse(pbr_scene(R"("m": {"type": "pbr", "base_color_texture": "t.png"})"), dir);
+  for (int c = 0; c < 3; ++c) expect_vec(material(plain, "m").base_color_texture.transform[c], glm::mat3(1.0f)[c], 0.0f);
+}
+
+TEST(SceneUv, QuadsAndTrianglesMapTheImage) {
+  const xi::Scene s = parse(scene_text(kQuad + R"(, {"type": "triangle", "material": "white",
+      "vertices": [[0,0,1], [1,0,1], [0,1,1]]})"));
+  ASSERT_EQ(s.triangles.size(), 3u);
+  // v0..v3 of the quad at (0,0), (1,0), (1,1), (0,1): v0 is the image's top-left corner.
+  const glm::vec2 quad[4] = {{0, 0}, {1, 0}, {1, 1}, {0, 1}};
+  const glm::vec3 pos[4] = {{0, 0, 0}, {1, 0, 0}, {1, 1, 0}, {0, 1, 0}};
+  for (int t = 0; t < 2; ++t)
+    for (int k = 0; k < 3; ++k) {
+      int corner = 0;
+      while (corner < 4 && s.triangles[t].v[k] != pos[corner]) ++corner;
+      ASSERT_LT(corner, 4);
+      for (int set = 0; set < 2; ++set) {
+        EXPECT_EQ(s.triangles[t].uv[set][k].x, quad[corner].x);
+        EXPECT_EQ(s.triangles[t].uv[set][k].y, quad[corner].y);
+      }
+    }
+  const glm::vec2 tri[3] = {{0, 0}, {1, 0}, {0, 1}};
+  for (int k = 0; k < 3; ++k) {
+    EXPECT_EQ(s.triangles[2].uv[0][k].x, tri[k].x);
+    EXPECT_EQ(s.triangles[2].uv[0][k].y, tri[k].y);
+  }
+}
+
+TEST(SceneUv, MirroringTransformKeepsEachVertexsCoordinates) {
+  const xi::Scene s = parse(scene_text(R"({"type": "triangle", "material": "white",
+      "vertices": [[0,0,0], [1,0,0], [0,1,0]], "transform": {"scale": [-1, 1, 1]}})"));
+  ASSERT_EQ(s.triangles.size(), 1u);
+  for (int k = 0; k < 3; ++k) {  // each vertex's (u, v) is the one it had: (0,0) at the origin, (1,0) at x = -1
+    const glm::vec3 p = s.triangles[0].v[k];
+    const glm::vec2 want = p.x < -0.5f ? glm::vec2(1, 0) : p.y > 0.5f ? glm::vec2(0, 1) : glm::vec2(0, 0);
+    EXPECT_EQ(s.triangles[0].uv[0][k].x, want.x);
+    EXPECT_EQ(s.triangles[0].uv[0][k].y, want.y);
+  }
+}
+
+TEST(SceneUv, SphereIsEquirectangular) {
+  const xi::Scene s = parse(scene_text(R"({"type": "sphere", "material": "white", "center": [0, 0, 0], "radius": 2,
+      "subdivisions": 3})"));
+  for (const xi::Triangle& t : s.triangles) {
+    float lo = 10, hi = -10;
+    for (int k = 0; k < 3; ++k) {
+      const glm::vec3 d = glm::normalize(t.v[k]);
+      const glm::vec2 uv = t.uv[0][k];
+      EXPECT_NEAR(uv.y, std::acos(std::clamp(d.y, -1.0f, 1.0f)) / float(M_PI), 1e-5f);
+      lo = std::min(lo, uv.x), hi = std::max(hi, uv.x);
+      if (std::abs(d.y) < 0.999f) {  // off the poles: u = 0.5 + atan2(x, z) / 2π, maybe + 1 across the seam
+        const float u = 0.5f + std::atan2(d.x, d.z) / (2.0f * float(M_PI));
+        EXPECT_NEAR(std::fmod(uv.x, 1.0f), std::fmod(u, 1.0f), 1e-5f) << d.x << " " << d.y << " " << d.z;
+      }
+    }
+    EXPECT_LT(hi - lo, 0.5f);  // no triangle spans the whole image across the seam
+    EXPECT_GE(lo, 0.0f);
+    EXPECT_LT(hi, 1.5f);
+  }
+}
+
+TEST(SceneLights, EveryTypeWithItsDefaults) {
+  const xi::Scene s = parse(pbr_scene(R"("m": {"type": "pbr"})", R"("lights": [
+      {"type": "point", "position": [1, 2, 3]},
+      {"type": "spot", "name": "key", "position": [0, 5, 0], "direction": [0, -2, 0], "color": [1, 0.5, 0.25],
+       "intensity": 100, "inner_angle": 10, "outer_angle": 20},
+      {"type": "spot", "position": [0, 5, 0], "direction": [1, 0, 0]},
+      {"type": "directional", "direction": [0, 0, -3], "intensity": 2},
+      {"type": "sun", "direction": [1, -1, 0], "intensity": 1000},
+      {"type": "sun", "direction": [0, -1, 0], "angular_radius": 2}], )"));
+  ASSERT_EQ(s.lights.size(), 6u);
+  const auto& l = s.lights;
+  EXPECT_EQ(l[0].type, xi::LightType::Point);
+  expect_vec(l[0].position, {1, 2, 3}, 0.0f);
+  expect_vec(l[0].intensity, {1, 1, 1}, 0.0f);
+  EXPECT_EQ(l[0].name, "light 0");
+  EXPECT_EQ(l[1].type, xi::LightType::Spot);
+  EXPECT_EQ(l[1].name, "key");
+  expect_vec(l[1].direction, {0, -1, 0}, 0.0f);  // normalised
+  expect_vec(l[1].intensity, {100, 50, 25}, 0.0f);
+  EXPECT_FLOAT_EQ(l[1].inner_cone, glm::radians(10.0f));
+  EXPECT_FLOAT_EQ(l[1].outer_cone, glm::radians(20.0f));
+  EXPECT_FLOAT_EQ(l[2].inner_cone, 0.0f);
+  EXPECT_FLOAT_EQ(l[2].outer_cone, glm::radians(45.0f));
+  EXPECT_EQ(l[3].type, xi::LightType::Directional);
+  expect_vec(l[3].direction, {0, 0, -1}, 0.0f);
+  expect_vec(l[3].intensity, {2, 2, 2}, 0.0f);
+  EXPECT_EQ(l[3].angular_radius, 0.0f);
+  EXPECT_EQ(l[4].type, xi::LightType::Directional);
+  expect_vec(l[4].direction, glm::normalize(glm::vec3(1, -1, 0)), 1e-6f);
+  EXPECT_FLOAT_EQ(l[4].angular_radius, glm::radians(0.27f));
+  EXPECT_FLOAT_EQ(l[5].angular_radius, glm::radians(2.0f));
+  EXPECT_NO_THROW(xi::check_scene_limits(s));
+}
+
+TEST(SceneEnvironment, FileStrengthRotationAndBackground) {
+  const fs::path dir = temp_dir();
+  write_test_png(dir / "sky.png");
+  const xi::Scene s = parse(pbr_scene(R"("m": {"type": "pbr"})",
+                                      R"("background": [0.1, 0.2, 0.3], "environment": {"file": "sky.png",
+                                          "strength": 2.5, "rotation": -90}, )"),
+                            dir);
+  ASSERT_TRUE(s.environment.has_value());
+  EXPECT_EQ(s.environment->file, dir / "sky.png");
+  EXPECT_FLOAT_EQ(s.environment->strength, 2.5f);
+  EXPECT_FLOAT_EQ(s.environment->rotation_degrees, -90.0f);
+  expect_vec(s.background, {0.1f, 0.2f, 0.3f}, 0.0f);  // kept: the environment replaces it where set
+  const xi::Scene d = parse(pbr_scene(R"("m": {"type": "pbr"})", R"("environment": {"file": "sky.png"}, )"), dir);
+  EXPECT_FLOAT_EQ(d.environment->strength, 1.0f);
+  EXPECT_FLOAT_EQ(d.environment->rotation_degrees, 0.0f);
+}
+
+// Each bad input: one error naming the file and the JSON pointer of the value at fault.
+TEST(SceneErrors, PbrTexturesLightsAndEnvironment) {
+  const fs::path dir = temp_dir();
+  write_test_png(dir / "ok.png");
+  write_bytes(dir / "corrupt.png", "\x89PNG\r\n\x1a\n not really a png");
+  struct Case { std::string materials, extra, needle; };
+  const std::string pbr = R"("m": {"type": "pbr")";
+  const std::vector<Case> cases = {
+      {pbr + R"(, "shiny": 1})", "", "test.json: /materials/m/shiny"},
+      {pbr + R"(, "metallic": 1.5})", "", "/materials/m/metallic"},
+      {pbr + R"(, "roughness": -0.1})", "", "/materials/m/roughness"},
+      {pbr + R"(, "ior": 0.5})", "", "/materials/m/ior"},
+      {pbr + R"(, "alpha": 2})", "", "/materials/m/alpha"},
+      {pbr + R"(, "alpha_mode": "cutout"})", "", "/materials/m/alpha_mode"},
+      {pbr + R"(, "alpha_cutoff": 0.2})", "", "/materials/m/alpha_cutoff"},  // only with "mask"
+      {pbr + R"(, "normal_scale": 2})", "", "/materials/m/normal_scale"},    // needs a normal_texture
+      {pbr + R"(, "base_color": [1, 2, 0]})", "", "/materials/m/base_color/1"},
+      {pbr + R"(, "base_color_texture": "missing.png"})", "", "/materials/m/base_color_texture"},
+      {pbr + R"(, "normal_texture": {"file": "corrupt.png"}})", "", "/materials/m/normal_texture/file"},
+      {pbr + R"(, "base_color_texture": {"file": "ok.png", "wrap": "tile"}})", "", "/materials/m/base_color_texture/wrap"},
+      {pbr + R"(, "base_color_texture": {"file": "ok.png", "wrap_t": "loop"}})", "", "/materials/m/base_color_texture/wrap_t"},
+      {pbr + R"(, "base_color_texture": {"file": "ok.png", "texcoord": 2}})", "", "/materials/m/base_color_texture/texcoord"},
+      {pbr + R"(, "base_color_texture": {"file": "ok.png", "offset": [1]}})", "", "/materials/m/base_color_texture/offset"},
+      {pbr + R"(, "base_color_texture": {"file": "ok.png", "rotate": 3}})", "", "/materials/m/base_color_texture/rotate"},
+      {pbr + R"(, "base_color_texture": {"texcoord": 0}})", "", "/materials/m/base_color_texture"},
+      {pbr + R"(, "base_color_texture": 3})", "", "/materials/m/base_color_texture"},
+      {R"("m": {"type": "diffuse", "albedo": "missing.png"})", "", "/materials/m/albedo"},
+      {R"("m": {"type": "plastic"})", "", "/materials/m/type"},
+      {pbr + "}", R"("lights": [{"type": "spot", "position": [0,0,0], "direction": [0,-1,0], "inner_angle": 30,
+           "outer_angle": 30}], )", "/lights/0/outer_angle"},
+      {pbr + "}", R"("lights": [{"type": "spot", "position": [0,0,0], "direction": [0,-1,0], "inner_angle": 50}], )",
+       "/lights/0/inner_angle"},
+      {pbr + "}", R"("lights": [{"type": "spot", "position": [0,0,0], "direction": [0,-1,0], "outer_angle": 120}], )",
+       "/lights/0/outer_angle"},
+      {pbr + "}", R"("lights": [{"type": "directional", "direction": [0, 0, 0]}], )", "/lights/0/direction"},
+      {pbr + "}", R"("lights": [{"type": "point", "position": [0,0,0], "intensity": -1}], )", "/lights/0/intensity"},
+      {pbr + "}", R"("lights": [{"type": "point", "position": [0,0,2e9]}], )", "/lights/0/position"},
+      {pbr + "}", R"("lights": [{"type": "point", "position": [0,0,0], "direction": [0,0,1]}], )", "/lights/0/direction"},
+      {pbr + "}", R"("lights": [{"type": "point"}], )", "/lights/0"},
+      {pbr + "}", R"("lights": [{"type": "area", "position": [0,0,0]}], )", "/lights/0/type"},
+      {pbr + "}", R"("lights": [{"type": "sun", "direction": [0,-1,0], "angular_radius": 60}], )",
+       "/lights/0/angular_radius"},
+      {pbr + "}", R"("lights": [{"type": "point", "position": [0,0,0], "color": [1, 1, 1.5]}], )", "/lights/0/color/2"},
+      {pbr + "}", R"("lights": {}, )", "test.json: /lights"},
+      {pbr + "}", R"("environment": {"file": "nosky.hdr"}, )", "/environment/file"},
+      {pbr + "}", R"("environment": {"file": "ok.png", "strength": -1}, )", "/environment/strength"},
+      {pbr + "}", R"("environment": {"file": "ok.png", "rotate": 5}, )", "/environment/rotate"},
+  };
+  for (const Case& c : cases) {
+    SCOPED_TRACE(c.materials + " | " + c.extra);
+    try {
+      parse(pbr_scene(c.materials, c.extra), dir);
+      ADD_FAILURE() << "no error";
+    } catch (const xi::Error& e) {
+      EXPECT_NE(std::string(e.what()).find(c.needle), std::string::npos) << e.what();
+      EXPECT_EQ(std::string(e.what()).find('\n'), std::string::npos) << e.what();
+    }
+  }
+  // The image's errors name the file, too.
+  expect_error([&] { parse(pbr_scene(pbr + R"(, "base_color_texture": "missing.png"})"), dir); }, "missing.png");
+  expect_error([&] { parse(pbr_scene(pbr + R"(, "normal_texture": "corrupt.png"})"), dir); }, "corrupt.png");
+  expect_error([&] { parse(pbr_scene(pbr + R"(, "normal_texture": "corrupt.png"})"), dir); }, "cannot decode");
+  expect_error([&] { parse(pbr_scene(pbr + "}", R"("environment": {"file": "nosky.hdr"}, )"), dir); }, "nosky.hdr");
 }

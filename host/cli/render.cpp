@@ -43,6 +43,78 @@ void parse_resolution(const std::string& text, Scene* scene) {
   scene->height = number(text.substr(x + 1));
 }
 
+// A finite number in [lo, hi], the whole of `text`.
+float parse_number(const std::string& text, double lo, double hi, const std::string& flag, const std::string& what) {
+  size_t used = 0;
+  double x = 0.0;
+  try {
+    x = std::stod(text, &used);
+  } catch (const std::exception&) {
+    used = 0;
+  }
+  if (text.empty() || used != text.size() || !std::isfinite(x) || x < lo || x > hi)
+    throw Error("expected " + what + ", got '" + text + "'", flag + " " + text);
+  return float(x);
+}
+
+// R,G,B or one value for all three, each a radiance >= 0.
+glm::vec3 parse_background(const std::string& text) {
+  std::vector<std::string> parts;
+  for (size_t at = 0; at <= text.size();) {
+    const size_t comma = std::min(text.find(',', at), text.size());
+    parts.push_back(text.substr(at, comma - at));
+    at = comma + 1;
+  }
+  if (parts.size() != 1 && parts.size() != 3)
+    throw Error("expected R,G,B or one value, each >= 0, got '" + text + "'", "--background " + text);
+  glm::vec3 c;
+  for (int i = 0; i < 3; ++i)
+    c[i] = parse_number(parts[parts.size() == 1 ? 0 : i], 0.0, 1e30, "--background",
+                        "R,G,B or one value, each a number >= 0");
+  return c;
+}
+
+// What lies around the scene, from --env FILE|none, --background, --env-strength and --env-rotate,
+// read and checked before the scene is loaded.
+struct EnvironmentFlags {
+  std::optional<Environment> environment;  // --env FILE
+  bool none = false;                       // --env none, or --background
+  std::optional<glm::vec3> background;
+  std::optional<float> strength, rotation;
+};
+
+EnvironmentFlags read_environment_flags(const Args& args) {
+  EnvironmentFlags f;
+  const std::string env = args.get("--env");
+  if (args.has("--env") && env != "none") {
+    if (args.has("--background"))
+      throw Error("give either --env FILE or --background, not both", "--background " + args.get("--background"));
+    std::error_code ec;
+    if (!std::filesystem::is_regular_file(env, ec)) throw Error("environment map not found", "--env " + env);
+    f.environment = Environment{env, 1.0f, 0.0f};
+  }
+  f.none = env == "none" || args.has("--background");
+  if (args.has("--background")) f.background = parse_background(args.get("--background"));
+  if (args.has("--env-strength"))
+    f.strength = parse_number(args.get("--env-strength"), 0.0, 1e30, "--env-strength", "a number >= 0");
+  if (args.has("--env-rotate"))
+    f.rotation = parse_number(args.get("--env-rotate"), -1e6, 1e6, "--env-rotate", "an angle in degrees");
+  return f;
+}
+
+void apply_environment_flags(Scene& scene, const EnvironmentFlags& f, const Args& args) {
+  if (f.environment) scene.environment = f.environment;
+  if (f.none) scene.environment.reset();
+  if (f.background) scene.background = *f.background;
+  for (const char* flag : {"--env-strength", "--env-rotate"})
+    if (args.has(flag) && !scene.environment)
+      throw Error(std::string(flag) + " needs an environment: the scene has none" +
+                      (f.none ? " with --env none or --background" : "") + "; --env FILE gives one",
+                  std::string(flag) + " " + args.get(flag));
+  if (f.strength) scene.environment->strength = *f.strength;
+  if (f.rotation) scene.environment->rotation_degrees = *f.rotation;
+}
+
 std::string format_seconds(double s) {
   char buf[32];
   if (s < 60) std::snprintf(buf, sizeof buf, "%.1fs", s);
@@ -143,7 +215,8 @@ Args parse_render_args(const std::vector<std::string>& argv) {
               {"-o", "--spp", "--seed", "--device", "--max-depth", "--resolution", "--sampler", "--strategy",
                "--local-size", "--lanes", "--bvh-width", "--ray-packets", "--kernels", "--reference", "--convergence", "--trace",
                "--paths-in-flight", "--samples-per-pass",
-               "--time", "--snapshot-every", "--checkpoint", "--checkpoint-every", "--resume", "--camera"},
+               "--time", "--snapshot-every", "--checkpoint", "--checkpoint-every", "--resume", "--camera", "--env",
+               "--env-strength", "--env-rotate", "--background"},
               {"--profile", "--quiet", "--all-features", "--no-spatial-splits"});
 }
 
@@ -156,10 +229,14 @@ void load_job_scene(Job& job, const Args& args, const Team& team) {
   if (args.has("--camera") && !job.asset)
     throw Error("--camera chooses among an asset file's cameras (.gltf, .glb...); a JSON scene has one camera",
                 "--camera " + args.get("--camera"));
+  const EnvironmentFlags environment = read_environment_flags(args);
   AssetOptions asset_options;
   asset_options.camera = args.get("--camera");
+  asset_options.environment = environment.environment;
+  asset_options.sky = !environment.none;
   Scene& scene = job.scene;
   scene = job.asset ? load_asset(job.scene_path, asset_options) : load_scene(job.scene_path);
+  apply_environment_flags(scene, environment, args);
   job.resolution_given = args.has("--resolution");
   if (job.resolution_given) parse_resolution(args.get("--resolution"), &scene);
   if (team.size() > scene.height)

@@ -3,6 +3,7 @@
 // in README.md.
 #pragma once
 #include <filesystem>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -13,6 +14,10 @@ namespace xi {
 struct AssetOptions {
   std::string camera;  // a camera's name or index; empty: the file's first perspective camera
   int height = 512;    // film height; the width follows the camera's aspect ratio
+  // What lights a file with no light of its own: this map, else the bundled sky unless `sky` is
+  // false (then the scene's constant background alone, black unless the caller sets it).
+  std::optional<Environment> environment;
+  bool sky = true;
 };
 
 // Whether a scene file is read through Assimp: every one but a .json scene (any case). load_asset
@@ -23,7 +28,7 @@ std::vector<std::string> asset_extensions();
 
 // A whole scene from an asset file. Camera: the chosen one, or without one, the bounding box framed
 // from +z (looking down -z, up +y, vfov 40). No light of any kind (emissive material, punctual
-// light): lit by AssetOptions::environment, else the bundled sky.
+// light): lit by AssetOptions::environment, else the bundled sky (unless AssetOptions::sky is false).
 // Both decisions are stated in Scene::notes; what xi does not model is in Scene::warnings.
 // Throws xi::Error naming the file (and, for an unknown camera, listing the file's cameras).
 Scene load_asset(const std::filesystem::path& path, const AssetOptions& options = {});

@@ -6,6 +6,8 @@
 #include <string>
 #include <vector>
 
+#include <glm/glm.hpp>
+
 #include "xi/scene.h"
 
 namespace xi {
@@ -19,5 +21,13 @@ constexpr int kMaxTextureSide = 16384;
 TextureImage decode_image(const std::vector<uint8_t>& bytes, const std::string& source, bool srgb);
 // Reads and decodes an image file. Throws xi::Error naming the file.
 TextureImage load_image_file(const std::filesystem::path& path, bool srgb);
+
+// KHR_texture_transform as a TextureSlot::transform: translation(offset) · rotation · scale, applied
+// to (u, v, 1) in glTF's convention (v down). A positive rotation turns the coordinates
+// counter-clockwise as drawn on the image (u right, v down): u' = cos·u + sin·v, v' = −sin·u + cos·v
+// before the offset. This is what the extension's sample model (TextureTransformTest), Blender,
+// Babylon.js and three.js do; the GLSL listing in the extension's text has the transpose
+// (KhronosGroup/glTF issue 1563). The glTF reader and JSON scenes both build it here.
+glm::mat3 texture_transform(glm::vec2 offset, float rotation_radians, glm::vec2 scale);
 
 }  // namespace xi

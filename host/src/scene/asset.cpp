@@ -440,7 +440,12 @@ Scene load_asset(const fs::path& path, const AssetOptions& options) {
   const bool emitters =
       std::any_of(s.materials.begin(), s.materials.end(), [](const Material& m) { return m.is_emitter(); });
   const bool lit = !s.lights.empty() || (emitters && !is_gltf(path));
-  if (!lit) {
+  if (!lit && options.environment) {
+    s.environment = options.environment;
+    s.notes.push_back("no light in the file: lit by " + s.environment->file.string());
+  } else if (!lit && !options.sky) {
+    s.notes.push_back("no light in the file and no environment: the background alone lights it");
+  } else if (!lit) {
     // As glTF viewers light a model without lights: by an environment.
     s.environment = Environment{bundled_scene_file("sky.hdr"), 1.0f, 0.0f};
     s.notes.push_back("no light in the file: lit by xi's bundled sky (" + s.environment->file.string() +

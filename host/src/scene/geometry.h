@@ -71,6 +71,7 @@ inline void apply(const Transform& t, Triangle& tri) {
   if (t.flips) {  // keep the front face (from the winding) on the same side as the normals
     std::swap(tri.v[1], tri.v[2]);
     std::swap(tri.n[1], tri.n[2]);
+    for (auto& set : tri.uv) std::swap(set[1], set[2]);
   }
 }
 

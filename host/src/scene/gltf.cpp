@@ -206,12 +206,8 @@ class Reader {
     }
     if (const json* x = extension(*info, "KHR_texture_transform")) {
       const auto offset = numbers(*x, "offset", {0, 0}), scale = numbers(*x, "scale", {1, 1});
-      const float r = float(number(*x, "rotation", 0.0)), c = std::cos(r), s = std::sin(r);
-      // translation · rotation · scale, as the extension defines it (columns of a glm::mat3).
-      const glm::mat3 translation(1, 0, 0, 0, 1, 0, float(offset[0]), float(offset[1]), 1);
-      const glm::mat3 rotation(c, -s, 0, s, c, 0, 0, 0, 1);
-      const glm::mat3 scaling(float(scale[0]), 0, 0, 0, float(scale[1]), 0, 0, 0, 1);
-      slot.transform = translation * rotation * scaling;
+      slot.transform = texture_transform(glm::vec2(float(offset[0]), float(offset[1])),
+                                         float(number(*x, "rotation", 0.0)), glm::vec2(float(scale[0]), float(scale[1])));
       if (index_of(*x, "texCoord") >= 0) slot.texcoord = index_of(*x, "texCoord");
     }
     if (slot.texcoord > 1) {

@@ -5,6 +5,8 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <cstdio>
+#include <iterator>
 #include <fstream>
 #include <map>
 #include <sstream>
@@ -21,6 +23,7 @@
 #include "mesh_check.h"
 #include "xi/asset.h"
 #include "xi/error.h"
+#include "xi/texture.h"
 
 namespace xi {
 namespace {
@@ -48,6 +51,12 @@ std::string one_line(std::string_view s) {
     else out += char(c);
   }
   return out;
+}
+
+std::string short_number(float v) {
+  char buf[32];
+  std::snprintf(buf, sizeof buf, "%g", double(v));
+  return buf;
 }
 
 // A JSON value plus where it lives, so that each check is one line and each error says where.
@@ -117,9 +126,32 @@ class Node {
     return n.raw().get<bool>();
   }
 
+  glm::vec2 vec2() const {
+    auto e = elements(2);
+    return {e[0].number(), e[1].number()};
+  }
   glm::vec3 vec3() const {
     auto e = elements(3);
     return {e[0].number(), e[1].number(), e[2].number()};
+  }
+  // A number in [lo, hi], or `def` when the key is absent.
+  float number_in(const std::string& key, float def, float lo, float hi) const {
+    if (!has(key)) return def;
+    const float v = at(key).number();
+    if (!(v >= lo && v <= hi)) at(key).fail(key + " must be in [" + short_number(lo) + ", " + short_number(hi) + "]");
+    return v;
+  }
+  // One of `names` (the key's value), or `def` when the key is absent.
+  std::string choice(const std::string& key, const std::string& def, std::initializer_list<std::string_view> names) const {
+    if (!has(key)) return def;
+    const std::string v = at(key).string();
+    if (std::find(names.begin(), names.end(), v) == names.end()) {
+      std::string list;
+      for (auto it = names.begin(); it != names.end(); ++it)
+        list += (it == names.begin() ? "" : std::next(it) == names.end() ? " or " : ", ") + std::string(*it);
+      at(key).fail("unknown " + key + " '" + v + "' (expected " + list + ")");
+    }
+    return v;
   }
   // An RGB triple with every component in [0, max] (max = 1 for reflectances, inf for radiance).
   glm::vec3 rgb(float max) const {
@@ -177,7 +209,94 @@ Camera read_camera(const Node& n) {
   return c;
 }
 
-Material read_material(const Node& n, const std::string& name) {
+// The texture images a scene file names, each (file, colour or data) decoded once.
+class ImageFiles {
+ public:
+  ImageFiles(const fs::path& base_dir, std::vector<TextureImage>& images) : base_dir_(base_dir), images_(images) {}
+
+  // The index in Scene::images of the image file `file` (a string node, relative to the scene file).
+  int load(const Node& file, bool srgb) {
+    const fs::path path = (base_dir_ / file.string()).lexically_normal();
+    const auto key = std::make_pair(path.string(), srgb);
+    if (auto found = loaded_.find(key); found != loaded_.end()) return found->second;
+    std::error_code ec;
+    if (!fs::is_regular_file(path, ec)) file.fail("texture image not found: " + path.string());
+    try {
+      images_.push_back(load_image_file(path, srgb));
+    } catch (const Error& e) {
+      file.fail(e.message() + ": " + path.string());
+    }
+    return loaded_[key] = int(images_.size()) - 1;
+  }
+
+ private:
+  fs::path base_dir_;
+  std::vector<TextureImage>& images_;
+  std::map<std::pair<std::string, bool>, int> loaded_;
+};
+
+// A texture input: an image file name, or {"file", "texcoord", "wrap" (or "wrap_s", "wrap_t"),
+// "offset", "rotation" (degrees), "scale"}, the last three as KHR_texture_transform.
+// srgb: a colour (base colour, emission) rather than data (metallic-roughness, normals).
+TextureSlot read_texture(const Node& n, bool srgb, ImageFiles& images) {
+  TextureSlot slot;
+  if (n.raw().is_string()) {
+    slot.image = images.load(n, srgb);
+    return slot;
+  }
+  if (!n.raw().is_object()) n.fail("expected an image file name or an object with \"file\"");
+  n.expect_object({"file", "texcoord", "wrap", "wrap_s", "wrap_t", "offset", "rotation", "scale"});
+  slot.image = images.load(n.at("file"), srgb);
+  slot.texcoord = int(n.integer("texcoord", 0, 0, 1));
+  if (n.has("wrap") && (n.has("wrap_s") || n.has("wrap_t")))
+    n.at("wrap").fail("give either wrap or wrap_s / wrap_t, not both");
+  auto wrap = [&](const std::string& key) {
+    const std::string w = n.choice(key, n.has("wrap") ? n.at("wrap").string() : "repeat", {"repeat", "clamp", "mirror"});
+    return w == "clamp" ? Wrap::Clamp : w == "mirror" ? Wrap::Mirror : Wrap::Repeat;
+  };
+  slot.wrap_s = wrap(n.has("wrap") ? "wrap" : "wrap_s");
+  slot.wrap_t = wrap(n.has("wrap") ? "wrap" : "wrap_t");
+  const glm::vec2 offset = n.has("offset") ? n.at("offset").vec2() : glm::vec2(0.0f);
+  const glm::vec2 scale = n.has("scale") ? n.at("scale").vec2() : glm::vec2(1.0f);
+  const float degrees = n.number("rotation", 0.0f);
+  slot.transform = texture_transform(offset, glm::radians(degrees), scale);
+  for (int c = 0; c < 3; ++c)  // e.g. an offset near FLT_MAX
+    for (int r = 0; r < 3; ++r)
+      if (!std::isfinite(slot.transform[c][r])) n.fail("texture transform is not finite in single precision");
+  return slot;
+}
+
+// glTF 2.0's metallic-roughness material (type "pbr").
+void read_pbr(const Node& n, Material& m, ImageFiles& images) {
+  n.expect_object({"type", "base_color", "base_color_texture", "metallic", "roughness", "metallic_roughness_texture",
+                   "ior", "transmission", "normal_texture", "normal_scale", "radiance", "emissive_texture",
+                   "two_sided", "alpha", "alpha_mode", "alpha_cutoff"});
+  m.type = MaterialType::Pbr;
+  m.albedo = n.rgb("base_color", glm::vec3(1.0f), 1.0f);
+  m.metallic = n.number_in("metallic", 0.0f, 0.0f, 1.0f);
+  m.roughness = n.number_in("roughness", 0.5f, 0.0f, 1.0f);
+  m.ior = n.number_in("ior", 1.5f, 1.0f, 4.0f);
+  m.transmission = n.number_in("transmission", 0.0f, 0.0f, 1.0f);
+  m.two_sided = n.boolean("two_sided", false);
+  m.alpha = n.number_in("alpha", 1.0f, 0.0f, 1.0f);
+  const std::string mode = n.choice("alpha_mode", "opaque", {"opaque", "mask", "blend"});
+  m.alpha_mode = mode == "mask" ? AlphaMode::Mask : mode == "blend" ? AlphaMode::Blend : AlphaMode::Opaque;
+  if (n.has("alpha_cutoff") && m.alpha_mode != AlphaMode::Mask)
+    n.at("alpha_cutoff").fail("alpha_cutoff applies to alpha_mode \"mask\" only");
+  m.alpha_cutoff = n.number_in("alpha_cutoff", 0.5f, 0.0f, 1.0f);
+  if (n.has("base_color_texture")) m.base_color_texture = read_texture(n.at("base_color_texture"), true, images);
+  if (n.has("metallic_roughness_texture"))
+    m.metallic_roughness_texture = read_texture(n.at("metallic_roughness_texture"), false, images);
+  if (n.has("normal_texture")) m.normal_texture = read_texture(n.at("normal_texture"), false, images);
+  if (n.has("normal_scale") && !n.has("normal_texture"))
+    n.at("normal_scale").fail("normal_scale needs a normal_texture");
+  m.normal_scale = n.number_in("normal_scale", 1.0f, -1e3f, 1e3f);
+  if (n.has("emissive_texture")) m.emissive_texture = read_texture(n.at("emissive_texture"), true, images);
+  // The emissive texture is multiplied by the radiance: white unless given.
+  m.emission = n.rgb("radiance", glm::vec3(m.emissive_texture.used() ? 1.0f : 0.0f), kInf);
+}
+
+Material read_material(const Node& n, const std::string& name, ImageFiles& images) {
   if (!n.raw().is_object()) n.fail("expected an object");
   Material m;
   m.name = name;
@@ -186,7 +305,12 @@ Material read_material(const Node& n, const std::string& name) {
     // An emitter is a diffuse surface (black unless given an albedo) with required radiance.
     n.expect_object({"type", "albedo", "radiance", "two_sided"});
     const bool emitter = type == "emitter";
-    m.albedo = emitter ? n.rgb("albedo", glm::vec3(0.0f), 1.0f) : n.at("albedo").rgb(1.0f);
+    if (n.has("albedo") && !n.at("albedo").raw().is_array()) {  // an image: the albedo is the texture's
+      m.albedo = glm::vec3(1.0f);
+      m.base_color_texture = read_texture(n.at("albedo"), true, images);
+    } else {
+      m.albedo = emitter ? n.rgb("albedo", glm::vec3(0.0f), 1.0f) : n.at("albedo").rgb(1.0f);
+    }
     if (emitter || n.has("radiance")) m.emission = n.at("radiance").rgb(kInf);
     m.two_sided = n.boolean("two_sided", false);
   } else if (type == "mirror") {
@@ -199,8 +323,10 @@ Material read_material(const Node& n, const std::string& name) {
     m.albedo = n.rgb("albedo", glm::vec3(1.0f), 1.0f);
     m.ior = n.number("ior", 1.5f);
     if (!(m.ior >= 1.0f && m.ior <= 4.0f)) n.at("ior").fail("ior must be in [1, 4]");
+  } else if (type == "pbr") {
+    read_pbr(n, m, images);
   } else {
-    n.at("type").fail("unknown material type '" + type + "' (expected diffuse, emitter, mirror or glass)");
+    n.at("type").fail("unknown material type '" + type + "' (expected diffuse, emitter, mirror, glass or pbr)");
   }
   return m;
 }
@@ -243,10 +369,19 @@ Transform read_transform(const Node& n) {
   return make_transform(m);
 }
 
-Triangle flat(glm::vec3 a, glm::vec3 b, glm::vec3 c) {
+// A flat triangle whose texture coordinates (both sets) are ta, tb, tc.
+Triangle flat(glm::vec3 a, glm::vec3 b, glm::vec3 c, glm::vec2 ta, glm::vec2 tb, glm::vec2 tc) {
   Triangle t{};  // zeroed: glm vectors are not initialised by default
   t.v[0] = a, t.v[1] = b, t.v[2] = c;
+  for (auto& set : t.uv) set[0] = ta, set[1] = tb, set[2] = tc;
   return t;
+}
+
+// Equirectangular texture coordinates of the unit direction d: v = θ/π from the +y pole (v = 0) to
+// the −y pole, u = φ/2π with u = 0.5 facing +z and growing towards +x there, the seam facing −z.
+glm::vec2 sphere_uv(glm::dvec3 d) {
+  const double pi = 3.14159265358979323846;
+  return {float(0.5 + std::atan2(d.x, d.z) / (2.0 * pi)), float(std::acos(std::clamp(d.y, -1.0, 1.0)) / pi)};
 }
 
 // Icosahedron subdivided `levels` times, every vertex pushed onto the unit sphere.
@@ -281,10 +416,26 @@ std::vector<Triangle> icosphere(glm::vec3 center, float radius, int levels) {
     if (glm::dot(glm::cross(p[b] - p[a], p[c] - p[a]), p[a] + p[b] + p[c]) < 0.0) std::swap(b, c);
     Triangle t{};
     const uint32_t idx[3] = {a, b, c};
+    glm::vec2 uv[3];
     for (int k = 0; k < 3; ++k) {
       t.n[k] = glm::vec3(p[idx[k]]);
       t.v[k] = center + radius * t.n[k];
+      uv[k] = sphere_uv(p[idx[k]]);
     }
+    // A triangle across the seam takes u beyond 1 on its far side (repeat wrapping reads it right);
+    // a vertex on a pole, where u is undefined, takes the mean u of the other two.
+    bool pole[3];
+    float lo = 1.0f, hi = 0.0f;
+    for (int k = 0; k < 3; ++k) {
+      pole[k] = std::abs(p[idx[k]].y) > 1.0 - 1e-9;
+      if (!pole[k]) lo = std::min(lo, uv[k].x), hi = std::max(hi, uv[k].x);
+    }
+    if (hi - lo > 0.5f)
+      for (auto& q : uv)
+        if (q.x < 0.5f) q.x += 1.0f;
+    for (int k = 0; k < 3; ++k)
+      if (pole[k]) uv[k].x = 0.5f * (uv[(k + 1) % 3].x + uv[(k + 2) % 3].x);
+    for (auto& set : t.uv) std::copy(uv, uv + 3, set);
     t.has_normals = true;
     out.push_back(t);
   }
@@ -304,7 +455,8 @@ std::vector<Triangle> load_mesh(const Node& file_node, const fs::path& base_dir)
     file_node.fail("cannot load mesh " + path.string() + ": " + importer.GetErrorString());
   std::vector<Triangle> out;
   for (unsigned i = 0; i < scene->mNumMeshes; ++i) {
-    const std::vector<Triangle> tris = mesh_triangles(*scene->mMeshes[i]);
+    // Assimp puts every format's texture origin at the bottom left (it flips glTF's); xi's v runs down.
+    const std::vector<Triangle> tris = mesh_triangles(*scene->mMeshes[i], 0, true);
     out.insert(out.end(), tris.begin(), tris.end());
   }
   return out;
@@ -333,8 +485,14 @@ void read_shape(const Node& n, const std::map<std::string, uint32_t>& materials,
     const Node verts = n.at("vertices");
     std::vector<glm::vec3> v;
     for (const Node& e : verts.elements(type == "quad" ? 4 : 3)) v.push_back(e.vec3());
-    tris.push_back(flat(v[0], v[1], v[2]));
-    if (type == "quad") tris.push_back(flat(v[0], v[2], v[3]));
+    // The image's top-left corner at v0; a quad's corners (0,0), (1,0), (1,1), (0,1) at v0..v3.
+    const glm::vec2 t0(0, 0), t1(1, 0), t2(1, 1), t3(0, 1);
+    if (type == "quad") {
+      tris.push_back(flat(v[0], v[1], v[2], t0, t1, t2));
+      tris.push_back(flat(v[0], v[2], v[3], t0, t2, t3));
+    } else {
+      tris.push_back(flat(v[0], v[1], v[2], t0, t1, t3));
+    }
     for (Triangle& t : tris) {
       apply(xf, t);
       if (!within_range(t)) verts.fail(type + " has a vertex coordinate beyond +-1e9 (after its transform)");
@@ -402,6 +560,59 @@ void read_asset_shape(const Node& n, const fs::path& base_dir, Scene& s) {
     if (std::find(s.warnings.begin(), s.warnings.end(), w) == s.warnings.end()) s.warnings.push_back(w);
 }
 
+// A punctual light: point, spot, directional, or a sun (a directional light of angular radius > 0).
+Light read_light(const Node& n, size_t index) {
+  if (!n.raw().is_object()) n.fail("expected an object");
+  const std::string type = n.at("type").string();
+  if (type == "point") n.expect_object({"type", "name", "position", "color", "intensity"});
+  else if (type == "spot") n.expect_object({"type", "name", "position", "direction", "color", "intensity", "inner_angle", "outer_angle"});
+  else if (type == "directional") n.expect_object({"type", "name", "direction", "color", "intensity"});
+  else if (type == "sun") n.expect_object({"type", "name", "direction", "color", "intensity", "angular_radius"});
+  else n.at("type").fail("unknown light type '" + type + "' (expected point, spot, directional or sun)");
+  Light l;
+  l.name = n.has("name") ? n.at("name").string() : "light " + std::to_string(index);
+  l.type = type == "point" ? LightType::Point : type == "spot" ? LightType::Spot : LightType::Directional;
+  if (l.type != LightType::Directional) {
+    l.position = n.at("position").vec3();
+    if (!within_range(l.position)) n.at("position").fail("coordinate beyond +-1e9");
+  }
+  if (l.type != LightType::Point) {
+    const glm::vec3 d = n.at("direction").vec3();
+    if (!within_range(d)) n.at("direction").fail("coordinate beyond +-1e9");
+    const double length = glm::length(glm::dvec3(d));
+    if (!(length > 1e-30)) n.at("direction").fail("direction must be non-zero");
+    l.direction = glm::vec3(glm::dvec3(d) / length);
+  }
+  const glm::vec3 color = n.rgb("color", glm::vec3(1.0f), 1.0f);
+  const float intensity = n.number_in("intensity", 1.0f, 0.0f, 1e30f);
+  l.intensity = color * intensity;
+  if (type == "spot") {
+    const float inner = n.number_in("inner_angle", 0.0f, 0.0f, 90.0f);
+    const float outer = n.number_in("outer_angle", 45.0f, 0.0f, 90.0f);
+    if (!(outer > inner))
+      (n.has("outer_angle") ? n.at("outer_angle") : n.at("inner_angle"))
+          .fail("outer_angle (" + short_number(outer) + ") must exceed inner_angle (" + short_number(inner) + ")");
+    l.inner_cone = glm::radians(inner);
+    l.outer_cone = glm::radians(outer);
+  }
+  if (type == "sun") l.angular_radius = glm::radians(n.number_in("angular_radius", 0.27f, 0.0f, 45.0f));
+  return l;
+}
+
+// {"file", "strength", "rotation"}: an equirectangular map around the scene, the file relative to
+// the scene file (decoded when the scene is compiled).
+Environment read_environment(const Node& n, const fs::path& base_dir) {
+  n.expect_object({"file", "strength", "rotation"});
+  Environment e;
+  const Node file = n.at("file");
+  e.file = base_dir / file.string();
+  std::error_code ec;
+  if (!fs::is_regular_file(e.file, ec)) file.fail("environment map not found: " + e.file.string());
+  e.strength = n.number_in("strength", 1.0f, 0.0f, 1e30f);
+  e.rotation_degrees = n.number_in("rotation", 0.0f, -1e6f, 1e6f);
+  return e;
+}
+
 }  // namespace
 
 fs::path bundled_scene_file(const std::string& name) {
@@ -447,7 +658,7 @@ Scene parse_scene(const std::string& json_text, const std::string& source_name, 
   Scene s;
   s.source = source_name;
   const Node root(doc, "", source_name);
-  root.expect_object({"camera", "film", "render", "background", "materials", "shapes"});
+  root.expect_object({"camera", "film", "render", "background", "environment", "lights", "materials", "shapes"});
   s.camera = read_camera(root.at("camera"));
 
   if (root.has("film")) {
@@ -470,14 +681,20 @@ Scene parse_scene(const std::string& json_text, const std::string& source_name, 
     }
   }
   s.background = root.rgb("background", s.background, kInf);
+  if (root.has("environment")) s.environment = read_environment(root.at("environment"), base_dir);
+  if (root.has("lights")) {
+    const auto lights = root.at("lights").elements();
+    for (size_t i = 0; i < lights.size(); ++i) s.lights.push_back(read_light(lights[i], i));
+  }
 
   // Material indices follow the key order of the materials object (alphabetical in nlohmann::json).
   std::map<std::string, uint32_t> index;
+  ImageFiles images(base_dir, s.images);
   const Node materials = root.at("materials");
   if (!materials.raw().is_object()) materials.fail("expected an object mapping names to materials");
   for (const auto& item : materials.raw().items()) {
     index[item.key()] = uint32_t(s.materials.size());
-    s.materials.push_back(read_material(materials.at(item.key()), item.key()));
+    s.materials.push_back(read_material(materials.at(item.key()), item.key(), images));
   }
 
   const Node shapes = root.at("shapes");
@@ -504,6 +721,12 @@ void check_scene_limits(const Scene& scene) {
     if (!radiance_ok(m.emission))
       throw Error("material '" + m.name + "' has a negative or non-finite radiance", scene.source);
   if (!radiance_ok(scene.background)) throw Error("the background radiance is negative or not finite", scene.source);
+  for (const Light& l : scene.lights)
+    if (!radiance_ok(l.intensity) || !within_range(l.position) || !(glm::length(l.direction) > 0.0f))
+      throw Error("light '" + l.name + "' has a negative or non-finite intensity, a position beyond +-1e9 or no direction",
+                  scene.source);
+  if (scene.environment && !(scene.environment->strength >= 0.0f && std::isfinite(scene.environment->strength)))
+    throw Error("the environment's strength is negative or not finite", scene.source);
 }
 
 Scene load_scene(const fs::path& path) {

@@ -1,5 +1,6 @@
 #include "xi/texture.h"
 
+#include <cmath>
 #include <cstring>
 #include <fstream>
 #include <iterator>
@@ -42,6 +43,15 @@ TextureImage load_image_file(const std::filesystem::path& path, bool srgb) {
   if (!in || !std::filesystem::is_regular_file(path, ec)) throw Error("texture image not found", path.string());
   std::vector<uint8_t> bytes((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
   return decode_image(bytes, path.string(), srgb);
+}
+
+glm::mat3 texture_transform(glm::vec2 offset, float rotation_radians, glm::vec2 scale) {
+  const float c = std::cos(rotation_radians), s = std::sin(rotation_radians);
+  // Columns of a glm::mat3, as GLSL writes them.
+  const glm::mat3 translation(1, 0, 0, 0, 1, 0, offset.x, offset.y, 1);
+  const glm::mat3 rotation(c, -s, 0, s, c, 0, 0, 0, 1);
+  const glm::mat3 scaling(scale.x, 0, 0, 0, scale.y, 0, 0, 0, 1);
+  return translation * rotation * scaling;
 }
 
 }  // namespace xi
