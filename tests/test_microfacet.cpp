@@ -300,7 +300,7 @@ TEST(MicrofacetChi2, MaterialSamplesMatchPdf) {
     expected.push_back(std::max(1.0 - total, 1e-12));
     for (double& e : expected) e *= kMaterialSamples;
     std::vector<double> observed(expected.size(), 0.0);
-    Uniform xi(0xb5dfu);
+    Uniform xi(0xb5dfu + (uint32_t)(&c - cases.data()));
     int deltas = 0;
     for (int k = 0; k < kMaterialSamples; ++k) {
       float ul = xi();
@@ -466,7 +466,7 @@ TEST(MicrofacetFurnace, AlbedoAtMostOneAndMatchesSampling) {
       return integrals[key] = sum;
     };
     double albedo = (1.0 - c.metallic) * integral(0.0f) + c.metallic * integral(1.0f);
-    Uniform xi(0xf00d);
+    Uniform xi(0xf00du + (uint32_t)(&c - cases.data()));  // independent streams: independent z-tests
     double sum = 0.0, sum2 = 0.0;
     for (int k = 0; k < n; ++k) {
       float ul = xi(), pdf;
