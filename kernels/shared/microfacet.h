@@ -1,0 +1,247 @@
+// The glTF 2.0 metallic-roughness BSDF (spec appendix B, with KHR_materials_transmission): a GGX
+// (Trowbridge–Reitz) microfacet model on lane types (lanes.h).
+//
+// Every function works in the local shading frame: the normal is +z and wo.z > 0 (the caller flips
+// the normal to wo's side and passes eta accordingly). Directions point away from the surface.
+//
+//   f = mix(dielectric, metal, metallic)
+//   metal      = spec(h) · Schlick(f0 = base_color, wo·h)
+//   dielectric = spec(h) · F(wo·h)                                        the specular layer
+//              + (1 − transmission) · (1 − F(wo.z)) (1 − F(wi.z)) · base_color / π
+//              + transmission · base_color · (1 − F(wo·h_t)) · btdf(h_t)
+//   spec(h) = D(h) G2 / (4 |wo.z| |wi.z|), h = normalize(wo + wi)           reflection (wi.z > 0)
+//   btdf(h) = η² |wi·h| |wo·h| D(h) G2 / (|wo.z| |wi.z| (wo·h + η wi·h)²)  Walter et al. 2007, with
+//             h = normalize(wo + η wi) turned to +z                       transmission (wi.z < 0)
+//
+// D is GGX, G2 the height-correlated Smith term 1 / (1 + Λ(wo) + Λ(wi)), F Schlick's
+// approximation of the dielectric Fresnel with f0 = ((η − 1)/(η + 1))². The dielectric specular
+// reflection and the rough transmission share D, G2 and the microfacet's F, so together they keep
+// at most the energy that arrives (F + (1 − F) per microfacet, G2 ≤ G1).
+//
+// Departure from the spec: its fresnel_mix weighs the Lambertian base by 1 − F(wo·h) with h the
+// half vector of wo and wi, which does not conserve energy (at grazing wo the smooth layer already
+// reflects nearly everything while the base below is barely dimmed: albedo up to ~1.8). The base is
+// weighed by (1 − F(wo.z)) (1 − F(wi.z)) instead: reciprocal, and the layer and base together stay
+// below 1 (tests/test_microfacet.cpp, the white furnace).
+//
+// Light transport convention: the BTDF carries no 1/η² radiance scaling (f·|cos|/pdf of a refracted
+// sample is (1 − F) G2/G1, the same in both directions). For camera paths in a scene whose camera
+// and lights lie in the same medium the factors cancel along every path, and the BSDF keeps its
+// directional albedo ≤ 1 on both sides.
+//
+// Below XI_DELTA_ALPHA the specular reflection and the transmission are delta lobes (a perfect
+// mirror and smooth refraction with the same Fresnel terms at wo.z): xi_pbr_eval and xi_pbr_pdf
+// leave them out, xi_pbr_sample returns them with *delta set. No function divides by alpha below
+// XI_DELTA_ALPHA or by a cosine below XI_MIN_COS.
+#ifndef XI_MICROFACET_H
+#define XI_MICROFACET_H
+#include "bsdf.h"
+#include "lanes.h"
+#include "warps.h"
+
+#define XI_DELTA_ALPHA 1e-4f  // GGX alpha (roughness²) below which the specular lobes are delta
+#define XI_MIN_COS 1e-9f      // cosines in denominators are clamped here
+
+typedef struct {
+  xfloat3 base_color;   // linear RGB
+  xfloat metallic;      // [0, 1]
+  xfloat alpha;         // GGX alpha = roughness² (the caller squares); below XI_DELTA_ALPHA: delta lobes
+  xfloat eta;           // n on the far side of the surface / n on wo's side (ior entering, 1/ior leaving)
+  xfloat transmission;  // [0, 1] (KHR_materials_transmission)
+} PbrLobes;
+
+// --- GGX
+
+// D(h) = 1 / (π α² (sin²θ/α² + cos²θ)²) for h above the surface, 0 below. (The form of sin² taken
+// from x and y stays accurate for the tiny angles of a near-delta lobe.)
+static inline xfloat xi_ggx_d(xfloat3 h, xfloat alpha) {
+  xfloat a = fmax(alpha, (xfloat)XI_DELTA_ALPHA), a2 = a * a;
+  xfloat t = (h.x * h.x + h.y * h.y) / a2 + h.z * h.z;
+  return h.z > 0.0f ? 1.0f / (XI_PI * a2 * t * t) : (xfloat)0.0f;
+}
+
+// Smith Λ(w) = (√(1 + α² tan²θ) − 1) / 2, written as x / (2 (1 + √(1 + x))), x = α² tan²θ, which
+// keeps its digits for small x; tan²θ is bounded by the clamp of cos²θ at 1e-30.
+static inline xfloat xi_ggx_lambda(xfloat3 w, xfloat alpha) {
+  xfloat a = fmax(alpha, (xfloat)XI_DELTA_ALPHA);
+  xfloat x = a * a * (w.x * w.x + w.y * w.y) / fmax(w.z * w.z, (xfloat)1e-30f);
+  return x / (2.0f * (1.0f + sqrt(1.0f + x)));
+}
+static inline xfloat xi_ggx_g1(xfloat3 w, xfloat alpha) { return 1.0f / (1.0f + xi_ggx_lambda(w, alpha)); }
+// Height-correlated masking-shadowing.
+static inline xfloat xi_ggx_g2(xfloat3 wo, xfloat3 wi, xfloat alpha) {
+  return 1.0f / (1.0f + xi_ggx_lambda(wo, alpha) + xi_ggx_lambda(wi, alpha));
+}
+
+// A normal h of the visible normals seen from wo (Heitz 2018, "Sampling the GGX Distribution of
+// Visible Normals", JCGT 7(4)): stretch wo to the hemisphere configuration, sample the projected
+// area of the half disc, unstretch.
+static inline xfloat3 xi_ggx_sample_visible(xfloat3 wo, xfloat alpha, xfloat2 u) {
+  xfloat a = fmax(alpha, (xfloat)XI_DELTA_ALPHA);
+  xfloat3 vh = xi_normalize3(make_xfloat3(a * wo.x, a * wo.y, wo.z));
+  xfloat lensq = vh.x * vh.x + vh.y * vh.y;
+  xmask tilted = lensq > 0.0f;
+  xfloat inv = tilted ? 1.0f / sqrt(tilted ? lensq : (xfloat)1.0f) : (xfloat)0.0f;
+  xfloat3 t1 = make_xfloat3(tilted ? -vh.y * inv : (xfloat)1.0f, tilted ? vh.x * inv : (xfloat)0.0f, (xfloat)0.0f);
+  xfloat3 t2 = xi_cross3(vh, t1);
+  xfloat r = sqrt(u.x), phi = 2.0f * XI_PI * u.y;
+  xfloat p1 = r * cos(phi), p2 = r * sin(phi);
+  xfloat s = 0.5f * (1.0f + vh.z);
+  p2 = (1.0f - s) * xi_safe_sqrt(1.0f - p1 * p1) + s * p2;
+  xfloat3 nh = xi_add3(xi_add3(xi_scale3(t1, p1), xi_scale3(t2, p2)), xi_scale3(vh, xi_safe_sqrt(1.0f - p1 * p1 - p2 * p2)));
+  return xi_normalize3(make_xfloat3(a * nh.x, a * nh.y, fmax(nh.z, (xfloat)0.0f)));
+}
+
+// The density of xi_ggx_sample_visible's h (solid angle of h): G1(wo) max(0, wo·h) D(h) / wo.z.
+static inline xfloat xi_ggx_visible_pdf(xfloat3 wo, xfloat3 h, xfloat alpha) {
+  return xi_ggx_g1(wo, alpha) * fmax(xi_dot3(wo, h), (xfloat)0.0f) * xi_ggx_d(h, alpha) /
+         fmax(wo.z, (xfloat)XI_MIN_COS);
+}
+
+// --- Fresnel
+
+// Schlick's dielectric Fresnel for a boundary met at cosine cos_o on wo's side (with the
+// microfacet normal), eta = n far / n near. Leaving the denser medium (eta < 1), the cosine of the
+// transmitted angle, on the less dense side, stands in for cos_o (Schlick's approximation holds
+// for the angle on the rarer side), and F = 1 under total internal reflection.
+static inline xfloat xi_schlick_dielectric(xfloat cos_o, xfloat eta) {
+  xfloat r = (eta - 1.0f) / (eta + 1.0f), f0 = r * r;
+  xfloat c = clamp(cos_o, (xfloat)0.0f, (xfloat)1.0f);
+  xfloat sin2_t = (1.0f - c * c) / (eta * eta);
+  xfloat cs = eta < 1.0f ? xi_safe_sqrt(1.0f - sin2_t) : c;
+  xfloat m = 1.0f - cs, m2 = m * m;
+  return sin2_t >= 1.0f ? (xfloat)1.0f : f0 + (1.0f - f0) * (m2 * m2 * m);
+}
+// Schlick with a colour f0 (the metal).
+static inline xfloat3 xi_schlick_color(xfloat3 f0, xfloat cos_o) {
+  xfloat m = 1.0f - clamp(cos_o, (xfloat)0.0f, (xfloat)1.0f), m2 = m * m, w = m2 * m2 * m;
+  return make_xfloat3(f0.x + (1.0f - f0.x) * w, f0.y + (1.0f - f0.y) * w, f0.z + (1.0f - f0.z) * w);
+}
+
+static inline xfloat xi_luminance(xfloat3 c) { return 0.2126f * c.x + 0.7152f * c.y + 0.0722f * c.z; }
+
+// --- the material
+
+// Probabilities of the lobes xi_pbr_sample chooses: reflection (specular layer and metal), diffuse,
+// transmission, from estimates of their albedos at wo. Each is positive wherever its lobe can be
+// nonzero: reflection always (Schlick tends to 1 at grazing microfacets), transmission wherever
+// transmission and base colour are, even under total internal reflection at wo.z, where tilted
+// microfacets still refract; diffuse vanishes exactly where its (1 − F(wo.z)) does.
+static inline void xi_pbr_lobe_probabilities(PbrLobes m, xfloat3 wo, xfloat* pr, xfloat* pd, xfloat* pt) {
+  xfloat fo = xi_schlick_dielectric(wo.z, m.eta);
+  xfloat lum = fmax(xi_luminance(m.base_color), (xfloat)0.0f);
+  xfloat dielectric = 1.0f - m.metallic;
+  xfloat wr = fmax(m.metallic * xi_luminance(xi_schlick_color(m.base_color, wo.z)) + dielectric * fo, (xfloat)0.02f);
+  xfloat wd = dielectric * (1.0f - m.transmission) * (1.0f - fo) * lum;
+  xfloat wt = dielectric * m.transmission * fmax(1.0f - fo, (xfloat)0.1f) * lum;
+  xfloat inv = 1.0f / (wr + wd + wt);
+  *pr = wr * inv;
+  *pd = wd * inv;
+  *pt = wt * inv;
+}
+
+// f (no cosine) of the non-delta lobes and the solid-angle density with which xi_pbr_sample
+// produces wi (non-delta lobes, probabilities of xi_pbr_lobe_probabilities).
+static inline xfloat3 xi_pbr_eval_pdf(PbrLobes m, xfloat3 wo, xfloat3 wi, xfloat* pdf) {
+  xfloat pr, pd, pt;
+  xi_pbr_lobe_probabilities(m, wo, &pr, &pd, &pt);
+  xmask rough = m.alpha >= XI_DELTA_ALPHA;
+  xfloat a = fmax(m.alpha, (xfloat)XI_DELTA_ALPHA);
+  xfloat zo = fmax(wo.z, (xfloat)XI_MIN_COS), zi = fmax(fabs(wi.z), (xfloat)XI_MIN_COS);
+  xmask above = wi.z > 0.0f, below = wi.z < 0.0f;
+  xfloat g2 = xi_ggx_g2(wo, wi, a);
+  xfloat dielectric = 1.0f - m.metallic;
+
+  // Reflection: h = normalize(wo + wi), wo·h = wi·h > 0 for wi above.
+  xfloat3 hr = xi_add3(wo, wi);
+  hr = xi_scale3(hr, 1.0f / sqrt(fmax(xi_dot3(hr, hr), (xfloat)1e-30f)));
+  xfloat cr = fmax(xi_dot3(wo, hr), (xfloat)XI_MIN_COS);
+  xfloat spec = xi_ggx_d(hr, a) * g2 / (4.0f * zo * zi);
+  xfloat3 fmetal = xi_schlick_color(m.base_color, cr);
+  xfloat fdiel = xi_schlick_dielectric(cr, m.eta);
+  xfloat3 f_spec = xi_scale3(xi_add3(xi_scale3(fmetal, m.metallic), make_xfloat3(dielectric * fdiel, dielectric * fdiel, dielectric * fdiel)), spec);
+  xfloat pdf_r = xi_ggx_visible_pdf(wo, hr, a) / (4.0f * cr);
+  xmask refl = above && rough;
+
+  // Diffuse.
+  xfloat kd = dielectric * (1.0f - m.transmission) * (1.0f - xi_schlick_dielectric(wo.z, m.eta)) *
+              (1.0f - xi_schlick_dielectric(wi.z, m.eta)) * XI_INV_PI;
+  xfloat3 f_diff = xi_scale3(m.base_color, kd);
+  xfloat pdf_d = fmax(wi.z, (xfloat)0.0f) * XI_INV_PI;
+
+  // Transmission: h = normalize(wo + η wi) turned to +z; wo and wi must lie on opposite sides of it.
+  xfloat3 ht = xi_add3(wo, xi_scale3(wi, m.eta));
+  xfloat len2 = xi_dot3(ht, ht);
+  ht = xi_scale3(ht, (ht.z < 0.0f ? (xfloat)-1.0f : (xfloat)1.0f) / sqrt(fmax(len2, (xfloat)1e-30f)));
+  xfloat cot = xi_dot3(wo, ht), cit = xi_dot3(wi, ht);
+  xmask trans = below && rough && cot > 0.0f && cit < 0.0f && len2 > 1e-12f;
+  xfloat jac = m.eta * m.eta * fabs(cit) / fmax(len2, (xfloat)1e-12f);  // dω_h / dω_i, the denominator (wo·h + η wi·h)² = len2
+  xfloat bt = (1.0f - xi_schlick_dielectric(cot, m.eta)) * fabs(cot) * xi_ggx_d(ht, a) * g2 * jac / (zo * zi);
+  xfloat3 f_trans = xi_scale3(m.base_color, dielectric * m.transmission * bt);
+  xfloat pdf_t = xi_ggx_visible_pdf(wo, ht, a) * jac;
+
+  xfloat3 zero = make_xfloat3((xfloat)0.0f, (xfloat)0.0f, (xfloat)0.0f);
+  *pdf = (refl ? pr * pdf_r : (xfloat)0.0f) + (above ? pd * pdf_d : (xfloat)0.0f) + (trans ? pt * pdf_t : (xfloat)0.0f);
+  return xi_add3(xi_add3(xi_select3(refl, f_spec, zero), xi_select3(above, f_diff, zero)), xi_select3(trans, f_trans, zero));
+}
+
+static inline xfloat3 xi_pbr_eval(PbrLobes m, xfloat3 wo, xfloat3 wi) {
+  xfloat pdf;
+  return xi_pbr_eval_pdf(m, wo, wi, &pdf);
+}
+static inline xfloat xi_pbr_pdf(PbrLobes m, xfloat3 wo, xfloat3 wi) {
+  xfloat pdf;
+  xi_pbr_eval_pdf(m, wo, wi, &pdf);
+  return pdf;
+}
+
+// Samples wi: u_lobe picks a lobe, u the direction within it (visible normals for reflection and
+// transmission, the cosine hemisphere for diffuse). Returns the weight f·|wi.z| / pdf with f the
+// whole non-delta BSDF and pdf = xi_pbr_pdf (one-sample MIS over the lobes), and *pdf. A delta
+// lobe returns its own weight (Fresnel and tint over its probability) with *pdf = 0 and *delta
+// set. A sample that leaves its lobe's side of the surface (reflection below, transmission above)
+// or meets total internal reflection returns weight 0 and *pdf = 0.
+static inline xfloat3 xi_pbr_sample(PbrLobes m, xfloat3 wo, xfloat u_lobe, xfloat2 u, xfloat3* wi, xfloat* pdf,
+                                    xmask* delta) {
+  xfloat pr, pd, pt;
+  xi_pbr_lobe_probabilities(m, wo, &pr, &pd, &pt);
+  xmask pick_r = u_lobe < pr || (pd <= 0.0f && pt <= 0.0f);
+  xmask pick_t = !pick_r && pt > 0.0f && (u_lobe >= pr + pd || pd <= 0.0f);
+  xmask pick_d = !pick_r && !pick_t;
+  xmask smooth = m.alpha < XI_DELTA_ALPHA;
+  xfloat3 n = make_xfloat3((xfloat)0.0f, (xfloat)0.0f, (xfloat)1.0f);
+
+  // Rough lobes.
+  xfloat3 h = xi_ggx_sample_visible(wo, m.alpha, u);
+  xfloat3 hs = xi_select3(smooth, n, h);  // the smooth lobes reflect and refract about n
+  xfloat3 wr = xi_reflect(wo, hs);
+  xfloat3 wt;
+  xmask refracts = xi_refract(wo, hs, m.eta, &wt) && xi_dot3(wo, hs) > 0.0f;
+  wt = xi_normalize3(wt);
+  xfloat3 wd = xi_square_to_cosine_hemisphere(u);
+  xfloat3 w = xi_select3(pick_r, wr, xi_select3(pick_t, wt, wd));
+  xmask valid = pick_t ? (refracts && w.z < 0.0f) : w.z > 0.0f;
+  xfloat p;
+  xfloat3 f = xi_pbr_eval_pdf(m, wo, w, &p);
+  valid = valid && p > 0.0f;
+  xfloat3 zero = make_xfloat3((xfloat)0.0f, (xfloat)0.0f, (xfloat)0.0f);
+  xfloat3 weight = xi_select3(valid, xi_scale3(f, fabs(w.z) / (valid ? p : (xfloat)1.0f)), zero);
+
+  // Delta lobes: the mirror and smooth refraction with the Fresnel terms at wo.z.
+  xmask is_delta = smooth && !pick_d;
+  xfloat fo = xi_schlick_dielectric(wo.z, m.eta);
+  xfloat dielectric = 1.0f - m.metallic;
+  xfloat3 mirror = xi_add3(xi_scale3(xi_schlick_color(m.base_color, wo.z), m.metallic),
+                           make_xfloat3(dielectric * fo, dielectric * fo, dielectric * fo));
+  xfloat3 weight_r = xi_scale3(mirror, 1.0f / fmax(pr, (xfloat)1e-30f));
+  xfloat3 weight_t = xi_scale3(m.base_color, (refracts ? dielectric * m.transmission * (1.0f - fo) : (xfloat)0.0f) /
+                                                 fmax(pt, (xfloat)1e-30f));
+  xfloat3 weight_delta = xi_select3(pick_r, weight_r, weight_t);
+
+  *wi = w;
+  *pdf = is_delta || !valid ? (xfloat)0.0f : p;
+  *delta = is_delta;
+  return xi_select3(is_delta, weight_delta, weight);
+}
+
+#endif
