@@ -7,7 +7,8 @@
 // Cases: first every file of Assimp's invalid-model corpus as the one shape of a small scene (a
 // "mesh", then an "asset"), then --cases mutations of the bundled scenes (scenes/, bench/scenes/,
 // tests/data/scenes/): byte flips, truncation, inserted and deleted bytes, deleted and duplicated
-// keys, values of another type, extreme numbers, odd mesh files. Case I depends only on (seed, I).
+// keys, values of another type, extreme numbers, odd mesh files, textures and environment maps
+// (good, damaged, of the wrong kind), lights with odd fields. Case I depends only on (seed, I).
 //
 //   xi_fuzz [--cases N] [--seed S] [--case I] [--timeout SECONDS] [--verbose]
 #include <sys/resource.h>
@@ -184,6 +185,35 @@ std::vector<std::string> odd_files(const std::vector<fs::path>& corpus, const st
   return v;
 }
 
+// Images a texture or an environment may name: good ones, and damaged copies of a PNG and of the
+// bundled sky written into `dir` (cut short, bytes flipped, a header claiming a huge size, empty,
+// text named .png), an 8-bit image as an environment, a folder, a missing file; and glTF models
+// with textures, as asset shapes.
+std::vector<std::string> image_files(const std::string& root, const fs::path& dir) {
+  const std::string png = "/usr/share/assimp/models/glTF2/BoxTextured-glTF/CesiumLogoFlat.png";
+  const std::string sky = root + "/scenes/sky.hdr";
+  fs::create_directories(dir);
+  auto write = [&](const std::string& name, const std::string& bytes) {
+    std::ofstream(dir / name, std::ios::binary) << bytes;
+    return (dir / name).string();
+  };
+  const std::string p = read_file(png), h = read_file(sky);
+  std::string flipped = p, huge = p, hdr_flipped = h;
+  for (size_t at = 64; at < flipped.size(); at += 97) flipped[at] = char(flipped[at] ^ 0x5a);
+  for (size_t at = 200; at < hdr_flipped.size(); at += 61) hdr_flipped[at] = char(hdr_flipped[at] ^ 0xff);
+  if (huge.size() > 24) huge.replace(16, 8, std::string("\x7f\xff\xff\xff\x7f\xff\xff\xff", 8));  // IHDR width, height
+  std::string hdr_header = h.substr(0, std::min<size_t>(h.size(), h.find("\n\n") + 2));
+  return {png, sky, root + "/docs/cornell-box.png", "missing.png", "", dir.string(),
+          write("half.png", p.substr(0, p.size() / 2)), write("flipped.png", flipped), write("huge.png", huge),
+          write("empty.png", ""), write("text.png", "not an image\n"), write("half.hdr", h.substr(0, h.size() / 3)),
+          write("flipped.hdr", hdr_flipped), write("header-only.hdr", hdr_header + "-Y 4 +X 4\n"),
+          write("fake.exr", "v/1\x01 not an exr"),
+          "/usr/share/assimp/models/glTF2/BoxTextured-glTF/BoxTextured.gltf",
+          "/usr/share/assimp/models/glTF2/BoxTextured-glTF-Binary/BoxTextured.glb",
+          "/usr/share/assimp/models/glTF2/textureTransform/TextureTransformTest.gltf",
+          "/usr/share/assimp/models/glTF2/ClearCoat-glTF/ClearCoatTest.gltf"};
+}
+
 // Every node of a document, as JSON pointers (the root included).
 void collect(const json& j, const json::json_pointer& at, std::vector<json::json_pointer>& out) {
   out.push_back(at);
@@ -296,6 +326,55 @@ struct Mutator {
     note("shape " + std::to_string(i) + " = " + shape["type"].get<std::string>() + " " + json(shape["file"]).dump());
   }
 
+  // A texture, environment or light: an image from `images` as a diffuse albedo or a pbr texture
+  // slot (a file name or an object with odd fields), as the environment, or a light of a random
+  // type with some fields set to odd values.
+  void texture_reference(const std::vector<std::string>& images) {
+    if (!doc.is_object()) return;
+    const std::string image = rng.pick(images);
+    const size_t kind = rng.below(4);
+    if (kind == 0) {
+      json env = {{"file", image}};
+      if (rng.percent(30)) env["strength"] = rng.pick(other_values());
+      if (rng.percent(30)) env["rotation"] = literal_marker(rng.pick(kLiterals));
+      doc["environment"] = env;
+      note("environment " + env.dump());
+      return;
+    }
+    if (kind == 1) {
+      static const std::vector<std::string> types = {"point", "spot", "directional", "sun", "area"};
+      json light = {{"type", rng.pick(types)}, {"position", {0, 1, 0}}, {"direction", {0, -1, 0}}};
+      static const std::vector<std::string> keys = {"intensity", "color", "inner_angle", "outer_angle",
+                                                    "angular_radius", "direction", "position", "name"};
+      for (size_t k = 0, n = rng.below(3); k < n; ++k)
+        light[rng.pick(keys)] = rng.percent(50) ? rng.pick(other_values()) : json(literal_marker(rng.pick(kLiterals)));
+      if (!doc["lights"].is_array()) doc["lights"] = json::array();
+      doc["lights"].push_back(light);
+      note("light " + light.dump());
+      return;
+    }
+    json& materials = doc["materials"];
+    if (!materials.is_object() || materials.empty()) materials = json{{"m", {{"type", "diffuse"}, {"albedo", {1, 1, 1}}}}};
+    json& m = materials[std::next(materials.begin(), long(rng.below(materials.size()))).key()];
+    json texture = image;
+    if (rng.percent(40)) {
+      static const std::vector<std::string> wraps = {"repeat", "clamp", "mirror", "bogus"};
+      texture = {{"file", image}, {"wrap", rng.pick(wraps)}, {"texcoord", rng.below(4)}};
+      if (rng.percent(50)) texture["scale"] = {literal_marker(rng.pick(kLiterals)), 1};
+      if (rng.percent(30)) texture["rotation"] = rng.pick(other_values());
+    }
+    if (kind == 2) {
+      m = {{"type", "diffuse"}, {"albedo", texture}};
+    } else {
+      static const std::vector<std::string> slots = {"base_color_texture", "metallic_roughness_texture",
+                                                     "normal_texture", "emissive_texture"};
+      m = {{"type", "pbr"}, {rng.pick(slots), texture}, {"roughness", rng.below(2) ? 0.0 : 0.7}};
+      if (rng.percent(30)) m["alpha_mode"] = rng.percent(50) ? "mask" : "blend";
+      if (rng.percent(30)) m["transmission"] = 1;
+    }
+    note("material = " + m.dump());
+  }
+
   // Byte-level damage on the final text.
   void bytes(std::string& text) {
     const size_t kind = rng.below(4);
@@ -325,7 +404,8 @@ struct Mutator {
 };
 
 // Case `index` of `seed`: a base scene and its mutations, drawn from a stream of its own.
-Case mutate(const std::vector<Base>& bases, uint64_t seed, uint64_t index, const std::vector<std::string>& files) {
+Case mutate(const std::vector<Base>& bases, uint64_t seed, uint64_t index, const std::vector<std::string>& files,
+            const std::vector<std::string>& images) {
   Rng rng{seed * 0x100000001b3ull ^ (index + 1) * 0x9e3779b97f4a7c15ull};
   double total = 0.0;
   for (const Base& b : bases) total += b.weight;
@@ -339,7 +419,7 @@ Case mutate(const std::vector<Base>& bases, uint64_t seed, uint64_t index, const
   bool structural = false;
   std::vector<size_t> byte_level;
   for (size_t k = 0; k < count; ++k) {
-    const size_t kind = m.rng.below(8);
+    const size_t kind = m.rng.below(9);
     if (kind < 2) {
       byte_level.push_back(k);
       continue;
@@ -351,7 +431,8 @@ Case mutate(const std::vector<Base>& bases, uint64_t seed, uint64_t index, const
       case 4: m.swap_type(); break;
       case 5: m.extreme_number(); break;
       case 6: m.setting(); break;
-      default: m.file_reference(files); break;
+      case 7: m.texture_reference(images); break;
+      default: m.file_reference(m.rng.percent(20) ? images : files); break;
     }
   }
   if (structural) {
@@ -512,6 +593,8 @@ int main(int argc, char** argv) {
   }
   if (bases.empty()) usage("no scenes under " + root.string());
   const std::vector<std::string> files = odd_files(corpus, root.string());
+  const fs::path image_dir = fs::temp_directory_path() / ("xi_fuzz_images_" + std::to_string(getpid()));
+  const std::vector<std::string> images = image_files(root.string(), image_dir);
 
   Tally tally;
   auto one = [&](const Case& c) {
@@ -532,13 +615,13 @@ int main(int argc, char** argv) {
 
   const auto start = std::chrono::steady_clock::now();
   if (only >= 0) {
-    const Case c = mutate(bases, seed, uint64_t(only), files);
+    const Case c = mutate(bases, seed, uint64_t(only), files, images);
     std::printf("%s", describe(c).c_str());
     one(c);
   } else {
     for (const auto& f : corpus)
       for (const char* type : {"mesh", "asset"}) one(corpus_case(f, type));
-    for (uint64_t i = 0; i < cases; ++i) one(mutate(bases, seed, i, files));
+    for (uint64_t i = 0; i < cases; ++i) one(mutate(bases, seed, i, files, images));
   }
   const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
 
@@ -551,5 +634,6 @@ int main(int argc, char** argv) {
   std::sort(kinds.rbegin(), kinds.rend());
   for (size_t k = 0; k < kinds.size() && k < (verbose ? kinds.size() : 12); ++k)
     std::printf("  %6zu  %s\n", kinds[k].first, kinds[k].second.c_str());
+  fs::remove_all(image_dir, ec);
   return tally.failures ? 1 : 0;
 }
