@@ -73,7 +73,7 @@ static inline XI_INLINE PbrInputs xi_pbr_inputs(XI_SCENE_PARAMS, uint shading, x
 // through; bending it until wo is just above keeps both away. (Sample directions are still
 // checked against the geometric normal.)
 static inline XI_INLINE xfloat3 xi_pbr_normal(XI_SCENE_PARAMS, uint shading, xuint mi, xuint tri, xfloat3 n,
-                                              xfloat3 wo, xfloat normal_scale, xfloat3 p0, xfloat3 p1, xfloat3 p2,
+                                              xfloat3 n_geo, xfloat3 wo, xfloat normal_scale, xfloat3 p0, xfloat3 p1, xfloat3 p2,
                                               xfloat2 uv0, xfloat2 uv1) {
   if (xi_uses(shading, XI_USE_TEXTURES)) {
     xuint ref = xi_gather_uint((__global const uint*)materials, 20u * mi + 16u + XI_TEXTURE_NORMAL);
@@ -106,9 +106,9 @@ static inline XI_INLINE xfloat3 xi_pbr_normal(XI_SCENE_PARAMS, uint shading, xui
       n = xi_select3(mapped, xi_scale3(nm, 1.0f / (nl > 0.0f ? nl : (xfloat)1.0f)), n);
     }
   }
-  xfloat c = xi_dot3(n, wo);
-  xmask away = c < 0.01f;
-  return xi_select3(away, xi_normalize3(xi_add3(n, xi_scale3(wo, 0.01f - c))), n);
+  // Never above the geometric normal's own cosine, so the geometric normal itself is left as it is.
+  xfloat c = xi_dot3(n, wo), least = fmin((xfloat)0.01f, xi_dot3(n_geo, wo));
+  return xi_select3(c < least, xi_normalize3(xi_add3(n, xi_scale3(wo, least - c))), n);
 }
 
 // What shading the paths produced: which go on (their new rays are in the path state) and which
@@ -229,7 +229,7 @@ static inline XI_INLINE ShadeResult xi_shade_paths(XI_PATH_PARAMS xuint slot, xm
     pbr = at_surface && m.type == XI_MATERIAL_PBR;
     if (XI_ANY(pbr)) {
       PbrInputs in = xi_pbr_inputs(XI_SCENE_ARGS, shading, mi, m.albedo, uv0, uv1);
-      xfloat3 np = xi_pbr_normal(XI_SCENE_ARGS, shading, mi, tri, n, wo, in.normal_scale, p0, p1, p2, uv0, uv1);
+      xfloat3 np = xi_pbr_normal(XI_SCENE_ARGS, shading, mi, tri, n, n_geo, wo, in.normal_scale, p0, p1, p2, uv0, uv1);
       n = xi_select3(pbr, np, n);
       xi_basis(n, &frame_t, &frame_b);
       wo_local = make_xfloat3(xi_dot3(wo, frame_t), xi_dot3(wo, frame_b), xi_dot3(wo, n));
