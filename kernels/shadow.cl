@@ -10,12 +10,15 @@
 #include "textures.h"
 #include "traverse.h"
 
-// The scene's surface data a shadow ray needs to see through cut-out surfaces.
+// What a shadow ray needs to see through cut-out surfaces: the scene's surface data, the render's
+// seed, and the path's pixel and sample (path state) and bounce for its blend decisions.
 #define XI_ALPHA_PARAMS                                                                                      \
   __global const MaterialData *restrict materials, __global const uint *restrict tri_material,              \
       __global const float4 *restrict tri_uv, __global const TextureRef *restrict texture_refs,             \
-      __global const uint *restrict images, __global const uint *restrict texels
-#define XI_ALPHA_ARGS materials, tri_material, tri_uv, texture_refs, images, texels
+      __global const uint *restrict images, __global const uint *restrict texels, uint seed
+#define XI_ALPHA_ARGS materials, tri_material, tri_uv, texture_refs, images, texels, seed
+#define XI_PATH_ID_PARAMS __global const uint *restrict item_pixel, __global const uint *restrict item_sample, uint bounce
+#define XI_PATH_ID_ARGS item_pixel, item_sample, bounce
 
 static inline void xi_add_unoccluded(__global float4* radiance, float4 contrib) {
   radiance[as_uint(contrib.w)] += (float4)(contrib.xyz, 0.0f);
@@ -25,16 +28,18 @@ static inline void xi_add_unoccluded(__global float4* radiance, float4 contrib) 
 // Whether the closest surfaces along the ray before tmax are all ones it passes through: each
 // closest hit decides, and the ray goes on from just beyond it (any hit would not do: a far
 // transparent hit found first says nothing of the surfaces before it).
+// The blend decisions draw on a stream of the path's own (seed, pixel, sample, bounce), as its
+// other samples do, so an image depends on the seed alone and every pass decides afresh.
 static inline bool xi_unoccluded_through_alpha(XI_ALPHA_PARAMS, __global const TraceNode* nodes,
                                                __global const TriBlock* tri_blocks, float3 o, float3 d, float tmax,
-                                               uint ray) {
+                                               uint pixel, uint sample, uint bounce) {
   for (uint k = 0u; k < 256u; ++k) {
     float t, u, v;
     const uint tri = xi_trace(nodes, tri_blocks, o, d, tmax, false, &t, &u, &v);
     if (tri == XI_NO_HIT) return true;
     float2 uv0, uv1;
     xi_hit_uv(tri_uv, tri, u, v, &uv0, &uv1);
-    const float blend_u = xi_unit_float(xi_hash4(0x0a1fa5edu, ray, tri, k));
+    const float blend_u = xi_unit_float(xi_hash4(seed ^ 0x0a1fa5edu, pixel, sample, (bounce << 8) | k));
     if (!xi_passes_through(materials, texture_refs, images, texels, tri_material[tri], uv0, uv1, blend_u)) return false;
     const float advance = t + 1e-5f * fmax(t, 1.0f);
     o += d * advance;
@@ -49,10 +54,12 @@ static inline bool xi_unoccluded_through_alpha(XI_ALPHA_PARAMS, __global const T
 static inline void xi_shadow_one(__global float4* radiance, __global const float4* shadow_org,
                                  __global const float4* shadow_dir, __global const float4* shadow_contrib, uint i,
                                  __global const TraceNode* nodes, __global const TriBlock* tri_blocks,
-                                 XI_ALPHA_PARAMS) {
+                                 XI_ALPHA_PARAMS, XI_PATH_ID_PARAMS) {
   const float4 o = shadow_org[i];
 #ifdef XI_ALPHA
-  if (xi_unoccluded_through_alpha(XI_ALPHA_ARGS, nodes, tri_blocks, o.xyz, shadow_dir[i].xyz, o.w, i))
+  const uint slot = as_uint(shadow_contrib[i].w);
+  if (xi_unoccluded_through_alpha(XI_ALPHA_ARGS, nodes, tri_blocks, o.xyz, shadow_dir[i].xyz, o.w,
+                                  item_pixel[slot], item_sample[slot], bounce))
     xi_add_unoccluded(radiance, shadow_contrib[i]);
 #else
   float t, u, v;
@@ -66,12 +73,12 @@ static inline void xi_shadow_one(__global float4* radiance, __global const float
 static inline void xi_shadow_packet(__global float4* radiance, __global const float4* shadow_org,
                                     __global const float4* shadow_dir, __global const float4* shadow_contrib,
                                     uint count, __global const TraceNode* nodes, __global const TriBlock* tri_blocks,
-                                    XI_ALPHA_PARAMS) {
+                                    XI_ALPHA_PARAMS, XI_PATH_ID_PARAMS) {
   const uint first = (uint)get_global_id(0) * 8u;
   if (first >= count) return;
   if (count - first < 8u) {
     for (uint i = first; i < count; ++i)
-      xi_shadow_one(radiance, shadow_org, shadow_dir, shadow_contrib, i, nodes, tri_blocks, XI_ALPHA_ARGS);
+      xi_shadow_one(radiance, shadow_org, shadow_dir, shadow_contrib, i, nodes, tri_blocks, XI_ALPHA_ARGS, XI_PATH_ID_ARGS);
     return;
   }
   const float4 o0 = shadow_org[first], o1 = shadow_org[first + 1u], o2 = shadow_org[first + 2u],
@@ -98,7 +105,7 @@ __kernel void shadow(XI_PATH_PARAMS XI_SHADOW_PARAMS __global const uint* restri
   uint count = counters[XI_COUNTER_SHADOW(bounce)];
 #if XI_BVH_WIDTH == 8
   if (XI_SHADOW_PACKET(XI_BVH_WIDTH, XI_RAY_PACKETS) == 8) {
-    xi_shadow_packet(radiance, shadow_org, shadow_dir, shadow_contrib, count, nodes, tri_blocks, XI_ALPHA_ARGS);
+    xi_shadow_packet(radiance, shadow_org, shadow_dir, shadow_contrib, count, nodes, tri_blocks, XI_ALPHA_ARGS, XI_PATH_ID_ARGS);
     return;
   }
 #endif
@@ -109,5 +116,5 @@ __kernel void shadow(XI_PATH_PARAMS XI_SHADOW_PARAMS __global const uint* restri
   // one traverses (as extend does), so that add no longer waits on memory.
   if (i + 4u < count) XI_PREFETCH(&radiance[as_uint(shadow_contrib[i + 4u].w)], 1);
 #endif
-  xi_shadow_one(radiance, shadow_org, shadow_dir, shadow_contrib, i, nodes, tri_blocks, XI_ALPHA_ARGS);
+  xi_shadow_one(radiance, shadow_org, shadow_dir, shadow_contrib, i, nodes, tri_blocks, XI_ALPHA_ARGS, XI_PATH_ID_ARGS);
 }

@@ -774,7 +774,8 @@ TEST_F(Kernel, ShadowAddsOnlyUnoccluded) {
     cl::Kernel k = packets ? cl::Kernel(ray_packets8_->program, "shadow") : kernel("shadow", width);
     cl::Buffer materials = buffer(cs.materials), tri_material = buffer(cs.tri_material), tri_uv = buffer(cs.tri_uv),
                refs = buffer(cs.texture_refs), images = buffer(cs.images), texels = buffer(cs.texels);
-    bind(k, b, org_b, dir_b, contrib_b, cb, bounce, nodes, blocks, materials, tri_material, tri_uv, refs, images, texels);
+    bind(k, b, org_b, dir_b, contrib_b, cb, bounce, nodes, blocks, materials, tri_material, tri_uv, refs, images, texels,
+         0u);
     launch(k, (n + extra) / XI_SHADOW_PACKET(width, packets ? 1 : 0));  // over an upper bound, as the renderer launches
     std::vector<vec4> got = read<vec4>(b.radiance, slots);
 

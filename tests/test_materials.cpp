@@ -1114,14 +1114,11 @@ TEST(MaterialGltf, BadTexturesFallBackToTheFactor) {
   fs::remove_all(dir);
 }
 
-// FAILS-NOW (kernels/shadow.cl, not fixed here): a BLEND surface's pass-through decision for a shadow
-// ray hashes the ray's index in the shadow queue (xi_hash4(0x0a1fa5ed, ray, tri, k)), not the path's
-// pixel, sample and the seed. Queue order follows the atomic appends of shade's work groups, so two
-// renders with the same seed differ (README: the image does not depend on threads or pass size), and
-// every pass reuses the same numbers for the same queue positions, whatever the seed. Expected: the
-// MaskAndBlendShadows BLEND scene rendered twice with seed 9 and one sample per pass is bitwise the
-// same, and a pixel in the shadow, 64 passes of one sample, has a variance near p(1 − p)·lit²/64.
-TEST(MaterialAlpha, DISABLED_BlendShadowIsDeterministicAndSeeded) {
+// A BLEND surface's pass-through decision for a shadow ray draws on the path's own stream (seed,
+// pixel, sample, bounce): two renders with the same seed are bitwise the same (README: the image
+// does not depend on threads or pass size), and a pixel in the shadow, 64 passes of one sample,
+// has a variance near p(1 − p)·lit²/64, not the zero of a decision repeated every pass.
+TEST(MaterialAlpha, BlendShadowIsDeterministicAndSeeded) {
   const fs::path dir = temp_dir();
   const json scene = {{"camera", camera_json({1.5, 4, 0}, {1.5, 0, 0}, {0, 0, -1}, 20)},
                       {"film", {{"width", 32}, {"height", 32}}},

@@ -22,7 +22,7 @@
 #define XI_USE_ALPHA 2048u       // cut-out (alpha mask) and stochastically transparent surfaces
 #define XI_SAMPLER_SHIFT 16u     // the sampler (XI_SAMPLER_*) in the bits above
 
-#ifdef XI_DEVICE
+#if defined(XI_DEVICE) && (defined(XI_GENERIC) || defined(XI_SHADING))
 // The shading word in force: the program's own, or in the generic program the argument's.
 static inline uint xi_shading(uint argument) {
 #ifdef XI_GENERIC

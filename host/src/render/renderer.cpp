@@ -350,6 +350,7 @@ void Renderer::shadow(int bounce, size_t global) {
   shadow_.setArg(arg++, texture_refs_);
   shadow_.setArg(arg++, images_);
   shadow_.setArg(arg++, texels_);
+  shadow_.setArg(arg++, options_.seed);
   launch(shadow_, "shadow", bounce, global, XI_SHADOW_PACKET(kernels_.bvh_width, kernels_.ray_packets));
 }
 
