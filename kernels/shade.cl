@@ -178,6 +178,13 @@ static inline XI_INLINE ShadeResult xi_shade_paths(XI_PATH_PARAMS xuint slot, xm
     xi_hit_uv(tri_uv, tri, h.y, h.z, &uv0, &uv1);
     xfloat a;
     m.emission = xi_mul3(m.emission, xi_material_texture(XI_SCENE_ARGS, mi, XI_TEXTURE_EMISSIVE, uv0, uv1, &a));
+    // A diffuse (or emitter) albedo given as an image: the albedo is the texture's. (The
+    // metallic-roughness material multiplies its base colour texture in xi_pbr_inputs.)
+    xmask plain = m.type == XI_MATERIAL_DIFFUSE;
+    if (XI_ANY(plain))
+      m.albedo = xi_select3(plain, xi_mul3(m.albedo, xi_material_texture(XI_SCENE_ARGS, mi, XI_TEXTURE_BASE_COLOR,
+                                                                           uv0, uv1, &a)),
+                            m.albedo);
   }
   // Cut-out and transparent surfaces: the path goes on through, unchanged (throughput, the last
   // BSDF pdf for MIS), from the far side; it counts as a bounce against max_depth.
