@@ -164,6 +164,25 @@ def bsdf(m, export_dir):
     return b, emitter
 
 
+def mitsuba_envmap(file, path):
+    """xi's environment map resampled so that Mitsuba's `envmap` looks up the same radiance everywhere.
+    Both put texel column x at u = (x + 1/2) / W and wrap in u; in v xi puts row y at the centre of its
+    cell, v = (y + 1/2) / H, clamping beyond the first and last centres, while Mitsuba 3.9 puts rows 0 and
+    H - 1 on the poles, v = y / (H - 1). A W x (2H + 1) map whose rows sit at v = y / 2H (the poles, each
+    of xi's row centres and the midpoints between them) holds xi's bilinear function on Mitsuba's grid,
+    so Mitsuba's bilinear interpolation of it is xi's function exactly. Written to PATH (an EXR)."""
+    import mitsuba as mi
+    import numpy as np
+    img = np.array(mi.Bitmap(str(file)).convert(mi.Bitmap.PixelFormat.RGB, mi.Struct.Type.Float32, False),
+                   np.float64)
+    out = np.empty((2 * img.shape[0] + 1,) + img.shape[1:])
+    out[1::2] = img                              # xi's row centres
+    out[2:-1:2] = 0.5 * (img[:-1] + img[1:])     # halfway between them
+    out[0], out[-1] = img[0], img[-1]            # the poles: xi clamps to its first and last rows
+    mi.Bitmap(out.astype(np.float32), mi.Bitmap.PixelFormat.RGB).write(str(path))
+    return path
+
+
 def light(l):
     """A punctual light of the manifest as a Mitsuba emitter (same units: W/sr, W/m^2)."""
     import mitsuba as mi
@@ -215,9 +234,10 @@ def convert(scene_file, export_dir, width, height, max_depth, sampler):
     manifest = json.loads((export_dir / "manifest.json").read_text())
     env = manifest.get("environment")
     bg = s.get("background", [0, 0, 0])
-    if env:  # xi's orientation is Mitsuba's by design; rotation about +y as to_world rotate(y, angle)
+    if env:  # xi's orientation is Mitsuba's by design, its rows' placement not: resampled
         import mitsuba as mi
-        d["environment"] = {"type": "envmap", "filename": env["file"], "scale": float(env["strength"]),
+        resampled = mitsuba_envmap(env["file"], export_dir / "mitsuba-environment.exr")
+        d["environment"] = {"type": "envmap", "filename": str(resampled), "scale": float(env["strength"]),
                             "to_world": mi.ScalarTransform4f().rotate(axis=[0, 1, 0], angle=env["rotation"])}
     elif max(bg) > 0:  # xi adds it to escaping rays; Mitsuba also samples it as a light: same expectation
         d["background"] = {"type": "constant", "radiance": rgb(bg)}
