@@ -61,10 +61,10 @@ def scene():
     sphere = lambda mat, c, r, sub=5: {"type": "sphere", "material": mat, "center": c, "radius": r,
                                        "subdivisions": sub}
     return {
-        "camera": {"position": [0, 2.2, -7.5], "look_at": [0, 0.7, 0], "up": [0, 1, 0], "fov": 38},
+        "camera": {"position": [0, 2.6, -9.5], "look_at": [0, 0.6, 0], "up": [0, 1, 0], "fov": 36},
         "film": {"width": 512, "height": 512},
         "render": {"spp": 64, "max_depth": 8},
-        "environment": {"file": "../../scenes/sky.hdr", "strength": 1, "rotation": 30},
+        "environment": {"file": "../../scenes/sky.hdr", "strength": 0.6, "rotation": 30},
         "materials": {
             "floor": {"type": "diffuse", "albedo": {"file": "material-tiles.png", "scale": [6, 6]}},
             "gold": {"type": "pbr", "base_color": [1.0, 0.78, 0.34], "metallic": 1, "roughness": 0.15},
