@@ -28,6 +28,9 @@ import common as c  # noqa: E402
 import mitsuba_scene as ms  # noqa: E402
 
 DEFAULT_SCENES = ["cornell-box", "bench/scenes/engine.json"]
+# Short names for the bench's own scenes (--scenes material): textured floor, GGX metals, rough dielectric,
+# the sky as environment (bench/make_material_scene.py writes it).
+BENCH_SCENES = {"engine": "bench/scenes/engine.json", "material": "bench/scenes/material.json"}
 VENV = c.ROOT / "bench" / ".venv"
 # Mitsuba 3.9.1's samplers and the spp each takes without rounding it (to a square, a power of two).
 MITSUBA_SAMPLERS = {"independent": lambda n: n > 0,
@@ -271,7 +274,8 @@ def ceiling(a, xi, scenes, resolution, out_dir):
 def main():
     p = c.parser(__doc__)
     p.add_argument("--scenes", type=c.str_list, default=DEFAULT_SCENES,
-                   help="comma-separated: names in scenes/ or paths to xi scene files")
+                   help="comma-separated: names in scenes/, engine or material (bench/scenes/), or paths to xi "
+                        "scene files")
     p.add_argument("--resolution", help="default 512x512; 256x256 with --error; 64x64 with --check")
     p.add_argument("--spp", type=int, help="default 64; 1024 with --check")
     p.add_argument("--max-depth", type=int, help="xi's bounces (Mitsuba gets one more); default: the scene's")
@@ -302,7 +306,7 @@ def main():
     resolution = a.resolution or ("64x64" if a.check else "256x256" if a.error else "512x512")
     xi, out_dir = c.find_xi(a.xi), Path(a.out)
     out_dir.mkdir(parents=True, exist_ok=True)
-    scenes = [Path(c.scene_path(s)) for s in a.scenes]
+    scenes = [Path(c.scene_path(BENCH_SCENES.get(s, s))) for s in a.scenes]
     mitsuba = Mitsuba(a.venv, a.mitsuba_variant, a.worker_timeout)
     info = mitsuba.info
     print(f"xi: {xi} ({c.machine(xi)}; device {a.xi_device or 'default'}, {a.xi_sampler} sampler); "

@@ -3,6 +3,8 @@
 // material, and a JSON manifest naming each file's material. Other renderers read these to see
 // exactly xi's geometry. In each file the `flat_triangles` (manifest) that have no vertex normals
 // come first, their face normal at their three vertices; the rest carry their own vertex normals.
+// A material with textures also gets texture coordinates (set 0), and each image goes as a PNG; the
+// manifest also holds every material's parameters and texture slots, the lights and the environment.
 #include <cmath>
 #include <cstdint>
 #include <cstdio>
@@ -48,21 +50,25 @@ void vertex_normals(const Triangle& t, glm::vec3 out[3]) {
   for (int k = 0; k < 3; ++k) out[k] = n;
 }
 
-// One material's triangles as a PLY: three vertices per triangle (x y z nx ny nz), as xi stores them.
-std::string ply(const std::vector<const Triangle*>& tris, const std::string& material) {
+// One material's triangles as a PLY: three vertices per triangle (x y z nx ny nz), as xi stores them,
+// and with `uv` the texture coordinates of set 0 (u v, as the file has them: v down the image).
+std::string ply(const std::vector<const Triangle*>& tris, const std::string& material, bool uv) {
   const size_t n = tris.size();
   if (3 * n > (size_t)INT32_MAX) throw Error("too many triangles for a PLY file's int indices", material);
   std::string out =
       "ply\nformat binary_little_endian 1.0\ncomment xi export\nelement vertex " + std::to_string(3 * n) +
       "\nproperty float x\nproperty float y\nproperty float z\nproperty float nx\nproperty float ny\n"
-      "property float nz\nelement face " + std::to_string(n) + "\nproperty list uchar int vertex_indices\nend_header\n";
-  out.reserve(out.size() + n * (3 * 6 * 4 + 1 + 3 * 4));
+      "property float nz\n" + std::string(uv ? "property float u\nproperty float v\n" : "") +
+      "element face " + std::to_string(n) + "\nproperty list uchar int vertex_indices\nend_header\n";
+  out.reserve(out.size() + n * (3 * (uv ? 8 : 6) * 4 + 1 + 3 * 4));
   for (const Triangle* t : tris) {
     glm::vec3 normals[3];
     vertex_normals(*t, normals);
     for (int k = 0; k < 3; ++k) {
       for (int c = 0; c < 3; ++c) put_float(out, t->v[k][c]);
       for (int c = 0; c < 3; ++c) put_float(out, normals[k][c]);
+      if (uv)
+        for (int c = 0; c < 2; ++c) put_float(out, t->uv[0][k][c]);
     }
   }
   for (size_t i = 0; i < n; ++i) {
@@ -70,6 +76,62 @@ std::string ply(const std::vector<const Triangle*>& tris, const std::string& mat
     for (uint32_t k = 0; k < 3; ++k) put_u32(out, uint32_t(3 * i + k));
   }
   return out;
+}
+
+nlohmann::json vec(const glm::vec3& v) { return {v.x, v.y, v.z}; }
+
+const char* wrap_name(Wrap w) {
+  switch (w) {
+    case Wrap::Clamp: return "clamp";
+    case Wrap::Mirror: return "mirror";
+    default: return "repeat";
+  }
+}
+
+// A texture slot: the PNG `xi export` wrote for its image, its coordinate set, wrap modes and the
+// KHR_texture_transform matrix (row-major, applied to (u, v, 1) with v down, as xi applies it).
+nlohmann::json slot_json(const TextureSlot& s) {
+  nlohmann::json m = nlohmann::json::array();
+  for (int r = 0; r < 3; ++r)
+    for (int c = 0; c < 3; ++c) m.push_back(s.transform[c][r]);
+  return {{"file", "texture-" + std::to_string(s.image) + ".png"}, {"image", s.image}, {"texcoord", s.texcoord},
+          {"wrap_s", wrap_name(s.wrap_s)}, {"wrap_t", wrap_name(s.wrap_t)}, {"transform", m}};
+}
+
+bool has_textures(const Material& m) {
+  return m.base_color_texture.used() || m.metallic_roughness_texture.used() || m.normal_texture.used() ||
+         m.emissive_texture.used();
+}
+
+nlohmann::json material_json(const Material& m) {
+  static const char* types[] = {"diffuse", "mirror", "glass", "pbr"};
+  static const char* alpha_modes[] = {"opaque", "mask", "blend"};
+  nlohmann::json j = {{"name", m.name}, {"type", types[(uint32_t)m.type]}, {"albedo", vec(m.albedo)},
+                      {"emission", vec(m.emission)}, {"two_sided", m.two_sided}, {"ior", m.ior},
+                      {"metallic", m.metallic}, {"roughness", m.roughness}, {"transmission", m.transmission},
+                      {"normal_scale", m.normal_scale}, {"alpha", m.alpha},
+                      {"alpha_mode", alpha_modes[(uint32_t)m.alpha_mode]}, {"alpha_cutoff", m.alpha_cutoff}};
+  nlohmann::json textures = nlohmann::json::object();
+  const std::pair<const char*, const TextureSlot*> slots[] = {
+      {"base_color_texture", &m.base_color_texture}, {"metallic_roughness_texture", &m.metallic_roughness_texture},
+      {"normal_texture", &m.normal_texture}, {"emissive_texture", &m.emissive_texture}};
+  for (const auto& [name, slot] : slots)
+    if (slot->used()) textures[name] = slot_json(*slot);
+  j["textures"] = textures;
+  return j;
+}
+
+nlohmann::json light_json(const Light& l) {
+  static const char* types[] = {"point", "spot", "directional"};
+  nlohmann::json j = {{"name", l.name}, {"type", types[(uint32_t)l.type]}, {"intensity", vec(l.intensity)}};
+  if (l.type != LightType::Directional) j["position"] = vec(l.position);
+  if (l.type != LightType::Point) j["direction"] = vec(l.direction);
+  if (l.type == LightType::Spot) {
+    j["inner_cone_degrees"] = glm::degrees(l.inner_cone);
+    j["outer_cone_degrees"] = glm::degrees(l.outer_cone);
+  }
+  if (l.type == LightType::Directional) j["angular_radius_degrees"] = glm::degrees(l.angular_radius);
+  return j;
 }
 
 void write_file(const fs::path& path, const std::string& bytes) {
@@ -119,14 +181,37 @@ int export_scene(const std::vector<std::string>& argv) {
     for (size_t m = 0; m < by_material.size(); ++m) {
       if (by_material[m].empty()) continue;
       const std::string file = "material-" + std::to_string(m) + ".ply";
-      write_file(out_dir / file, ply(by_material[m], scene.materials[m].name));
+      const bool uv = has_textures(scene.materials[m]);
+      write_file(out_dir / file, ply(by_material[m], scene.materials[m].name, uv));
       written.push_back(out_dir / file);
       meshes.push_back({{"file", file}, {"material", scene.materials[m].name}, {"material_index", m},
-                        {"triangles", by_material[m].size()}, {"flat_triangles", flat[m]}});
+                        {"triangles", by_material[m].size()}, {"flat_triangles", flat[m]}, {"texcoords", uv}});
     }
+    // Every image the materials read, as an 8-bit RGBA PNG of xi's decoded texels (top row first).
+    nlohmann::json images = nlohmann::json::array();
+    for (size_t i = 0; i < scene.images.size(); ++i) {
+      const TextureImage& im = scene.images[i];
+      const std::string file = "texture-" + std::to_string(i) + ".png";
+      write_png_rgba8(out_dir / file, im.width, im.height, im.texels);
+      written.push_back(out_dir / file);
+      images.push_back({{"file", file}, {"source", im.source}, {"width", im.width}, {"height", im.height},
+                        {"srgb", im.srgb}});
+    }
+    nlohmann::json materials = nlohmann::json::array(), lights = nlohmann::json::array();
+    for (const Material& m : scene.materials) materials.push_back(material_json(m));
+    for (const Light& l : scene.lights) lights.push_back(light_json(l));
+    nlohmann::json environment = nullptr;
+    if (scene.environment)
+      environment = {{"file", fs::absolute(scene.environment->file).string()},
+                     {"strength", scene.environment->strength}, {"rotation", scene.environment->rotation_degrees}};
     const nlohmann::json manifest = {{"scene", scene.source.empty() ? scene_path.string() : scene.source},
                                      {"triangles", scene.triangles.size()},
-                                     {"meshes", meshes}};
+                                     {"meshes", meshes},
+                                     {"materials", materials},
+                                     {"images", images},
+                                     {"lights", lights},
+                                     {"environment", environment},
+                                     {"background", vec(scene.background)}};
     write_file(out_dir / "manifest.json", manifest.dump(2) + "\n");  // last: its presence means complete
   } catch (...) {  // no partial export: what this run wrote goes, and the folder if it made it
     for (const fs::path& p : written) fs::remove(p, ec);

@@ -2,6 +2,7 @@
 // Writers go through a temporary file in the same folder and rename it, so a failure never leaves
 // a half-written image behind.
 #pragma once
+#include <cstdint>
 #include <filesystem>
 #include <functional>
 #include <map>
@@ -40,6 +41,9 @@ ExrAttributes read_exr_attributes(const std::filesystem::path& path);
 
 // 8-bit sRGB PNG: each channel scaled by `exposure`, clipped to [0, 1], then sRGB-encoded.
 void write_png(const std::filesystem::path& path, const Image& image, float exposure = 1.0f);
+// 8-bit RGBA PNG of texels as TextureImage holds them (red in the low byte, top row first), the
+// bytes unchanged.
+void write_png_rgba8(const std::filesystem::path& path, int width, int height, const std::vector<uint32_t>& texels);
 // Reads an 8-bit RGB(A) PNG back as sRGB-decoded linear values (for tests and `xi diff`).
 Image read_png(const std::filesystem::path& path);
 

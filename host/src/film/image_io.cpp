@@ -143,6 +143,23 @@ void write_png(const std::filesystem::path& path, const Image& image, float expo
   });
 }
 
+void write_png_rgba8(const std::filesystem::path& path, int width, int height, const std::vector<uint32_t>& texels) {
+  if (width <= 0 || height <= 0 || texels.size() != (size_t)width * height)
+    throw Error("cannot write PNG: texel count does not match its size", path.string());
+  std::vector<unsigned char> rgba(texels.size() * 4);
+  for (size_t i = 0; i < texels.size(); ++i)
+    for (int c = 0; c < 4; ++c) rgba[4 * i + c] = (unsigned char)((texels[i] >> (8 * c)) & 0xff);
+  write_atomically(path, [&](const std::filesystem::path& tmp) {
+    png_image img{};
+    img.version = PNG_IMAGE_VERSION;
+    img.width = (png_uint_32)width;
+    img.height = (png_uint_32)height;
+    img.format = PNG_FORMAT_RGBA;
+    if (!png_image_write_to_file(&img, tmp.c_str(), 0, rgba.data(), 0, nullptr))
+      throw Error(std::string("cannot write PNG: ") + img.message, path.string());
+  });
+}
+
 Image read_png(const std::filesystem::path& path) {
   png_image img{};
   img.version = PNG_IMAGE_VERSION;
