@@ -377,7 +377,7 @@ TEST(EndToEndDeterminism, LocalSizeDoesNotChangePixels) {
   xi::RenderOptions o = render_options(4, 42, xi::Strategy::Mis, cornell_depth(), XI_SAMPLER_SOBOL);
   o.local_size = 64;
   const Result base = render(kDetW, kDetH, o);
-  // 0 lets the driver choose; 7 is not a power of two.
+  // 0: the largest the kernel allows; 7 is not a power of two.
   for (size_t local : {32u, 128u, 0u, 7u}) {
     o.local_size = local;
     const Result r = render(kDetW, kDetH, o);

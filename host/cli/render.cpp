@@ -268,7 +268,7 @@ void read_render_options(Job& job, const Args& args, const Team& team) {
   opt.seed = (uint32_t)args.get_int("--seed", (int)scene.render.seed, 0, INT32_MAX);
   opt.sampler = parse_sampler(args.get("--sampler", scene.render.sampler));
   opt.strategy = parse_strategy(args.get("--strategy", "mis"));
-  opt.local_size = (size_t)args.get_int("--local-size", (int)opt.local_size, 0, 1024);
+  opt.local_size = (size_t)args.get_int("--local-size", (int)opt.local_size, 0, (int)kMaxLocalSize);
   // 0 (the fallback, never a value a user may give): the device's default.
   opt.lanes = args.get_int("--lanes", 0, 1, 8);
   opt.bvh_width = args.get_int("--bvh-width", 0, 1, 8);

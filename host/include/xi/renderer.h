@@ -16,14 +16,18 @@ namespace xi {
 
 class RayProbe;
 
+// The largest work group xi launches (RenderOptions::local_size).
+constexpr size_t kMaxLocalSize = 1024;
+
 struct RenderOptions {
   int spp = 64;
   int max_depth = 8;            // bounces; 1 gives direct light only
   uint32_t seed = 0;
   int sampler = XI_SAMPLER_SOBOL;
   Strategy strategy = Strategy::Mis;
-  // Work-group size. Fixed rather than left to the driver: PoCL compiles a work-group function per
-  // distinct local size, and queue lengths change every bounce.
+  // Work-group size, at most kMaxLocalSize; 0: the largest the kernel allows, within that. Fixed
+  // rather than left to the driver: PoCL compiles a work-group function per distinct local size,
+  // and queue lengths change every bounce.
   size_t local_size = 64;
   bool all_features = false;    // compile every feature in, whatever the scene uses
   // Paths each generate and shade work item takes, 1 or 8; 0: the device's default (KernelConfig).

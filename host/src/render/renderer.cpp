@@ -29,10 +29,16 @@ constexpr size_t kLargeLaunch = (size_t)1 << 20;
 constexpr int kBackgroundBuildNice = 10;
 
 // Enqueues a kernel over global_items queue entries, items_per_work_item of them per work item, in
-// work groups of `local` (0: the driver chooses).
+// work groups of `local` (0: the largest the kernel allows, at most kMaxLocalSize).
 void enqueue_items(cl::CommandQueue& queue, cl::Kernel& kernel, size_t global_items, size_t items_per_work_item,
                    size_t local, cl::Event* event = nullptr) {
   const size_t n = std::max<size_t>((global_items + items_per_work_item - 1) / items_per_work_item, 1);
+  // 0: the largest work group the kernel allows, at most kMaxLocalSize. (Left to itself, PoCL
+  // chose 4096 work items, whose values kept across shade's barriers overflowed its threads'
+  // stacks.)
+  if (local == 0)
+    local = std::min(kMaxLocalSize, kernel.getWorkGroupInfo<CL_KERNEL_WORK_GROUP_SIZE>(
+                                        queue.getInfo<CL_QUEUE_DEVICE>()));
   const size_t global = local ? (n + local - 1) / local * local : n;
   queue.enqueueNDRangeKernel(kernel, cl::NullRange, cl::NDRange(global), local ? cl::NDRange(local) : cl::NullRange,
                              nullptr, event);
