@@ -45,6 +45,31 @@ static inline xfloat xi_light_pdf(__global const float* tri_light_pdf, xuint tri
   return cos_l > 0.0f ? xi_gather_float(tri_light_pdf, tri) * dist * dist / cos_l : (xfloat)0.0f;
 }
 
+// A point uniform on emissive triangle lt (in BVH order), seen from org.
+static inline LightSample xi_sample_triangle_light(__global const float* tri_light_pdf, __global const float4* tri_verts,
+                                                   __global const uint* tri_material,
+                                                   __global const MaterialData* materials, xuint lt, xfloat3 org,
+                                                   xfloat2 u) {
+  LightSample ls;
+  xfloat3 q0 = xi_gather_xyz(tri_verts, 3u * lt, 0), q1 = xi_gather_xyz(tri_verts, 3u * lt + 1u, 0),
+          q2 = xi_gather_xyz(tri_verts, 3u * lt + 2u, 0);
+  xfloat2 b = xi_square_to_triangle(u);
+  xfloat3 q_error;
+  xfloat3 q = xi_interpolate(q2, q0, q1, b.x, b.y, &q_error);  // b.x q0 + b.y q1 + (1 - b.x - b.y) q2
+  xfloat3 nl = xi_normalize3(xi_cross3(xi_sub3(q1, q0), xi_sub3(q2, q0)));
+  // The shadow ray ends off the light's surface, on the origin's side: it cannot hit the light.
+  xfloat3 to_light = xi_sub3(xi_offset_ray_origin(q, q_error, nl, xi_sub3(org, q)), org);
+  ls.dist = xi_length3(to_light);
+  ls.wi = xi_div3(to_light, ls.dist);
+  ShadingMaterial m = xi_gather_material(materials, xi_gather_uint(tri_material, lt));
+  xfloat cos_l = -xi_dot3(nl, ls.wi);
+  cos_l = m.two_sided > 0.0f ? fabs(cos_l) : cos_l;
+  ls.pdf = xi_light_pdf(tri_light_pdf, lt, ls.dist, cos_l);
+  ls.radiance = m.emission;
+  ls.delta = XI_FALSE;
+  return ls;
+}
+
 // Lane k's sample of punctual light `index`: its intensity over the squared distance (point, spot,
 // with the spot's smooth cone falloff as glTF's KHR_lights_punctual gives it), or a directional
 // light's irradiance, spread over a sun's cone of directions (uniform in solid angle, radiance
@@ -88,23 +113,13 @@ static inline LightSample xi_sample_light(__global const float* light_cdf, __glo
   xfloat u_pick = u.x;
   xuint entry = xi_gather_uint(light_tri, xi_pick_light(light_cdf, light_count, &u_pick));
   xmask triangle = entry < XI_LIGHT_PUNCTUAL;
-  xuint lt = triangle ? entry : (xuint)0u;  // other lanes read triangle 0, unused
-  xfloat3 q0 = xi_gather_xyz(tri_verts, 3u * lt, 0), q1 = xi_gather_xyz(tri_verts, 3u * lt + 1u, 0),
-          q2 = xi_gather_xyz(tri_verts, 3u * lt + 2u, 0);
-  xfloat2 b = xi_square_to_triangle(make_xfloat2(u_pick, u.y));
-  xfloat3 q_error;
-  xfloat3 q = xi_interpolate(q2, q0, q1, b.x, b.y, &q_error);  // b.x q0 + b.y q1 + (1 - b.x - b.y) q2
-  xfloat3 nl = xi_normalize3(xi_cross3(xi_sub3(q1, q0), xi_sub3(q2, q0)));
-  // The shadow ray ends off the light's surface, on the origin's side: it cannot hit the light.
-  xfloat3 to_light = xi_sub3(xi_offset_ray_origin(q, q_error, nl, xi_sub3(org, q)), org);
-  ls.dist = xi_length3(to_light);
-  ls.wi = xi_div3(to_light, ls.dist);
-  ShadingMaterial m = xi_gather_material(materials, xi_gather_uint(tri_material, lt));
-  xfloat cos_l = -xi_dot3(nl, ls.wi);
-  cos_l = m.two_sided > 0.0f ? fabs(cos_l) : cos_l;
-  ls.pdf = xi_light_pdf(tri_light_pdf, lt, ls.dist, cos_l);
-  ls.radiance = m.emission;
+  ls.wi = ls.radiance = xi_splat3(make_float3(0.0f, 0.0f, 1.0f));
+  ls.dist = ls.pdf = 0.0f;
   ls.delta = XI_FALSE;
+  if (XI_ANY(triangle)) {
+    ls = xi_sample_triangle_light(tri_light_pdf, tri_verts, tri_material, materials, triangle ? entry : (xuint)0u,
+                                  org, make_xfloat2(u_pick, u.y));
+  }
   if (xi_uses(shading, XI_USE_PUNCTUAL)) {
     xmask is_punctual = !triangle && entry != XI_LIGHT_ENVIRONMENT;
     if (XI_ANY(is_punctual)) {

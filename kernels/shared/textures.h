@@ -95,15 +95,19 @@ static inline xfloat xi_decode_channel(xuint byte, xmask srgb) {
 #endif
 }
 
-// Texel index along an axis of n texels for integer coordinate i, by the wrap mode.
-static inline xuint xi_wrap_texel(xint i, xuint n, xuint mode) {
-  xint ni = convert_xint(n);
-  xint repeat = ((i % ni) + ni) % ni;
-  xint period = 2 * ni;
-  xint m = ((i % period) + period) % period;
-  xint mirror = m < ni ? m : period - 1 - m;
-  xint clamped = clamp(i, (xint)0, ni - 1);
-  return convert_xuint(mode == XI_WRAP_CLAMP ? clamped : mode == XI_WRAP_MIRROR ? mirror : repeat);
+// Texel index along an axis of n texels for the integer coordinate i (a float, |i| ≤ 1e6 + 1), by
+// the wrap mode. In float arithmetic: the integer remainders it needs are no vector instruction, and
+// eight lanes of them cost eight divisions each. floor(i / n) may round up by one near a multiple
+// of n; one correction step makes the remainder exact.
+static inline xuint xi_wrap_texel(xfloat i, xuint n, xuint mode) {
+  xfloat nf = xi_to_float(n), period = 2.0f * nf;
+  xfloat r = i - nf * floor(i / nf);
+  r = r < 0.0f ? r + nf : r >= nf ? r - nf : r;
+  xfloat m = i - period * floor(i / period);
+  m = m < 0.0f ? m + period : m >= period ? m - period : m;
+  xfloat mirror = m < nf ? m : period - 1.0f - m;
+  xfloat clamped = clamp(i, (xfloat)0.0f, nf - 1.0f);
+  return convert_xuint(mode == XI_WRAP_CLAMP ? clamped : mode == XI_WRAP_MIRROR ? mirror : r);
 }
 
 // One texel as RGBA in [0, 1], sRGB-decoded for colour images.
@@ -142,9 +146,8 @@ static inline xfloat3 xi_texture(__global const TextureRef* refs, __global const
   y = clamp(y, (xfloat)-1e6f, (xfloat)1e6f);
   xfloat fx0 = floor(x), fy0 = floor(y);
   xfloat fx = x - fx0, fy = y - fy0;
-  xint ix = convert_xint(fx0), iy = convert_xint(fy0);
-  xuint x0 = xi_wrap_texel(ix, w, wrap_s), x1 = xi_wrap_texel(ix + 1, w, wrap_s);
-  xuint y0 = xi_wrap_texel(iy, h, wrap_t), y1 = xi_wrap_texel(iy + 1, h, wrap_t);
+  xuint x0 = xi_wrap_texel(fx0, w, wrap_s), x1 = xi_wrap_texel(fx0 + 1.0f, w, wrap_s);
+  xuint y0 = xi_wrap_texel(fy0, h, wrap_t), y1 = xi_wrap_texel(fy0 + 1.0f, h, wrap_t);
   xfloat a00, a10, a01, a11;
   xfloat3 c00 = xi_texel(texels, offset + y0 * w + x0, srgb, &a00), c10 = xi_texel(texels, offset + y0 * w + x1, srgb, &a10),
           c01 = xi_texel(texels, offset + y1 * w + x0, srgb, &a01), c11 = xi_texel(texels, offset + y1 * w + x1, srgb, &a11);
