@@ -19,9 +19,13 @@
 // +x (the map's centre column, +z, is seen along +x after +90°).
 //
 // Sampling distribution (host: build_environment_distribution in environment.cpp), one float
-// buffer `cdf` of H + H·W entries:
+// buffer `cdf` of 2 (H + H·W) entries:
 //   cdf[y]                  for y < H: the marginal CDF over rows, P(row ≤ y);
-//   cdf[H + y·W + x]        for x < W: row y's conditional CDF over columns, P(column ≤ x | row y).
+//   cdf[H + y·W + x]        for x < W: row y's conditional CDF over columns, P(column ≤ x | row y);
+//   then the same layout again, G = H + H·W further on, of guide tables: for each CDF of n entries,
+//   entry k (an integer held as a float) is the first index whose CDF value exceeds k / n. A search
+//   for u starts there (at k = ⌊u n⌋ − 1) and steps forward, a few entries where a binary search
+//   took log2 n dependent loads.
 // Each CDF ends at exactly 1. A cell's probability is the product of the differences of
 // consecutive entries (the entry before the first counts as 0), so sampling and pdf read the very
 // same numbers and agree whatever the rounding. The density is constant in (u, v) over a cell:
@@ -104,24 +108,28 @@ static inline xfloat3 xi_env_radiance(__global const float4* texels, Environment
   return xi_env_lookup(texels, env, uv.x, uv.y);
 }
 
-// Binary search (as xi_pick_light) of the n-entry CDF at cdf[base..]: the first entry above *u,
-// which is then stretched back to [0, 1) within that entry's interval; *p = the interval's length
-// (> 0: the entry found lies above *u, the one before it not).
-static inline xuint xi_env_search(__global const float* cdf, xuint base, uint n, xfloat* u, xfloat* p) {
-  xuint lo = (xuint)0u, hi = (xuint)(n - 1u);
-  while (XI_ANY(lo < hi)) {
-    xmask searching = lo < hi;
-    xuint mid = (lo + hi) >> 1;
-    xmask left = *u < xi_gather_float(cdf, base + mid);
-    hi = searching && left ? mid : hi;
-    lo = searching && !left ? mid + 1u : lo;
+// The first entry above *u of the n-entry CDF at cdf[base..], found from its guide table at
+// cdf[guide..]; *u is then stretched back to [0, 1) within that entry's interval and *p = the
+// interval's length (> 0: the entry found lies above *u, the one before it not).
+static inline xuint xi_env_search(__global const float* cdf, xuint base, xuint guide, uint n, xfloat* u, xfloat* p) {
+  // ⌊u n⌋ in float may round up by one; starting a guide entry earlier is always safe.
+  xuint k = convert_xuint(*u * (float)n);
+  k = k >= n ? (xuint)(n - 1u) : k;
+  k = k > 0u ? k - 1u : k;
+  xuint at = convert_xuint(xi_gather_float(cdf, guide + k));
+  xfloat above = xi_gather_float(cdf, base + at);
+  xmask forward = above <= *u && at < n - 1u;
+  while (XI_ANY(forward)) {
+    at = forward ? at + 1u : at;
+    xfloat next = xi_gather_float(cdf, base + at);
+    above = forward ? next : above;
+    forward = forward && above <= *u && at < n - 1u;
   }
-  xmask first = lo == 0u;
-  xfloat below = first ? (xfloat)0.0f : xi_gather_float(cdf, first ? base : base + lo - 1u);
-  xfloat above = xi_gather_float(cdf, base + lo);
+  xmask first = at == 0u;
+  xfloat below = first ? (xfloat)0.0f : xi_gather_float(cdf, first ? base : base + at - 1u);
   *p = above - below;
   *u = clamp((*u - below) / *p, 0.0f, XI_ONE_MINUS_EPSILON);
-  return lo;
+  return at;
 }
 
 // The probability of cell (x, y) from the CDF differences.
@@ -141,8 +149,10 @@ static inline xfloat xi_env_cell_probability(__global const float* cdf, Environm
 static inline xfloat3 xi_env_sample(__global const float4* texels, __global const float* cdf, EnvironmentData env,
                                     xfloat2 u, xfloat* pdf, xfloat3* radiance) {
   xfloat uy = u.y, ux = u.x, py, px;
-  xuint y = xi_env_search(cdf, (xuint)0u, env.height, &uy, &py);
-  xuint x = xi_env_search(cdf, env.height + y * env.width, env.width, &ux, &px);
+  const uint guides = env.height + env.height * env.width;
+  xuint y = xi_env_search(cdf, (xuint)0u, (xuint)guides, env.height, &uy, &py);
+  xuint row = env.height + y * env.width;
+  xuint x = xi_env_search(cdf, row, guides + row, env.width, &ux, &px);
   float wf = (float)env.width, hf = (float)env.height;
   xfloat mu = (xi_to_float(x) + ux) / wf, mv = (xi_to_float(y) + uy) / hf;
   mu = fmin(mu, (xfloat)XI_ONE_MINUS_EPSILON);

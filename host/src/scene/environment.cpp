@@ -174,6 +174,17 @@ void write_cdf(const std::vector<double>& w, double total, float* out) {
   out[w.size() - 1] = 1.0f;
 }
 
+// The guide table of an n-entry CDF ending at 1: guide[k] = the first i with cdf[i] > k / n, as a
+// float (exact: n ≤ 16384).
+void write_guide(const float* cdf, int n, float* guide) {
+  int i = 0;
+  for (int k = 0; k < n; ++k) {
+    const float at = (float)k / (float)n;
+    while (i < n - 1 && !(cdf[i] > at)) ++i;
+    guide[k] = (float)i;
+  }
+}
+
 }  // namespace
 
 void build_environment_distribution(EnvironmentMap& map) {
@@ -236,6 +247,14 @@ void build_environment_distribution(EnvironmentMap& map) {
     sum += marginal[y];
   }
   write_cdf(marginal, sum, map.cdf.data());
+
+  // Guide tables (environment.h): for each CDF of n entries, entry k is the first index whose CDF
+  // value exceeds k / n.
+  map.cdf.resize(2 * ((size_t)h + (size_t)h * w));
+  const size_t guides = (size_t)h + (size_t)h * w;
+  write_guide(map.cdf.data(), h, map.cdf.data() + guides);
+  for (int y = 0; y < h; ++y)
+    write_guide(map.cdf.data() + h + (size_t)y * w, w, map.cdf.data() + guides + h + (size_t)y * w);
 }
 
 EnvironmentMap make_environment(int width, int height, std::vector<glm::vec4> texels, const std::string& source) {
