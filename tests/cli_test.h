@@ -67,6 +67,22 @@ inline std::vector<pid_t> descendants(pid_t pid) {
   return found;
 }
 
+// Base64 (RFC 4648, padded), for data URIs in the glTF files the tests write.
+inline std::string base64(const std::string& bytes) {
+  static const char* t = "ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789+/";
+  std::string out;
+  for (size_t i = 0; i < bytes.size(); i += 3) {
+    uint32_t v = uint32_t((unsigned char)bytes[i]) << 16;
+    if (i + 1 < bytes.size()) v |= uint32_t((unsigned char)bytes[i + 1]) << 8;
+    if (i + 2 < bytes.size()) v |= uint32_t((unsigned char)bytes[i + 2]);
+    out += t[v >> 18 & 63];
+    out += t[v >> 12 & 63];
+    out += i + 1 < bytes.size() ? t[v >> 6 & 63] : '=';
+    out += i + 2 < bytes.size() ? t[v & 63] : '=';
+  }
+  return out;
+}
+
 inline void write_text(const fs::path& p, const std::string& text) {
   std::ofstream out(p, std::ios::binary);
   out << text;

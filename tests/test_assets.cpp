@@ -29,27 +29,13 @@
 
 namespace {
 
+using xi_test::base64;
 using xi_test::json;
 namespace fs = std::filesystem;
 
 const fs::path kModels = "/usr/share/assimp/models/glTF2";
 const fs::path kCameras = kModels / "cameras/Cameras.gltf";
 const fs::path kEngine = kModels / "2CylinderEngine-glTF-Binary/2CylinderEngine.glb";
-
-std::string base64(const std::string& bytes) {
-  static const char* t = "ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789+/";
-  std::string out;
-  for (size_t i = 0; i < bytes.size(); i += 3) {
-    uint32_t v = uint32_t((unsigned char)bytes[i]) << 16;
-    if (i + 1 < bytes.size()) v |= uint32_t((unsigned char)bytes[i + 1]) << 8;
-    if (i + 2 < bytes.size()) v |= uint32_t((unsigned char)bytes[i + 2]);
-    out += t[v >> 18 & 63];
-    out += t[v >> 12 & 63];
-    out += i + 1 < bytes.size() ? t[v >> 6 & 63] : '=';
-    out += i + 2 < bytes.size() ? t[v & 63] : '=';
-  }
-  return out;
-}
 
 // A glTF 2.0 file built in memory: meshes of float positions (no indices) in one base64 buffer.
 struct Gltf {

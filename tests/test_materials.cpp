@@ -44,6 +44,7 @@ namespace {
 
 namespace fs = std::filesystem;
 using json = nlohmann::json;
+using xi_test::base64;
 using glm::dvec2;
 using glm::dvec3;
 using glm::dvec4;
@@ -102,21 +103,6 @@ void write_png(const fs::path& p, const Rgba& img) {
   const std::string bytes = png_bytes(img);
   ASSERT_FALSE(bytes.empty());
   xi_test::write_text(p, bytes);
-}
-
-std::string base64(const std::string& bytes) {
-  static const char* t = "ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789+/";
-  std::string out;
-  for (size_t i = 0; i < bytes.size(); i += 3) {
-    uint32_t v = uint32_t((unsigned char)bytes[i]) << 16;
-    if (i + 1 < bytes.size()) v |= uint32_t((unsigned char)bytes[i + 1]) << 8;
-    if (i + 2 < bytes.size()) v |= uint32_t((unsigned char)bytes[i + 2]);
-    out += t[v >> 18 & 63];
-    out += t[v >> 12 & 63];
-    out += i + 1 < bytes.size() ? t[v >> 6 & 63] : '=';
-    out += i + 2 < bytes.size() ? t[v & 63] : '=';
-  }
-  return out;
 }
 
 // --- the reference texture sampler: glTF 2.0 / OpenGL's definitions, written independently
