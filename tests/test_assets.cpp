@@ -20,6 +20,7 @@
 #include <glm/gtc/matrix_transform.hpp>
 
 #include "cli_test.h"
+#include "gltf_builder.h"
 #include "fixtures.h"
 #include "stats.h"
 #include "xi/asset.h"
@@ -37,42 +38,7 @@ const fs::path kModels = "/usr/share/assimp/models/glTF2";
 const fs::path kCameras = kModels / "cameras/Cameras.gltf";
 const fs::path kEngine = kModels / "2CylinderEngine-glTF-Binary/2CylinderEngine.glb";
 
-// A glTF 2.0 file built in memory: meshes of float positions (no indices) in one base64 buffer.
-struct Gltf {
-  json doc = {{"asset", {{"version", "2.0"}}}, {"scene", 0}, {"scenes", json::array({{{"nodes", json::array()}}})}};
-  std::string bin;
-
-  int add(const char* list, json item) {
-    doc[list].push_back(std::move(item));
-    return int(doc[list].size()) - 1;
-  }
-  // Triangles (3 positions each) drawn with `material` (< 0: none).
-  int mesh(const std::vector<glm::vec3>& positions, int material) {
-    glm::vec3 lo(INFINITY), hi(-INFINITY);
-    const size_t offset = bin.size();
-    for (const glm::vec3& p : positions) {
-      lo = glm::min(lo, p), hi = glm::max(hi, p);
-      bin.append(reinterpret_cast<const char*>(&p), sizeof p);
-    }
-    const int view = add("bufferViews", {{"buffer", 0}, {"byteOffset", offset}, {"byteLength", bin.size() - offset}});
-    const int acc = add("accessors", {{"bufferView", view}, {"componentType", 5126}, {"count", positions.size()},
-                                      {"type", "VEC3"}, {"min", {lo.x, lo.y, lo.z}}, {"max", {hi.x, hi.y, hi.z}}});
-    json prim = {{"attributes", {{"POSITION", acc}}}};
-    if (material >= 0) prim["material"] = material;
-    return add("meshes", {{"primitives", json::array({prim})}});
-  }
-  int node(json n, bool root = true) {
-    const int i = add("nodes", std::move(n));
-    if (root) doc["scenes"][0]["nodes"].push_back(i);
-    return i;
-  }
-  std::string text() const {
-    json d = doc;
-    d["buffers"] = json::array({{{"byteLength", bin.size()}, {"uri", "data:application/octet-stream;base64," + base64(bin)}}});
-    return d.dump(1);
-  }
-  void write(const fs::path& p) const { xi_test::write_text(p, text()); }
-};
+using xi_test::Gltf;  // gltf_builder.h
 
 json perspective(const std::string& name, double yfov, double aspect) {
   return {{"name", name}, {"type", "perspective"}, {"perspective", {{"yfov", yfov}, {"aspectRatio", aspect}, {"znear", 0.01}}}};

@@ -30,6 +30,7 @@
 #include <glm/glm.hpp>
 
 #include "cli_test.h"
+#include "gltf_builder.h"
 #include "fixtures.h"
 #include "microfacet.h"
 #include "sampling.h"
@@ -697,52 +698,7 @@ TEST(MaterialEnvironment, ImportanceSamplingPays) {
 // f–h. glTF files.
 namespace {
 
-// A glTF 2.0 file built in memory: non-indexed triangles with positions, normals and two texture
-// coordinate sets in one base64 buffer.
-struct Gltf {
-  json doc = {{"asset", {{"version", "2.0"}}}, {"scene", 0}, {"scenes", json::array({{{"nodes", json::array()}}})}};
-  std::string bin;
-
-  int add(const char* list, json item) {
-    doc[list].push_back(std::move(item));
-    return int(doc[list].size()) - 1;
-  }
-  template <class V>
-  int accessor(const std::vector<V>& values, const char* type) {
-    while (bin.size() % 4) bin += '\0';
-    const size_t offset = bin.size();
-    bin.append(reinterpret_cast<const char*>(values.data()), values.size() * sizeof(V));
-    const int view = add("bufferViews", {{"buffer", 0}, {"byteOffset", offset}, {"byteLength", bin.size() - offset}});
-    json a = {{"bufferView", view}, {"componentType", 5126}, {"count", values.size()}, {"type", type}};
-    if constexpr (std::is_same_v<V, glm::vec3>) {
-      glm::vec3 lo(INFINITY), hi(-INFINITY);
-      for (const auto& p : values) lo = glm::min(lo, p), hi = glm::max(hi, p);
-      a["min"] = {lo.x, lo.y, lo.z};
-      a["max"] = {hi.x, hi.y, hi.z};
-    }
-    return add("accessors", a);
-  }
-  int mesh(const std::vector<glm::vec3>& pos, const std::vector<glm::vec3>& normals, const std::vector<glm::vec2>& uv0,
-           const std::vector<glm::vec2>& uv1, int material) {
-    json attributes = {{"POSITION", accessor(pos, "VEC3")}};
-    if (!normals.empty()) attributes["NORMAL"] = accessor(normals, "VEC3");
-    if (!uv0.empty()) attributes["TEXCOORD_0"] = accessor(uv0, "VEC2");
-    if (!uv1.empty()) attributes["TEXCOORD_1"] = accessor(uv1, "VEC2");
-    json prim = {{"attributes", attributes}};
-    if (material >= 0) prim["material"] = material;
-    return add("meshes", {{"primitives", json::array({prim})}});
-  }
-  int node(json n) {
-    const int i = add("nodes", std::move(n));
-    doc["scenes"][0]["nodes"].push_back(i);
-    return i;
-  }
-  void write(const fs::path& p) const {
-    json d = doc;
-    d["buffers"] = json::array({{{"byteLength", bin.size()}, {"uri", "data:application/octet-stream;base64," + base64(bin)}}});
-    xi_test::write_text(p, d.dump(1));
-  }
-};
+using xi_test::Gltf;  // gltf_builder.h
 
 // The quad |x|, |y| ≤ 1 at z = 0 facing +z (counter-clockwise seen from +z), as two triangles, with
 // texture coordinates set 0 (u = (x + 1)/2, v = (1 − y)/2: the image upright seen from +z) and set 1
