@@ -54,12 +54,17 @@ PREBUILT = re.compile(r"^kernels ready in ([\d.]+) s, cached in (.*)$", re.M)
 # ---------------------------------------------------------------------------------------------------------
 # Mitsuba side: one fresh process under bench/.venv/bin/python per measurement (this file with --mitsuba-once).
 
-MATRIX = "__matrix4f__"  # how a transform goes into the converted scene's JSON
+MATRIX = "__matrix__"  # how a transform (4x4; a texture's 3x3) goes into the converted scene's JSON
+
+
+def transform(mi, rows):
+    """A transform decoded from the converted scene's JSON: 4x4 (shapes, emitters) or 3x3 (to_uv)."""
+    return mi.ScalarTransform4f(mi.ScalarMatrix4f(rows)) if len(rows) == 4 else mi.ScalarTransform3f(mi.ScalarMatrix3f(rows))
 
 
 def mitsuba_convert(a):
     """Converts one scene (bench/mitsuba_scene.py, from `xi export` in --export) into --export/mitsuba.json,
-    its transforms as 4x4 matrices; prints one JSON line: the triangles, or why the converter cannot."""
+    its transforms as matrices; prints one JSON line: the triangles, or why the converter cannot."""
     reply = os.fdopen(os.dup(1), "w", buffering=1)
     os.dup2(2, 1)  # whatever Mitsuba prints goes to stderr, not into the reply
     import mitsuba as mi
@@ -89,7 +94,7 @@ def mitsuba_once(a):
     mi.set_log_level(mi.LogLevel.Warn)
     t1 = time.perf_counter()
     d = json.loads((Path(a.export) / "mitsuba.json").read_text(),
-                   object_hook=lambda o: mi.ScalarTransform4f(mi.ScalarMatrix4f(o[MATRIX])) if MATRIX in o else o)
+                   object_hook=lambda o: transform(mi, o[MATRIX]) if MATRIX in o else o)
     t2 = time.perf_counter()
     scene = mi.load_dict(d)
     img = mi.render(scene, spp=a.spp, seed=1)

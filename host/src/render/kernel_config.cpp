@@ -119,7 +119,7 @@ std::string KernelConfig::describe() const {
                                       : features.describe() + "; sampler " + sampler_name(sampler) + "; strategy " +
                                             strategy_name(strategy);
   return shading + "; lanes " + std::to_string(lanes) + "; bvh " + std::to_string(bvh_width) + "-wide; ray packets " +
-         (ray_packets ? "on" : "off") + (cpu_device ? "; cpu device" : "");
+         (ray_packets ? "on" : "off") + (features.alpha ? "; cut-outs" : "") + (cpu_device ? "; cpu device" : "");
 }
 
 }  // namespace xi

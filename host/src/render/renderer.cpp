@@ -92,12 +92,18 @@ std::vector<std::string> prebuild_kernels(Device& device, const RenderOptions& o
   o.spp = 1;
   o.shading_program = RenderOptions::ShadingProgram::Generic;
   std::vector<std::string> built;
-  for (auto packets : {RenderOptions::RayPackets::On, RenderOptions::RayPackets::Off}) {
-    o.ray_packets = packets;
+  auto build = [&]() {
     Renderer r(device, scene, o);
     const std::string line = r.kernels().as_generic().describe();
     if (std::find(built.begin(), built.end(), line) == built.end()) built.push_back(line);
+  };
+  for (auto packets : {RenderOptions::RayPackets::On, RenderOptions::RayPackets::Off}) {
+    o.ray_packets = packets;
+    build();
   }
+  // Cut-out surfaces need their own tracing program (shadow rays look their alpha up).
+  scene.materials[0].alpha_mode = AlphaMode::Mask;
+  build();
   return built;
 }
 
