@@ -34,14 +34,8 @@
   materials, tri_verts, tri_material, tri_normals, light_cdf, light_tri, tri_light_pdf, light_count, tri_uv, \
       texture_refs, images, texels, punctual, env, env_texels, env_cdf
 
-// Material i's texture in slot k (XI_TEXTURE_*) at the hit's texture coordinates.
-static inline XI_INLINE xfloat3 xi_material_texture(XI_SCENE_PARAMS, xuint i, uint k, xfloat2 uv0, xfloat2 uv1,
-                                                    xfloat* alpha) {
-  xuint ref = xi_gather_uint((__global const uint*)materials, 20u * i + 16u + k);
-  return xi_texture(texture_refs, images, texels, ref, uv0, uv1, alpha);
-}
-
-// The metallic-roughness inputs at a hit: factors times textures.
+// The metallic-roughness inputs at a hit: factors times textures (the base colour's texture is
+// in the albedo already).
 typedef struct {
   xfloat3 base_color;
   xfloat metallic, roughness, transmission, normal_scale;
@@ -51,15 +45,14 @@ static inline XI_INLINE PbrInputs xi_pbr_inputs(XI_SCENE_PARAMS, uint shading, x
                                                 xfloat2 uv1) {
   PbrInputs in;
   in.base_color = albedo;
-  in.metallic = 0.0f;
   xfloat3 f = xi_gather_xyz((__global const float4*)materials, 5u * mi + 3u, &in.normal_scale);
   in.metallic = f.x;
   in.roughness = f.y;
   in.transmission = f.z;
   if (xi_uses(shading, XI_USE_TEXTURES)) {
     xfloat a;
-    in.base_color = xi_mul3(in.base_color, xi_material_texture(XI_SCENE_ARGS, mi, XI_TEXTURE_BASE_COLOR, uv0, uv1, &a));
-    xfloat3 mr = xi_material_texture(XI_SCENE_ARGS, mi, XI_TEXTURE_METALLIC_ROUGHNESS, uv0, uv1, &a);
+    xfloat3 mr = xi_material_texture(materials, texture_refs, images, texels, mi, XI_TEXTURE_METALLIC_ROUGHNESS, uv0,
+                                     uv1, &a);
     in.roughness = in.roughness * mr.y;
     in.metallic = in.metallic * mr.z;
   }
@@ -174,24 +167,23 @@ static inline XI_INLINE ShadeResult xi_shade_paths(XI_PATH_PARAMS xuint slot, xm
   xfloat3 p = xi_interpolate(p0, p1, p2, h.y, h.z, &p_error);
   // Texture coordinates, sets 0 and 1, interpolated as p is.
   xfloat2 uv0 = make_xfloat2((xfloat)0.0f, (xfloat)0.0f), uv1 = uv0;
+  xfloat base_alpha = 1.0f;
   if (xi_uses(shading, XI_USE_TEXTURES)) {
     xi_hit_uv(tri_uv, tri, h.y, h.z, &uv0, &uv1);
     xfloat a;
-    m.emission = xi_mul3(m.emission, xi_material_texture(XI_SCENE_ARGS, mi, XI_TEXTURE_EMISSIVE, uv0, uv1, &a));
-    // A diffuse (or emitter) albedo given as an image: the albedo is the texture's. (The
-    // metallic-roughness material multiplies its base colour texture in xi_pbr_inputs.)
-    xmask plain = m.type == XI_MATERIAL_DIFFUSE;
-    if (XI_ANY(plain))
-      m.albedo = xi_select3(plain, xi_mul3(m.albedo, xi_material_texture(XI_SCENE_ARGS, mi, XI_TEXTURE_BASE_COLOR,
-                                                                           uv0, uv1, &a)),
-                            m.albedo);
+    m.emission = xi_mul3(m.emission, xi_material_texture(materials, texture_refs, images, texels, mi,
+                                                         XI_TEXTURE_EMISSIVE, uv0, uv1, &a));
+    // The base colour texture, looked up once: it tints a diffuse albedo and a metallic-roughness
+    // base colour alike (1 where a material has none), and its alpha cuts out.
+    m.albedo = xi_mul3(m.albedo, xi_material_texture(materials, texture_refs, images, texels, mi,
+                                                     XI_TEXTURE_BASE_COLOR, uv0, uv1, &base_alpha));
   }
   // Cut-out and transparent surfaces: the path goes on through, unchanged (throughput, the last
   // BSDF pdf for MIS), from the far side; it counts as a bounce against max_depth.
   xmask passes = XI_FALSE;
   if (xi_uses(shading, XI_USE_ALPHA)) {
     xfloat u_alpha = xi_sample_2d(sampler_kind, sampler, pixel, sample_index, XI_PAIR_BOUNCE(d, XI_BOUNCE_LOBE)).y;
-    passes = at_surface && xi_passes_through(materials, texture_refs, images, texels, mi, uv0, uv1, u_alpha);
+    passes = at_surface && xi_passes_through(materials, mi, base_alpha, u_alpha);
     at_surface = at_surface && !passes;
   }
 

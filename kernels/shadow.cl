@@ -37,10 +37,14 @@ static inline bool xi_unoccluded_through_alpha(XI_ALPHA_PARAMS, __global const T
     float t, u, v;
     const uint tri = xi_trace(nodes, tri_blocks, o, d, tmax, false, &t, &u, &v);
     if (tri == XI_NO_HIT) return true;
+    const uint mi = tri_material[tri];
+    if (xi_alpha_mode(materials, mi) == XI_ALPHA_OPAQUE) return false;
     float2 uv0, uv1;
     xi_hit_uv(tri_uv, tri, u, v, &uv0, &uv1);
     const float blend_u = xi_unit_float(xi_hash4(seed ^ 0x0a1fa5edu, pixel, sample, (bounce << 8) | k));
-    if (!xi_passes_through(materials, texture_refs, images, texels, tri_material[tri], uv0, uv1, blend_u)) return false;
+    float texture_alpha;
+    xi_material_texture(materials, texture_refs, images, texels, mi, XI_TEXTURE_BASE_COLOR, uv0, uv1, &texture_alpha);
+    if (!xi_passes_through(materials, mi, texture_alpha, blend_u)) return false;
     const float advance = t + 1e-5f * fmax(t, 1.0f);
     o += d * advance;
     tmax -= advance;

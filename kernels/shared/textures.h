@@ -138,22 +138,28 @@ static inline void xi_hit_uv(__global const float4* tri_uv, xuint tri, xfloat b1
   *uv1 = make_xfloat2(ta.z * b0 + tb.z * b1 + tc.z * b2, w0 * b0 + w1 * b1 + w2 * b2);
 }
 
-// Whether a ray passes through material mi at a hit (glTF's alphaMode): MASK cuts out where the
-// alpha (factor times base colour texture) is below the cutoff; BLEND lets the ray through with
-// probability 1 - alpha (stochastic transparency: unbiased), deciding by the uniform u.
-static inline xmask xi_passes_through(__global const MaterialData* materials, __global const TextureRef* refs,
-                                      __global const uint* headers, __global const uint* texels, xuint mi,
-                                      xfloat2 uv0, xfloat2 uv1, xfloat u) {
+// Material mi's texture in slot k (XI_TEXTURE_*) at the hit's texture coordinates.
+static inline xfloat3 xi_material_texture(__global const MaterialData* materials, __global const TextureRef* refs,
+                                          __global const uint* headers, __global const uint* texels, xuint mi, uint k,
+                                          xfloat2 uv0, xfloat2 uv1, xfloat* alpha) {
+  xuint ref = xi_gather_uint((__global const uint*)materials, 20u * mi + 16u + k);
+  return xi_texture(refs, headers, texels, ref, uv0, uv1, alpha);
+}
+
+// Whether a ray passes through material mi at a hit (glTF's alphaMode), given the alpha of its
+// base colour texture there: MASK cuts out where the alpha (factor times texture) is below the
+// cutoff; BLEND lets the ray through with probability 1 - alpha (stochastic transparency:
+// unbiased), deciding by the uniform u.
+static inline xuint xi_alpha_mode(__global const MaterialData* materials, xuint mi) {
+  return xi_gather_uint((__global const uint*)materials, 20u * mi + 9u);
+}
+static inline xmask xi_passes_through(__global const MaterialData* materials, xuint mi, xfloat texture_alpha, xfloat u) {
   __global const uint* words = (__global const uint*)materials;
-  xuint mode = xi_gather_uint(words, 20u * mi + 9u);
+  xuint mode = xi_alpha_mode(materials, mi);
   xmask cut = mode != XI_ALPHA_OPAQUE;
   if (!XI_ANY(cut)) return XI_FALSE;
   xfloat cutoff = xi_as_float(xi_gather_uint(words, 20u * mi + 10u));
-  xfloat alpha = xi_as_float(xi_gather_uint(words, 20u * mi + 11u));
-  xfloat texture_alpha;
-  xi_texture(refs, headers, texels, xi_gather_uint(words, 20u * mi + 16u + XI_TEXTURE_BASE_COLOR), uv0, uv1,
-             &texture_alpha);
-  alpha = alpha * texture_alpha;
+  xfloat alpha = xi_as_float(xi_gather_uint(words, 20u * mi + 11u)) * texture_alpha;
   return cut && (mode == XI_ALPHA_MASK ? alpha < cutoff : u >= alpha);
 }
 

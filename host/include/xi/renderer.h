@@ -175,6 +175,7 @@ class Renderer {
   SamplerParams sampler_params() const;
   int bind_path_state(cl::Kernel& kernel) const;               // returns the next argument index
   int bind_shadow_state(cl::Kernel& kernel, int arg) const;
+  int bind_textures(cl::Kernel& kernel, int arg) const;
   std::vector<glm::vec4> read(const cl::Buffer& film) const;
 
   Device& device_;

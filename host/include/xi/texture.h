@@ -26,8 +26,8 @@ TextureImage load_image_file(const std::filesystem::path& path, bool srgb);
 // to (u, v, 1) in glTF's convention (v down). A positive rotation turns the coordinates
 // counter-clockwise as drawn on the image (u right, v down): u' = cos·u + sin·v, v' = −sin·u + cos·v
 // before the offset. This is what the extension's sample model (TextureTransformTest), Blender,
-// Babylon.js and three.js do; the GLSL listing in the extension's text has the transpose
-// (KhronosGroup/glTF issue 1563). The glTF reader and JSON scenes both build it here.
+// Babylon.js and three.js do; the GLSL listing in the extension's text has the transpose. The glTF
+// reader and JSON scenes both build it here.
 glm::mat3 texture_transform(glm::vec2 offset, float rotation_radians, glm::vec2 scale);
 
 }  // namespace xi

@@ -315,6 +315,15 @@ void Renderer::extend(const cl::Buffer& queue, int bounce, size_t global) {
   launch(extend_, "extend", bounce, global, XI_EXTEND_PACKET(kernels_.bvh_width, bounce, kernels_.ray_packets));
 }
 
+// Texture coordinates, texture records, image headers and texels, in that order (shade, shadow).
+int Renderer::bind_textures(cl::Kernel& kernel, int arg) const {
+  kernel.setArg(arg++, tri_uv_);
+  kernel.setArg(arg++, texture_refs_);
+  kernel.setArg(arg++, images_);
+  kernel.setArg(arg++, texels_);
+  return arg;
+}
+
 void Renderer::bind_shade(cl::Kernel& kernel, const cl::Buffer& queue_in, const cl::Buffer& queue_out, int bounce,
                           const cl::Buffer& counters) const {
   int arg = bind_path_state(kernel);
@@ -335,10 +344,7 @@ void Renderer::bind_shade(cl::Kernel& kernel, const cl::Buffer& queue_in, const 
   kernel.setArg(arg++, kernels_.shading_word());
   kernel.setArg(arg++, (uint32_t)options_.max_depth);
   kernel.setArg(arg++, scene_.background);
-  kernel.setArg(arg++, tri_uv_);
-  kernel.setArg(arg++, texture_refs_);
-  kernel.setArg(arg++, images_);
-  kernel.setArg(arg++, texels_);
+  arg = bind_textures(kernel, arg);
   kernel.setArg(arg++, punctual_);
   kernel.setArg(arg++, scene_.environment);
   kernel.setArg(arg++, environment_texels_);
@@ -358,10 +364,7 @@ void Renderer::shadow(int bounce, size_t global) {
   shadow_.setArg(arg++, tri_blocks_);
   shadow_.setArg(arg++, materials_);
   shadow_.setArg(arg++, tri_material_);
-  shadow_.setArg(arg++, tri_uv_);
-  shadow_.setArg(arg++, texture_refs_);
-  shadow_.setArg(arg++, images_);
-  shadow_.setArg(arg++, texels_);
+  arg = bind_textures(shadow_, arg);
   shadow_.setArg(arg++, options_.seed);
   launch(shadow_, "shadow", bounce, global, XI_SHADOW_PACKET(kernels_.bvh_width, kernels_.ray_packets));
 }

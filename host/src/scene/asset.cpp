@@ -74,12 +74,6 @@ namespace fs = std::filesystem;
 using json = nlohmann::json;
 using namespace scene_detail;
 
-std::string lower_extension(const fs::path& path) {
-  std::string ext = path.extension().string();
-  for (char& c : ext) c = char(std::tolower((unsigned char)c));
-  return ext;
-}
-
 bool is_gltf(const fs::path& path) {
   const std::string ext = lower_extension(path);
   return ext == ".gltf" || ext == ".glb";

@@ -12,20 +12,17 @@
 #include <OpenEXR/ImfInputFile.h>
 #include <stb/stb_image.h>
 
+#include "geometry.h"
 #include "xi/error.h"
 
 namespace xi {
 namespace {
 
+using scene_detail::lower_extension;
+
 // Every nonzero weight is kept at no less than this share of its CDF's total, so that in float
 // (steps of 2^-24 below 1) its CDF difference stays positive (environment.h).
 constexpr double kMinShare = 0x1p-20;
-
-std::string lower_extension(const std::filesystem::path& path) {
-  std::string ext = path.extension().string();
-  for (char& c : ext) c = (char)std::tolower((unsigned char)c);
-  return ext;
-}
 
 void check_size(long long w, long long h, const std::string& where) {
   if (w <= 0 || h <= 0) throw Error("the environment map is empty (" + std::to_string(w) + "×" + std::to_string(h) + ")", where);

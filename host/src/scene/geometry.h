@@ -2,9 +2,11 @@
 // triangles, the coordinate limit, the checks on loaded triangles, and Assimp mesh conversion.
 #pragma once
 #include <algorithm>
+#include <cctype>
 #include <cmath>
 #include <cstdint>
 #include <cstdio>
+#include <filesystem>
 #include <utility>
 #include <string>
 #include <string_view>
@@ -17,6 +19,13 @@
 struct aiMesh;
 
 namespace xi::scene_detail {
+
+// A file's extension in lower case (".gltf"), by which readers are chosen.
+inline std::string lower_extension(const std::filesystem::path& path) {
+  std::string ext = path.extension().string();
+  for (char& c : ext) c = char(std::tolower((unsigned char)c));
+  return ext;
+}
 
 // The largest coordinate (and camera length) a scene may have, after its transforms. The renderer
 // works in single precision, and a triangle's area and normal take the length of the cross product

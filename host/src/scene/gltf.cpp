@@ -6,6 +6,7 @@
 #include <iterator>
 #include <map>
 
+#include "geometry.h"
 #include "xi/error.h"
 #include "xi/texture.h"
 
@@ -14,11 +15,6 @@ namespace {
 
 namespace fs = std::filesystem;
 using json = nlohmann::json;
-
-std::string lower(std::string s) {
-  for (char& c : s) c = char(std::tolower((unsigned char)c));
-  return s;
-}
 
 const json* member(const json& j, const char* key) {
   return j.is_object() && j.contains(key) ? &j[key] : nullptr;
@@ -277,7 +273,7 @@ std::optional<GltfFile> read_gltf(const fs::path& path) {
     f.path = path;
     std::ifstream in(path, std::ios::binary);
     std::string text((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
-    if (lower(path.extension().string()) == ".glb") {  // 12-byte header, then chunks: length, type, data
+    if (lower_extension(path) == ".glb") {  // 12-byte header, then chunks: length, type, data
       if (text.size() < 20 || text.compare(0, 4, "glTF") != 0) return std::nullopt;
       std::string json_text;
       for (size_t at = 12; at + 8 <= text.size();) {
