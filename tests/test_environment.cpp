@@ -5,6 +5,7 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <cstdio>
 #include <fstream>
@@ -411,6 +412,51 @@ TEST(EnvironmentSampling, DistributionCoversEveryLitCell) {
   };
   for (int y = 0; y < h; ++y)
     for (int x = 0; x < w; ++x) EXPECT_EQ(p[(size_t)y * w + x] > 0.0, lit(x, y)) << x << ", " << y;
+}
+
+// The guided search finds exactly the entry a binary search finds (the first CDF value above u),
+// with its interval: on sizes that are not powers of two (there ⌊u n⌋ in float can round up, and
+// the search must step back), rows with long runs of zero-probability cells and one cell holding
+// nearly all (several steps forward), a uniform map (its CDF values fall exactly on k / n), and u
+// at and next to every k / n.
+TEST(EnvironmentSampling, GuidedSearchMatchesBinarySearch) {
+  for (int size : {0, 1, 2, 3}) {
+    const int w = std::array<int, 4>{37, 100, 513, 37}[size], h = std::array<int, 4>{13, 51, 255, 19}[size];
+    const bool uniform = size == 3;
+    std::vector<glm::vec4> t((size_t)w * h, glm::vec4(uniform ? 1.0f : 0.0f));
+    Rng rng(11 + size);
+    for (size_t i = 0; i < t.size() && !uniform; ++i)
+      if (rng.next() < 0.3f) t[i] = glm::vec4(std::pow(10.0f, 6.0f * rng.next() - 3.0f));
+    if (!uniform) t[(size_t)(h / 3) * w + w / 2] = glm::vec4(1e7f);
+    xi::EnvironmentMap m = xi::make_environment(w, h, std::move(t), "search");
+    ASSERT_TRUE(m.has_distribution());
+    const uint guides = XI_ENV_GUIDE_OFFSET((uint)w, (uint)h) / 4u;
+    std::vector<float> us;
+    for (int n : {w, h})
+      for (int k = 0; k <= n; ++k) {
+        float at = (float)k / (float)n;
+        for (float u : {std::nextafter(at, 0.0f), at, std::nextafter(at, 1.0f)})
+          if (u >= 0.0f && u < 1.0f) us.push_back(u);
+      }
+    for (int i = 0; i < 20000; ++i) us.push_back(rng.next());
+    size_t checked = 0;
+    for (int row = -1; row < h; row += 7) {  // -1: the marginal
+      const uint base = row < 0 ? 0u : (uint)(h + row * w), n = row < 0 ? (uint)h : (uint)w;
+      const float* cdf = m.cdf.data() + base;
+      for (float u : us) {
+        const uint expect = (uint)std::min<ptrdiff_t>(std::upper_bound(cdf, cdf + n, u) - cdf, n - 1);
+        float stretched = u, p = 0.0f;
+        const uint got = xi_env_search(m.cdf.data(), base, guides + base, n, &stretched, &p);
+        ASSERT_EQ(got, expect) << w << "x" << h << " row " << row << " u " << u;
+        const float below = expect ? cdf[expect - 1] : 0.0f;
+        ASSERT_EQ(p, cdf[expect] - below);
+        ASSERT_GE(stretched, 0.0f);
+        ASSERT_LT(stretched, 1.0f);
+        ++checked;
+      }
+    }
+    EXPECT_GT(checked, 20000u);
+  }
 }
 
 // ---------------------------------------------------------------------------------------------

@@ -19,13 +19,16 @@
 // +x (the map's centre column, +z, is seen along +x after +90°).
 //
 // Sampling distribution (host: build_environment_distribution in environment.cpp), one float
-// buffer `cdf` of 2 (H + H·W) entries:
+// buffer `cdf`:
 //   cdf[y]                  for y < H: the marginal CDF over rows, P(row ≤ y);
 //   cdf[H + y·W + x]        for x < W: row y's conditional CDF over columns, P(column ≤ x | row y);
-//   then the same layout again, G = H + H·W further on, of guide tables: for each CDF of n entries,
-//   entry k (an integer held as a float) is the first index whose CDF value exceeds k / n. A search
-//   for u starts there (at k = ⌊u n⌋ − 1) and steps forward, a few entries where a binary search
-//   took log2 n dependent loads.
+//   then, from G = XI_ENV_GUIDE_OFFSET(W, H) on, guide tables of float4 entries, one per CDF entry
+//   in the same order (the CDF starting at cdf[b] has its guide table at float4 G/4 + b): for a
+//   CDF of n entries, guide entry k = (cdf[i − 1], cdf[i], cdf[i + 1], i) for the first i whose
+//   CDF value exceeds k / n (cdf[−1] read as 0, cdf[n] as cdf[n − 1]). A search for u reads entry
+//   ⌊u n⌋ and is then done but where more than two CDF entries fall in one step of k / n: one
+//   load where a binary search took log2 n dependent loads, and a plain guide table (the index
+//   alone) three or more.
 // Each CDF ends at exactly 1. A cell's probability is the product of the differences of
 // consecutive entries (the entry before the first counts as 0), so sampling and pdf read the very
 // same numbers and agree whatever the rounding. The density is constant in (u, v) over a cell:
@@ -108,25 +111,41 @@ static inline xfloat3 xi_env_radiance(__global const float4* texels, Environment
   return xi_env_lookup(texels, env, uv.x, uv.y);
 }
 
-// The first entry above *u of the n-entry CDF at cdf[base..], found from its guide table at
-// cdf[guide..]; *u is then stretched back to [0, 1) within that entry's interval and *p = the
-// interval's length (> 0: the entry found lies above *u, the one before it not).
+// The first entry above *u of the n-entry CDF at cdf[base..], found from its guide table, whose
+// entries are float4 number `guide` on; *u is then stretched back to [0, 1) within that entry's
+// interval and *p = the interval's length (> 0: the entry found lies above *u, the one before it
+// not).
 static inline xuint xi_env_search(__global const float* cdf, xuint base, xuint guide, uint n, xfloat* u, xfloat* p) {
-  // ⌊u n⌋ in float may round up by one; starting a guide entry earlier is always safe.
   xuint k = convert_xuint(*u * (float)n);
   k = k >= n ? (xuint)(n - 1u) : k;
-  k = k > 0u ? k - 1u : k;
-  xuint at = convert_xuint(xi_gather_float(cdf, guide + k));
-  xfloat above = xi_gather_float(cdf, base + at);
+  xfloat at_f;
+  xfloat3 entry = xi_gather_xyz((__global const float4*)cdf, guide + k, &at_f);
+  xfloat below = entry.x, above = entry.y;
+  xuint at = convert_xuint(at_f);
+  // The entry after, held in the guide entry too.
+  xmask second = above <= *u && at < n - 1u;
+  at = second ? at + 1u : at;
+  below = second ? above : below;
+  above = second ? entry.z : above;
+  // ⌊u n⌋ in float may round up by one: then the answer may lie before the entry.
+  xmask back = below > *u;
+  while (XI_ANY(back)) {
+    at = back ? at - 1u : at;
+    above = back ? below : above;
+    xmask first = at == 0u;
+    xfloat before = first ? (xfloat)0.0f : xi_gather_float(cdf, base + (first ? at : at - 1u));
+    below = back ? before : below;
+    back = back && below > *u;
+  }
+  // Where more than two entries fall in one step of k / n.
   xmask forward = above <= *u && at < n - 1u;
   while (XI_ANY(forward)) {
     at = forward ? at + 1u : at;
     xfloat next = xi_gather_float(cdf, base + at);
+    below = forward ? above : below;
     above = forward ? next : above;
     forward = forward && above <= *u && at < n - 1u;
   }
-  xmask first = at == 0u;
-  xfloat below = first ? (xfloat)0.0f : xi_gather_float(cdf, first ? base : base + at - 1u);
   *p = above - below;
   *u = clamp((*u - below) / *p, 0.0f, XI_ONE_MINUS_EPSILON);
   return at;
@@ -149,7 +168,7 @@ static inline xfloat xi_env_cell_probability(__global const float* cdf, Environm
 static inline xfloat3 xi_env_sample(__global const float4* texels, __global const float* cdf, EnvironmentData env,
                                     xfloat2 u, xfloat* pdf, xfloat3* radiance) {
   xfloat uy = u.y, ux = u.x, py, px;
-  const uint guides = env.height + env.height * env.width;
+  const uint guides = XI_ENV_GUIDE_OFFSET(env.width, env.height) / 4u;
   xuint y = xi_env_search(cdf, (xuint)0u, (xuint)guides, env.height, &uy, &py);
   xuint row = env.height + y * env.width;
   xuint x = xi_env_search(cdf, row, guides + row, env.width, &ux, &px);

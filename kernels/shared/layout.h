@@ -63,6 +63,9 @@ typedef struct {
   uint height;
   uint pad0, pad1;
 } EnvironmentData;
+// Where the guide tables start in the sampling distribution's buffer (environment.h), in floats:
+// after the H + H·W CDF entries, at a multiple of four, so that they read as float4.
+#define XI_ENV_GUIDE_OFFSET(w, h) ((((h) + (h) * (w)) + 3u) & ~3u)
 
 // Punctual lights (KHR_lights_punctual and JSON): reached by light sampling only.
 #define XI_LIGHT_POINT 0u

@@ -171,14 +171,19 @@ void write_cdf(const std::vector<double>& w, double total, float* out) {
   out[w.size() - 1] = 1.0f;
 }
 
-// The guide table of an n-entry CDF ending at 1: guide[k] = the first i with cdf[i] > k / n, as a
-// float (exact: n ≤ 16384).
+// The guide table of an n-entry CDF ending at 1: entry k holds, for the first i with
+// cdf[i] > k / n, cdf[i − 1] (0 for i = 0), cdf[i], cdf[i + 1] (the last entry for i = n − 1) and
+// i, as four floats (the index exact: n ≤ 16384).
 void write_guide(const float* cdf, int n, float* guide) {
   int i = 0;
   for (int k = 0; k < n; ++k) {
     const float at = (float)k / (float)n;
     while (i < n - 1 && !(cdf[i] > at)) ++i;
-    guide[k] = (float)i;
+    float* entry = guide + 4 * (size_t)k;
+    entry[0] = i > 0 ? cdf[i - 1] : 0.0f;
+    entry[1] = cdf[i];
+    entry[2] = cdf[std::min(i + 1, n - 1)];
+    entry[3] = (float)i;
   }
 }
 
@@ -245,13 +250,13 @@ void build_environment_distribution(EnvironmentMap& map) {
   }
   write_cdf(marginal, sum, map.cdf.data());
 
-  // Guide tables (environment.h): for each CDF of n entries, entry k is the first index whose CDF
-  // value exceeds k / n.
-  map.cdf.resize(2 * ((size_t)h + (size_t)h * w));
-  const size_t guides = (size_t)h + (size_t)h * w;
+  // Guide tables (environment.h), four floats per CDF entry, from the first multiple of four after
+  // the CDFs.
+  const size_t cdfs = (size_t)h + (size_t)h * w, guides = XI_ENV_GUIDE_OFFSET((size_t)w, (size_t)h);
+  map.cdf.resize(guides + 4 * cdfs);
   write_guide(map.cdf.data(), h, map.cdf.data() + guides);
   for (int y = 0; y < h; ++y)
-    write_guide(map.cdf.data() + h + (size_t)y * w, w, map.cdf.data() + guides + h + (size_t)y * w);
+    write_guide(map.cdf.data() + h + (size_t)y * w, w, map.cdf.data() + guides + 4 * (h + (size_t)y * w));
 }
 
 EnvironmentMap make_environment(int width, int height, std::vector<glm::vec4> texels, const std::string& source) {
