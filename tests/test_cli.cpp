@@ -131,6 +131,28 @@ TEST_F(CliRender, MatchesTheLibrary) {
 // ---------------------------------------------------------------------------------------------
 // Devices.
 
+// A point light is a delta: BSDF sampling alone never reaches it, so `--strategy bsdf` says it
+// lights nothing, once; the other strategies reach it and say nothing.
+TEST_F(CliRender, BsdfStrategyWarnsThatPunctualLightsLightNothing) {
+  write_scene("point.json", [](json& j) {
+    j["lights"] = {{{"type", "point"}, {"position", {278, 500, 279}}, {"intensity", 1e5}}};
+  });
+  const std::string warning = "--strategy bsdf: punctual lights are reached by light sampling only";
+  for (const char* strategy : {"bsdf", "mis"}) {
+    const Outcome r = run_xi({"render", "point.json", "--spp", "1", "--resolution", "16x16", "--strategy", strategy,
+                              "-o", "out.exr", "--quiet"});
+    ASSERT_EQ(r.code, 0) << r.err;
+    const bool bsdf = std::string(strategy) == "bsdf";
+    EXPECT_EQ(r.err.find(warning) != std::string::npos, bsdf) << strategy << ": " << r.err;
+    EXPECT_EQ(std::count(r.err.begin(), r.err.end(), '\n'), bsdf ? 1 : 0) << strategy << ": " << r.err;
+  }
+  // Without punctual lights, no warning.
+  const Outcome r = run_xi({"render", "--spp", "1", "--resolution", "16x16", "--strategy", "bsdf", "-o", "out.exr",
+                            "--quiet"});
+  ASSERT_EQ(r.code, 0) << r.err;
+  EXPECT_EQ(r.err, "");
+}
+
 class CliDevices : public CliTest {};
 
 TEST_F(CliDevices, ListsAtLeastOne) {

@@ -482,8 +482,12 @@ class RenderRun {
   void announce() {
     std::vector<std::string> rank_devices = team_.gather_strings(job_.device->info().name + " on " + team_.host());
     if (!job_.quiet) print_setup(job_, team_, rank_devices);
-    if (team_.leader())
-      for (const std::string& w : scene().warnings) std::fprintf(stderr, "xi: warning: %s\n", w.c_str());
+    if (!team_.leader()) return;
+    for (const std::string& w : scene().warnings) std::fprintf(stderr, "xi: warning: %s\n", w.c_str());
+    // A point, spot or directional light is a delta: no BSDF sample ever reaches it.
+    if (job_.opt.strategy == Strategy::Bsdf && renderer_.compiled().features.punctual)
+      std::fprintf(stderr, "xi: warning: --strategy bsdf: punctual lights are reached by light sampling only, so "
+                           "they light nothing here\n");
   }
 
   void render_passes() {
