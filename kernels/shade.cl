@@ -363,24 +363,50 @@ __kernel void shade(XI_PATH_PARAMS __global const uint* restrict queue_in, __glo
                     __global const PunctualLightData* restrict punctual, EnvironmentData env,
                     __global const float4* restrict env_texels, __global const float* restrict env_cdf) {
   const uint shading = xi_shading(shading_argument);
-  volatile __local uint group_count[2], group_base[2];  // for the queue appends below
+  volatile __local uint group_count[2], group_base[2];  // for the partition and the queue appends below
+  const uint count = counters[XI_COUNTER_RAYS(bounce)];
   xuint entry = (uint)get_global_id(0) * XI_LANES + XI_LANE_INDEX;
-  uint count = counters[XI_COUNTER_RAYS(bounce)];
   xmask active = entry < count;  // launched over an upper bound
+  xuint slot = xi_gather_uint(queue_in, active ? entry : (xuint)0u);
+  slot = active ? slot : (xuint)0u;  // queue_in[0] may be unwritten when the queue is empty
+  // In a scene lit by an environment most rays escape after the first bounce, and a surface costs
+  // far more to shade than an escaped ray. There the group's entries are partitioned, surface hits
+  // first and escaped rays last, so that most work items shade lanes of one kind and one whose rays
+  // all escaped skips the surface code. Each path is shaded the same; only the work item changes.
+  __local uint group_slots[XI_MAX_LOCAL_SIZE * XI_LANES];
+  const bool partitioned = xi_uses(shading, XI_USE_ENVIRONMENT);
+  const uint group_first = (uint)get_group_id(0) * (uint)get_local_size(0) * XI_LANES;
+  const uint group_entries = group_first < count ? min((uint)get_local_size(0) * XI_LANES, count - group_first) : 0u;
+  const uint local_first = (uint)get_local_id(0) * XI_LANES;
+  if (partitioned) {
+    xmask escaped = active && xi_gather_float((__global const float*)hit, 4u * slot) < 0.0f;
+    xmask surface = active && !escaped;
+    uint surfaces = xi_count(surface), escapes = xi_count(escaped);
+    if (get_local_id(0) == 0u) group_count[0] = group_count[1] = 0u;
+    barrier(CLK_LOCAL_MEM_FENCE);
+    uint front = surfaces ? atomic_add(&group_count[0], surfaces) : 0u;
+    uint back = escapes ? atomic_add(&group_count[1], escapes) : 0u;
+    xi_local_scatter_uint(group_slots, xi_compact_index(front, surface), slot, surface);
+    xi_local_scatter_uint(group_slots, (xuint)(group_entries - 1u) - xi_compact_index(back, escaped), slot, escaped);
+    barrier(CLK_LOCAL_MEM_FENCE);
+    xuint local_entry = local_first + XI_LANE_INDEX;
+    active = local_entry < group_entries;
+    slot = xi_local_gather_uint(group_slots, active ? local_entry : (xuint)0u);
+    slot = active ? slot : (xuint)0u;
+  }
 #if XI_HAS_PREFETCH
   // The next work item's paths, fetched while this one shades (as extend does), so their loads no
   // longer wait on memory.
-  uint next = (uint)get_global_id(0) * XI_LANES + XI_LANES;
-  for (uint k = 0u; k < XI_LANES && next + k < count; ++k) {
-    uint ahead = queue_in[next + k];
+  for (uint k = XI_LANES; k < 2u * XI_LANES; ++k) {
+    const uint at = partitioned ? local_first + k : (uint)get_global_id(0) * XI_LANES + k;
+    if (at >= (partitioned ? group_entries : count)) break;
+    uint ahead = partitioned ? group_slots[at] : queue_in[at];
     XI_PREFETCH(&hit[ahead], 0);
     XI_PREFETCH(&throughput[ahead], 1);
     XI_PREFETCH(&radiance[ahead], 1);
     XI_PREFETCH(&ray_dir[ahead], 1);
   }
 #endif
-  xuint slot = xi_gather_uint(queue_in, active ? entry : (xuint)0u);
-  slot = active ? slot : (xuint)0u;  // queue_in[0] may be unwritten when the queue is empty
   ShadeResult r = xi_shade_paths(XI_PATH_ARGS slot, active, bounce, XI_SCENE_ARGS, sampler, shading,
                                  xi_gather_uint(item_pixel, slot), xi_gather_uint(item_sample, slot), max_depth,
                                  background);

@@ -134,6 +134,21 @@ static inline XI_INLINE void xi_scatter_uint(__global uint* p, xuint i, xuint v,
   vstore8(m, 0, on);
   XI_FOR_LANES(k) if (on[k]) p[idx[k]] = vv[k];
 }
+// The same two on local memory.
+static inline XI_INLINE xuint xi_local_gather_uint(__local const uint* p, xuint i) {
+  uint idx[8], v[8];
+  vstore8(i, 0, idx);
+  XI_FOR_LANES(k) v[k] = p[idx[k]];
+  return vload8(0, v);
+}
+static inline XI_INLINE void xi_local_scatter_uint(__local uint* p, xuint i, xuint v, xmask m) {
+  uint idx[8], vv[8];
+  int on[8];
+  vstore8(i, 0, idx);
+  vstore8(v, 0, vv);
+  vstore8(m, 0, on);
+  XI_FOR_LANES(k) if (on[k]) p[idx[k]] = vv[k];
+}
 // Where the lanes with m true go when appended, in lane order, to consecutive elements from `at`.
 static inline XI_INLINE xuint xi_compact_index(uint at, xmask m) {
   int on[8];
@@ -197,6 +212,10 @@ static inline void xi_scatter_uint(__global uint* p, xuint i, xuint v, xmask m) 
   if (m) p[i] = v;
 }
 static inline uint xi_count(xmask m) { return m ? 1u : 0u; }
+static inline xuint xi_local_gather_uint(__local const uint* p, xuint i) { return p[i]; }
+static inline void xi_local_scatter_uint(__local uint* p, xuint i, xuint v, xmask m) {
+  if (m) p[i] = v;
+}
 static inline xuint xi_compact_index(uint at, xmask m) { return at; }
 #endif
 

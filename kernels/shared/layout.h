@@ -180,6 +180,9 @@ typedef struct {
   uint pad;
 } WaveParams;
 
+// The largest work group the host launches (shade keeps a group's queue entries in local memory).
+#define XI_MAX_LOCAL_SIZE 1024
+
 // Counters in one small device buffer, zeroed per wave but for the non-finite count. Kernels read
 // their queue length from it, so the host launches over an upper bound without waiting for it.
 #define XI_COUNTER_NONFINITE 0

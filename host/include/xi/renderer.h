@@ -17,7 +17,7 @@ namespace xi {
 class RayProbe;
 
 // The largest work group xi launches (RenderOptions::local_size).
-constexpr size_t kMaxLocalSize = 1024;
+constexpr size_t kMaxLocalSize = XI_MAX_LOCAL_SIZE;  // layout.h
 
 struct RenderOptions {
   int spp = 64;
