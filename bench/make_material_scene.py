@@ -1,7 +1,9 @@
 #!/usr/bin/python3
 """Writes bench/scenes/material.json and its floor texture bench/scenes/material-tiles.png: spheres of
 GGX metal (roughness 0.1 to 0.7), a rough dielectric, a half-metal and a textured diffuse one on a textured
-floor, lit by the bundled sky (scenes/sky.hdr). Standard library only; also the PNG and Radiance HDR writers
+floor, lit by the bundled sky (scenes/sky.hdr). Also bench/scenes/material-metals.json, the same with the
+dielectric and the half-metal made metals (their colour and roughness kept): every sphere then has a model
+Mitsuba 3's roughconductor shares, for equal-error comparisons. Standard library only; also the PNG and Radiance HDR writers
 that bench/validate_materials.py uses for its test images."""
 import json
 import math
@@ -57,7 +59,7 @@ def tiles(n=128):
     return rows
 
 
-def scene():
+def scene(metals_only=False):
     sphere = lambda mat, c, r, sub=5: {"type": "sphere", "material": mat, "center": c, "radius": r,
                                        "subdivisions": sub}
     return {
@@ -70,8 +72,10 @@ def scene():
             "gold": {"type": "pbr", "base_color": [1.0, 0.78, 0.34], "metallic": 1, "roughness": 0.15},
             "steel": {"type": "pbr", "base_color": [0.9, 0.9, 0.9], "metallic": 1, "roughness": 0.4},
             "copper": {"type": "pbr", "base_color": [0.95, 0.64, 0.54], "metallic": 1, "roughness": 0.7},
-            "plastic": {"type": "pbr", "base_color": [0.7, 0.1, 0.08], "metallic": 0, "roughness": 0.3},
-            "satin": {"type": "pbr", "base_color": [0.2, 0.4, 0.8], "metallic": 0.5, "roughness": 0.5},
+            "plastic": {"type": "pbr", "base_color": [0.7, 0.1, 0.08], "metallic": 1 if metals_only else 0,
+                        "roughness": 0.3},
+            "satin": {"type": "pbr", "base_color": [0.2, 0.4, 0.8], "metallic": 1 if metals_only else 0.5,
+                      "roughness": 0.5},
             "tiled": {"type": "diffuse", "albedo": "material-tiles.png"},
         },
         "shapes": [
@@ -90,7 +94,8 @@ def scene():
 def main():
     write_png(HERE / "scenes" / "material-tiles.png", 128, 128, tiles())
     (HERE / "scenes" / "material.json").write_text(json.dumps(scene(), indent=1) + "\n")
-    print(f"wrote {HERE / 'scenes' / 'material.json'} and material-tiles.png")
+    (HERE / "scenes" / "material-metals.json").write_text(json.dumps(scene(metals_only=True), indent=1) + "\n")
+    print(f"wrote {HERE / 'scenes' / 'material.json'}, material-metals.json and material-tiles.png")
 
 
 if __name__ == "__main__":
