@@ -65,7 +65,8 @@ def scene(metals_only=False):
     return {
         "camera": {"position": [0, 2.6, -9.5], "look_at": [0, 0.6, 0], "up": [0, 1, 0], "fov": 36},
         "film": {"width": 512, "height": 512},
-        "render": {"spp": 64, "max_depth": 8},
+        # Like for like: Mitsuba 3's rough conductors are single-scattering GGX.
+        "render": {"spp": 64, "max_depth": 8, "multiple_scattering": False},
         "environment": {"file": "../../scenes/sky.hdr", "strength": 0.6, "rotation": 30},
         "materials": {
             "floor": {"type": "diffuse", "albedo": {"file": "material-tiles.png", "scale": [6, 6]}},

@@ -84,7 +84,9 @@ def scenes(d):
                         "materials": {"floor": diffuse["floor"],
                                       "metal": {"type": "pbr", "base_color": [1, 1, 1], "metallic": 1,
                                                 "roughness": 0.2}},
-                        "shapes": [floor, ball("metal")]}
+                        "shapes": [floor, ball("metal")],
+                        # roughconductor is single-scattering GGX
+                        "render": {"max_depth": 8, "multiple_scattering": False}}
     paths = {}
     for name, s in out.items():
         s.setdefault("render", {"max_depth": 8})

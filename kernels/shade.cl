@@ -222,6 +222,7 @@ static inline XI_INLINE ShadeResult xi_shade_paths(XI_PATH_PARAMS xuint slot, xm
   PbrLobes lobes;
   lobes.base_color = m.albedo;
   lobes.metallic = lobes.alpha = lobes.transmission = 0.0f;
+  lobes.multiple_scattering = xi_uses(shading, XI_USE_MULTIPLE_SCATTERING) ? 1.0f : 0.0f;
   lobes.eta = 1.5f;
   xfloat3 frame_t = n, frame_b = n, wo_local = wo;
   if (xi_uses(shading, XI_USE_PBR)) {

@@ -283,6 +283,25 @@ TEST(Scene, DefaultsAndOptionalFields) {
   expect_vec(glm::normalize(face_normal(s.triangles[1])), {0, 0, 1}, 0.0f);
 }
 
+// "render": {"multiple_scattering": ...}: on by default, and a feature only where a pbr material
+// is; false turns it off; anything but a boolean is refused, naming the key.
+TEST(Scene, MultipleScatteringSwitch) {
+  const std::string pbr = R"("materials": {"white": {"type": "pbr", "base_color": [1, 1, 1], "metallic": 1,
+      "roughness": 0.8}})";
+  auto features = [&](const std::string& render, const std::string& materials) {
+    std::string text = scene_text(kQuad, materials);
+    if (!render.empty()) text = "{" + render + ", " + text.substr(1);
+    return xi::compile_scene(parse(text)).features;
+  };
+  EXPECT_TRUE(features("", pbr).multiple_scattering);
+  EXPECT_NE(features("", pbr).describe().find("multiple-scattering"), std::string::npos);
+  EXPECT_FALSE(features(R"("render": {"multiple_scattering": false})", pbr).multiple_scattering);
+  EXPECT_FALSE(features("", kMaterials).multiple_scattering);  // no pbr material: nothing to compensate
+  EXPECT_TRUE(parse(scene_text(kQuad)).render.multiple_scattering);
+  expect_parse_error("{\"render\": {\"multiple_scattering\": 1}, " + scene_text(kQuad).substr(1),
+                     "/render/multiple_scattering");
+}
+
 TEST(SceneErrors, MalformedJson) {
   expect_parse_error(R"({"camera": {"position": [0, 0,, 0]}})", "line 1, column 31");
   expect_parse_error(R"({"camera": {"position": [0, 0,, 0]}})", "test.json: byte 31");

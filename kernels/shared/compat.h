@@ -105,6 +105,13 @@ static inline float as_float_i(int i) { float f; std::memcpy(&f, &i, 4); return 
 #define XI_INLINE
 #endif
 
+// A constant table the kernels and the host's tests both read.
+#ifdef XI_DEVICE
+#define XI_TABLE __constant
+#else
+#define XI_TABLE static const
+#endif
+
 #define XI_PI 3.14159265358979323846f
 #define XI_INV_PI 0.31830988618379067154f
 #define XI_ONE_MINUS_EPSILON 0x1.fffffep-1f  // the largest float below 1

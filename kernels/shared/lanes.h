@@ -91,6 +91,14 @@ static inline XI_INLINE xuint xi_gather_uint(__global const uint* p, xuint i) {
   XI_FOR_LANES(k) v[k] = p[idx[k]];
   return vload8(0, v);
 }
+// Lane k reads entry i[k] of a constant table (XI_TABLE).
+static inline XI_INLINE xfloat xi_gather_table(__constant const float* p, xuint i) {
+  uint idx[8];
+  float v[8];
+  vstore8(i, 0, idx);
+  XI_FOR_LANES(k) v[k] = p[idx[k]];
+  return vload8(0, v);
+}
 // xyz of float4 elements, and their w.
 static inline XI_INLINE xfloat3 xi_gather_xyz(__global const float4* p, xuint i, xfloat* w) {
   uint idx[8];
@@ -199,6 +207,7 @@ static inline xfloat3 xi_splat3(float3 v) { return v; }
 
 static inline xfloat xi_gather_float(__global const float* p, xuint i) { return p[i]; }
 static inline xuint xi_gather_uint(__global const uint* p, xuint i) { return p[i]; }
+static inline xfloat xi_gather_table(__constant const float* p, xuint i) { return p[i]; }
 static inline xfloat3 xi_gather_xyz(__global const float4* p, xuint i, xfloat* w) {
   float4 e = p[i];
   if (w) *w = e.w;

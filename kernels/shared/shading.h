@@ -20,6 +20,7 @@
 #define XI_USE_ENVIRONMENT 512u  // an environment map (environment.h) instead of a constant background
 #define XI_USE_PUNCTUAL 1024u    // point, spot and directional lights
 #define XI_USE_ALPHA 2048u       // cut-out (alpha mask) and stochastically transparent surfaces
+#define XI_USE_MULTIPLE_SCATTERING 4096u  // the metal's multiple-scattering lobe (microfacet.h)
 #define XI_SAMPLER_SHIFT 16u     // the sampler (XI_SAMPLER_*) in the bits above
 
 #if defined(XI_DEVICE) && (defined(XI_GENERIC) || defined(XI_SHADING))

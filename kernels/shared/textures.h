@@ -8,11 +8,6 @@
 
 // The sRGB transfer function's inverse at the 256 values of an 8-bit channel: a table, since pow
 // per channel of four texels per lookup dominated shading time.
-#ifdef XI_DEVICE
-#define XI_TABLE __constant
-#else
-#define XI_TABLE static const
-#endif
 XI_TABLE float xi_srgb_table[256] = {
     0.0f, 0.000303526984f, 0.000607053967f, 0.000910580951f, 0.00121410793f, 0.00151763492f, 0.0018211619f, 0.00212468888f,
     0.00242821587f, 0.00273174285f, 0.00303526984f, 0.00334653576f, 0.00367650732f, 0.00402471702f, 0.00439144204f, 0.00477695348f,
@@ -47,21 +42,12 @@ XI_TABLE float xi_srgb_table[256] = {
     0.871367119f, 0.879622397f, 0.887923118f, 0.896269353f, 0.904661174f, 0.913098652f, 0.921581856f, 0.930110858f,
     0.938685728f, 0.947306537f, 0.955973353f, 0.964686248f, 0.97344529f, 0.98225055f, 0.991102097f, 1.0f,
 };
-#undef XI_TABLE
 
 // Channel bytes (0-255) decoded: from sRGB where srgb is true, else linearly.
 static inline xfloat xi_decode_channel(xuint byte, xmask srgb) {
   xfloat linear = xi_to_float(byte) * (1.0f / 255.0f);
   if (!XI_ANY(srgb)) return linear;
-#if XI_LANES == 8
-  uint idx[8];
-  float v[8];
-  vstore8(byte, 0, idx);
-  XI_FOR_LANES(k) v[k] = xi_srgb_table[idx[k]];
-  return srgb ? vload8(0, v) : linear;
-#else
-  return srgb ? xi_srgb_table[byte] : linear;
-#endif
+  return srgb ? xi_gather_table(xi_srgb_table, byte) : linear;
 }
 
 // Texel index along an axis of n texels for the integer coordinate i (a float, |i| ≤ 1e6 + 1), by

@@ -24,6 +24,7 @@ struct Features {
   bool environment = false;
   bool punctual = false;  // point, spot, directional lights
   bool alpha = false;     // alpha-masked or blended materials
+  bool multiple_scattering = false;  // the metal's multiple-scattering lobe (with pbr): a choice of model
   bool lights() const { return emitters || environment || punctual; }
   static Features everything();
   std::string describe() const;  // e.g. "diffuse mirror emitters"

@@ -103,6 +103,9 @@ struct RenderSettings {
   int max_depth = 8;
   uint32_t seed = 0;
   std::string sampler = "sobol";
+  // The metal's multiple scattering restored (microfacet.h, Kulla–Conty); false: single-scattering
+  // GGX, as Mitsuba 3's and pbrt-v4's conductors.
+  bool multiple_scattering = true;
 };
 
 struct Scene {

@@ -107,7 +107,11 @@ void add_environment(const Scene& scene, CompiledScene& cs, std::vector<double>&
 
 }  // namespace
 
-Features Features::everything() { return Features{true, true, true, true, true, true, true, true, true, true}; }
+Features Features::everything() {
+  Features f{true, true, true, true, true, true, true, true, true, true};
+  f.multiple_scattering = false;  // a choice of model, which stays the scene's (KernelConfig::make)
+  return f;
+}
 
 std::string Features::describe() const {
   std::string s = "diffuse";
@@ -121,6 +125,7 @@ std::string Features::describe() const {
   if (environment) s += " environment";
   if (punctual) s += " punctual";
   if (alpha) s += " alpha";
+  if (multiple_scattering) s += " multiple-scattering";
   return s;
 }
 
@@ -157,6 +162,7 @@ CompiledScene compile_scene(const Scene& scene, int bvh_width, bool spatial_spli
     cs.features.alpha |= m.cuts_out();
   }
   cs.features.textures = !cs.texture_refs.empty();
+  cs.features.multiple_scattering = cs.features.pbr && scene.render.multiple_scattering;
   upload_images(scene, cs);
 
   cs.tri_verts.resize(3 * n);

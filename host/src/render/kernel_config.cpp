@@ -53,6 +53,7 @@ int KernelConfig::bvh_width_for(const DeviceInfo& device, const RenderOptions& o
 KernelConfig KernelConfig::make(const DeviceInfo& device, const CompiledScene& scene, const RenderOptions& options) {
   KernelConfig c;
   c.features = options.all_features ? Features::everything() : scene.features;
+  c.features.multiple_scattering = scene.features.multiple_scattering;
   c.sampler = options.sampler;
   c.strategy = options.strategy;
   // On a CPU, float8 arithmetic across eight paths is what fills the vector units.
@@ -78,6 +79,7 @@ uint32_t KernelConfig::shading_word() const {
   if (features.environment) word |= XI_USE_ENVIRONMENT;
   if (features.punctual) word |= XI_USE_PUNCTUAL;
   if (features.alpha) word |= XI_USE_ALPHA;
+  if (features.multiple_scattering) word |= XI_USE_MULTIPLE_SCATTERING;
   if (features.emitters) word |= XI_USE_EMITTERS;
   if (features.lights()) {
     if (strategy != Strategy::Bsdf) word |= XI_USE_NEE;  // (so BSDF sampling alone never reaches a punctual light)

@@ -669,10 +669,11 @@ Scene parse_scene(const std::string& json_text, const std::string& source_name, 
   }
   if (root.has("render")) {
     const Node r = root.at("render");
-    r.expect_object({"spp", "max_depth", "seed", "sampler"});
+    r.expect_object({"spp", "max_depth", "seed", "sampler", "multiple_scattering"});
     s.render.spp = int(r.integer("spp", s.render.spp, 1, INT32_MAX));
     s.render.max_depth = int(r.integer("max_depth", s.render.max_depth, 1, 64));
     s.render.seed = uint32_t(r.integer("seed", s.render.seed, 0, INT32_MAX));  // 31 bits: the EXR attribute is a signed int
+    s.render.multiple_scattering = r.boolean("multiple_scattering", s.render.multiple_scattering);
     if (r.has("sampler")) {
       s.render.sampler = r.at("sampler").string();
       if (s.render.sampler != "random" && s.render.sampler != "grid" && s.render.sampler != "stratified" &&
