@@ -77,28 +77,19 @@ static inline XI_INLINE xfloat3 xi_select3(xmask m, xfloat3 a, xfloat3 b) {
 }
 static inline XI_INLINE xfloat3 xi_splat3(float3 v) { return make_xfloat3((xfloat)v.x, (xfloat)v.y, (xfloat)v.z); }
 
-// Loads of per-path memory: lane k reads element i[k].
-static inline XI_INLINE xfloat xi_gather_float(__global const float* p, xuint i) {
-  uint idx[8];
-  float v[8];
-  vstore8(i, 0, idx);
-  XI_FOR_LANES(k) v[k] = p[idx[k]];
-  return vload8(0, v);
-}
-static inline XI_INLINE xuint xi_gather_uint(__global const uint* p, xuint i) {
-  uint idx[8], v[8];
-  vstore8(i, 0, idx);
-  XI_FOR_LANES(k) v[k] = p[idx[k]];
-  return vload8(0, v);
-}
-// Lane k reads entry i[k] of a constant table (XI_TABLE).
-static inline XI_INLINE xfloat xi_gather_table(__constant const float* p, xuint i) {
-  uint idx[8];
-  float v[8];
-  vstore8(i, 0, idx);
-  XI_FOR_LANES(k) v[k] = p[idx[k]];
-  return vload8(0, v);
-}
+// Loads of per-path memory: lane k reads element i[k] of global, constant (XI_TABLE) or local memory.
+#define XI_GATHER(name, space, type, lane_type)                      \
+  static inline XI_INLINE lane_type name(space const type* p, xuint i) { \
+    uint idx[8];                                                     \
+    type v[8];                                                       \
+    vstore8(i, 0, idx);                                              \
+    XI_FOR_LANES(k) v[k] = p[idx[k]];                                \
+    return vload8(0, v);                                             \
+  }
+XI_GATHER(xi_gather_float, __global, float, xfloat)
+XI_GATHER(xi_gather_uint, __global, uint, xuint)
+XI_GATHER(xi_gather_table, __constant, float, xfloat)
+XI_GATHER(xi_local_gather_uint, __local, uint, xuint)
 // xyz of float4 elements, and their w.
 static inline XI_INLINE xfloat3 xi_gather_xyz(__global const float4* p, xuint i, xfloat* w) {
   uint idx[8];
@@ -134,29 +125,18 @@ static inline XI_INLINE uint xi_count(xmask m) {
   int2 s2 = s4.lo + s4.hi;
   return (uint)(s2.x + s2.y);
 }
-static inline XI_INLINE void xi_scatter_uint(__global uint* p, xuint i, xuint v, xmask m) {
-  uint idx[8], vv[8];
-  int on[8];
-  vstore8(i, 0, idx);
-  vstore8(v, 0, vv);
-  vstore8(m, 0, on);
-  XI_FOR_LANES(k) if (on[k]) p[idx[k]] = vv[k];
-}
-// The same two on local memory.
-static inline XI_INLINE xuint xi_local_gather_uint(__local const uint* p, xuint i) {
-  uint idx[8], v[8];
-  vstore8(i, 0, idx);
-  XI_FOR_LANES(k) v[k] = p[idx[k]];
-  return vload8(0, v);
-}
-static inline XI_INLINE void xi_local_scatter_uint(__local uint* p, xuint i, xuint v, xmask m) {
-  uint idx[8], vv[8];
-  int on[8];
-  vstore8(i, 0, idx);
-  vstore8(v, 0, vv);
-  vstore8(m, 0, on);
-  XI_FOR_LANES(k) if (on[k]) p[idx[k]] = vv[k];
-}
+// Stores v[k] to element i[k] of the lanes where m is true, in global or local memory.
+#define XI_SCATTER_UINT(name, space)                                            \
+  static inline XI_INLINE void name(space uint* p, xuint i, xuint v, xmask m) { \
+    uint idx[8], vv[8];                                                       \
+    int on[8];                                                                \
+    vstore8(i, 0, idx);                                                       \
+    vstore8(v, 0, vv);                                                        \
+    vstore8(m, 0, on);                                                        \
+    XI_FOR_LANES(k) if (on[k]) p[idx[k]] = vv[k];                             \
+  }
+XI_SCATTER_UINT(xi_scatter_uint, __global)
+XI_SCATTER_UINT(xi_local_scatter_uint, __local)
 // Where the lanes with m true go when appended, in lane order, to consecutive elements from `at`.
 static inline XI_INLINE xuint xi_compact_index(uint at, xmask m) {
   int on[8];

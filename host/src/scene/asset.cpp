@@ -191,8 +191,14 @@ void read_file(const fs::path& path, Loaded& l, bool whole_scene) {
   // Before Assimp allocates what the header claims (it would exhaust memory, not fail).
   if (auto why = implausible_mesh_counts(path)) throw Error("cannot load asset: " + *why, path.string());
   l.scene = l.importer.ReadFile(path.string(), aiProcess_Triangulate | aiProcess_JoinIdenticalVertices);
-  if (!l.scene || (l.scene->mFlags & AI_SCENE_FLAGS_INCOMPLETE) || !l.scene->mRootNode)
-    throw Error(std::string("cannot load asset: ") + l.importer.GetErrorString(), path.string());
+  if (!l.scene || (l.scene->mFlags & AI_SCENE_FLAGS_INCOMPLETE) || !l.scene->mRootNode) {
+    const std::string why = l.importer.GetErrorString();
+    // Assimp marks some files incomplete without a reason (a glTF scene that lists no nodes).
+    throw Error("cannot load asset: " + (why.empty() ? std::string("Assimp read no complete scene from it (it gave "
+                                                                   "no reason; a scene without nodes is one cause)")
+                                                     : why),
+                path.string());
+  }
   if (auto what = null_entry(*l.scene)) throw Error("cannot load asset: Assimp's reader left " + *what, path.string());
 }
 
