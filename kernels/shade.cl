@@ -29,10 +29,11 @@
       __global const float *restrict tri_light_pdf, uint light_count, __global const float4 *restrict tri_uv, \
       __global const TextureRef *restrict texture_refs, __global const uint *restrict images,              \
       __global const uint *restrict texels, __global const PunctualLightData *restrict punctual,           \
-      EnvironmentData env, __global const float4 *restrict env_texels, __global const float *restrict env_cdf
+      EnvironmentData env, __global const float4 *restrict env_texels, __global const float *restrict env_cdf, \
+      __global const float4 *restrict tri_tangents
 #define XI_SCENE_ARGS                                                                                        \
   materials, tri_verts, tri_material, tri_normals, light_cdf, light_tri, tri_light_pdf, light_count, tri_uv, \
-      texture_refs, images, texels, punctual, env, env_texels, env_cdf
+      texture_refs, images, texels, punctual, env, env_texels, env_cdf, tri_tangents
 
 // The metallic-roughness inputs at a hit: factors times textures (the base colour's texture is
 // in the albedo already).
@@ -59,15 +60,16 @@ static inline XI_INLINE PbrInputs xi_pbr_inputs(XI_SCENE_PARAMS, uint shading, x
   return in;
 }
 
-// The shading normal with material mi's normal map applied (tangent space: the tangent along
-// increasing u of the map's texture coordinates, from the triangle, as glTF viewers do for a file
-// without tangents), then turned toward wo where it would face away from it: a shading normal
+// The shading normal with material mi's normal map applied (tangent space: the file's tangents,
+// glTF's TANGENT interpolated, with the bitangent w · n × tangent; where the file has none, the
+// tangent along increasing u of the map's texture coordinates, from the triangle, as glTF viewers
+// do), then turned toward wo where it would face away from it: a shading normal
 // seen from behind would make the lobes' local frame invalid (black fringes) or light leak
 // through; bending it until wo is just above keeps both away. (Sample directions are still
 // checked against the geometric normal.)
-static inline XI_INLINE xfloat3 xi_pbr_normal(XI_SCENE_PARAMS, uint shading, xuint mi, xuint tri, xfloat3 n,
-                                              xfloat3 n_geo, xfloat3 wo, xfloat normal_scale, xfloat3 p0, xfloat3 p1, xfloat3 p2,
-                                              xfloat2 uv0, xfloat2 uv1) {
+static inline XI_INLINE xfloat3 xi_pbr_normal(XI_SCENE_PARAMS, uint shading, xuint mi, xuint tri, xfloat b1,
+                                              xfloat b2, xfloat3 n, xfloat3 n_geo, xfloat3 wo, xfloat normal_scale,
+                                              xfloat3 p0, xfloat3 p1, xfloat3 p2, xfloat2 uv0, xfloat2 uv1) {
   if (xi_uses(shading, XI_USE_TEXTURES)) {
     xuint ref = xi_gather_uint((__global const uint*)materials, 20u * mi + 16u + XI_TEXTURE_NORMAL);
     xmask mapped = ref != XI_NO_TEXTURE;
@@ -87,11 +89,18 @@ static inline XI_INLINE xfloat3 xi_pbr_normal(XI_SCENE_PARAMS, uint shading, xui
       xfloat det = du1 * dv2 - du2 * dv1;
       xfloat3 dp1 = xi_sub3(p1, p0), dp2 = xi_sub3(p2, p0);
       xfloat3 dpdu = xi_scale3(xi_sub3(xi_scale3(dp1, dv2), xi_scale3(dp2, dv1)), 1.0f / (det != 0.0f ? det : (xfloat)1.0f));
-      xfloat3 tangent = xi_sub3(dpdu, xi_scale3(n, xi_dot3(n, dpdu)));
+      // The file's tangent (w: the bitangent's sign; 0 where it has none).
+      xfloat sign;
+      xfloat3 ft = xi_scale3(xi_gather_xyz(tri_tangents, 3u * tri, &sign), 1.0f - b1 - b2);
+      ft = xi_add3(xi_add3(ft, xi_scale3(xi_gather_xyz(tri_tangents, 3u * tri + 1u, 0), b1)),
+                   xi_scale3(xi_gather_xyz(tri_tangents, 3u * tri + 2u, 0), b2));
+      xmask from_file = sign != 0.0f;
+      xfloat3 along = xi_select3(from_file, ft, dpdu);
+      xfloat3 tangent = xi_sub3(along, xi_scale3(n, xi_dot3(n, along)));
       xfloat tl = xi_length3(tangent);
-      mapped = mapped && det != 0.0f && tl > 0.0f;
+      mapped = mapped && (from_file || det != 0.0f) && tl > 0.0f;
       tangent = xi_scale3(tangent, 1.0f / (tl > 0.0f ? tl : (xfloat)1.0f));
-      xfloat3 bitangent = xi_cross3(n, tangent);
+      xfloat3 bitangent = xi_scale3(xi_cross3(n, tangent), from_file ? sign : (xfloat)1.0f);
       xfloat x = (2.0f * t.x - 1.0f) * normal_scale, y = (2.0f * t.y - 1.0f) * normal_scale, z = 2.0f * t.z - 1.0f;
       xfloat3 nm = xi_add3(xi_add3(xi_scale3(tangent, x), xi_scale3(bitangent, y)), xi_scale3(n, z));
       xfloat nl = xi_length3(nm);
@@ -229,7 +238,8 @@ static inline XI_INLINE ShadeResult xi_shade_paths(XI_PATH_PARAMS xuint slot, xm
     pbr = at_surface && m.type == XI_MATERIAL_PBR;
     if (XI_ANY(pbr)) {
       PbrInputs in = xi_pbr_inputs(XI_SCENE_ARGS, shading, mi, m.albedo, uv0, uv1);
-      xfloat3 np = xi_pbr_normal(XI_SCENE_ARGS, shading, mi, tri, n, n_geo, wo, in.normal_scale, p0, p1, p2, uv0, uv1);
+      xfloat3 np = xi_pbr_normal(XI_SCENE_ARGS, shading, mi, tri, h.y, h.z, n, n_geo, wo, in.normal_scale, p0, p1, p2,
+                                 uv0, uv1);
       n = xi_select3(pbr, np, n);
       xi_basis(n, &frame_t, &frame_b);
       wo_local = make_xfloat3(xi_dot3(wo, frame_t), xi_dot3(wo, frame_b), xi_dot3(wo, n));
@@ -362,7 +372,8 @@ __kernel void shade(XI_PATH_PARAMS __global const uint* restrict queue_in, __glo
                     __global const float4* restrict tri_uv, __global const TextureRef* restrict texture_refs,
                     __global const uint* restrict images, __global const uint* restrict texels,
                     __global const PunctualLightData* restrict punctual, EnvironmentData env,
-                    __global const float4* restrict env_texels, __global const float* restrict env_cdf) {
+                    __global const float4* restrict env_texels, __global const float* restrict env_cdf,
+                    __global const float4* restrict tri_tangents) {
   const uint shading = xi_shading(shading_argument);
   volatile __local uint group_count[2], group_base[2];  // for the partition and the queue appends below
   const uint count = counters[XI_COUNTER_RAYS(bounce)];

@@ -1,5 +1,5 @@
-// glTF 2.0 files built in memory by the tests: non-indexed triangles (positions, optionally normals
-// and texture coordinate sets 0 and 1) in one base64 buffer, written as a .gltf text.
+// glTF 2.0 files built in memory by the tests: non-indexed triangles (positions, optionally normals,
+// texture coordinate sets 0 and 1 and tangents) in one base64 buffer, written as a .gltf text.
 #pragma once
 #include <cmath>
 #include <filesystem>
@@ -23,7 +23,7 @@ struct Gltf {
     doc[list].push_back(std::move(item));
     return int(doc[list].size()) - 1;
   }
-  // An accessor of float VEC2 or VEC3 values (with the min and max glTF requires of positions).
+  // An accessor of float VEC2, VEC3 or VEC4 values (with the min and max glTF requires of positions).
   template <class V>
   int accessor(const std::vector<V>& values, const char* type) {
     while (bin.size() % 4) bin += '\0';
@@ -39,14 +39,15 @@ struct Gltf {
     }
     return add("accessors", a);
   }
-  // Triangles (3 positions each) drawn with `material` (< 0: none); normals and texture
-  // coordinates where given.
+  // Triangles (3 positions each) drawn with `material` (< 0: none); normals, texture coordinates
+  // and tangents (xyz, w the bitangent's sign) where given.
   int mesh(const std::vector<glm::vec3>& pos, const std::vector<glm::vec3>& normals, const std::vector<glm::vec2>& uv0,
-           const std::vector<glm::vec2>& uv1, int material) {
+           const std::vector<glm::vec2>& uv1, int material, const std::vector<glm::vec4>& tangents = {}) {
     nlohmann::json attributes = {{"POSITION", accessor(pos, "VEC3")}};
     if (!normals.empty()) attributes["NORMAL"] = accessor(normals, "VEC3");
     if (!uv0.empty()) attributes["TEXCOORD_0"] = accessor(uv0, "VEC2");
     if (!uv1.empty()) attributes["TEXCOORD_1"] = accessor(uv1, "VEC2");
+    if (!tangents.empty()) attributes["TANGENT"] = accessor(tangents, "VEC4");
     nlohmann::json prim = {{"attributes", attributes}};
     if (material >= 0) prim["material"] = material;
     return add("meshes", {{"primitives", nlohmann::json::array({prim})}});

@@ -667,11 +667,12 @@ TEST_F(Kernel, ShadeFirstHitsFromTheCamera) {
                normals = buffer(cs.tri_normals), light_cdf = buffer(cs.light_cdf), light_tri = buffer(cs.light_tri),
                light_pdf = buffer(cs.tri_light_pdf), tri_uv = buffer(cs.tri_uv), refs = buffer(cs.texture_refs),
                images = buffer(cs.images), texels = buffer(cs.texels), punctual = buffer(cs.punctual),
-               env_texels = buffer(cs.environment_texels), env_cdf = buffer(cs.environment_cdf);
+               env_texels = buffer(cs.environment_texels), env_cdf = buffer(cs.environment_cdf),
+               tangents = buffer(cs.tri_tangents);
     cl::Kernel k((lanes == 8 ? lanes8_ : program_)->program, "shade");
     bind(k, b, queue_in, queue_out, shadow_org, shadow_dir, shadow_contrib, cb, 0u, materials, verts, tri_material,
          normals, light_cdf, light_tri, light_pdf, (uint32_t)cs.light_tri.size(), xi_make_sampler_params(3, 16), shading_word_, 8u,
-         background, tri_uv, refs, images, texels, punctual, cs.environment, env_texels, env_cdf);
+         background, tri_uv, refs, images, texels, punctual, cs.environment, env_texels, env_cdf, tangents);
     launch(k, (count + lanes - 1) / lanes);
     PathState out = download(b, slots);
     const uint32_t next = read<uint32_t>(cb, XI_COUNTER_COUNT(8))[XI_COUNTER_RAYS(1)];

@@ -852,6 +852,70 @@ TEST(MaterialGltf, TexturedChromeFromFileAndDataUri) {
   fs::remove_all(dir);
 }
 
+// Normal maps: the tangent frame is the file's TANGENT where it has one, else the triangle's
+// direction of increasing u. A floor quad (normal +y) whose constant normal map tilts the normal
+// along both tangent and bitangent, under a directional light and a black background (one bounce:
+// every pixel is its light sample, no noise). Its texture coordinates run u along +z in one file
+// and along +x in the others, which carry TANGENT +z with w = 1 (the same frame as the first: the
+// image must be the same), w = -1 (the bitangent reversed) or no TANGENT (u's frame): those must
+// differ. A node that mirrors x turns the file's frame (+z, +x) into its mirror image (+z, -x): w
+// flips with the mirroring, and the (symmetric, evenly lit) quad renders as with w = -1.
+TEST(MaterialNormalMap, TangentsFromTheFileOrTheTriangle) {
+  const fs::path dir = temp_dir();
+  Rgba tilt{1, 1, {179, 166, 238, 255}};  // (0.40, 0.30, 0.87) in tangent space
+  const std::string png = "data:image/png;base64," + base64(png_bytes(tilt));
+  auto write = [&](const std::string& name, bool u_along_z, std::vector<glm::vec4> tangents, double mirror_x) {
+    Gltf g;
+    g.add("images", {{"uri", png}});
+    g.add("textures", {{"source", 0}});
+    g.add("materials", {{"name", "bumpy"}, {"normalTexture", {{"index", 0}}},
+                        {"pbrMetallicRoughness", {{"baseColorFactor", {0.8, 0.8, 0.8, 1.0}}, {"metallicFactor", 0.0},
+                                                  {"roughnessFactor", 0.7}}}});
+    const std::vector<glm::vec3> corners = {{-1, 0, -1}, {-1, 0, 1}, {1, 0, 1}, {-1, 0, -1}, {1, 0, 1}, {1, 0, -1}};
+    std::vector<glm::vec3> normals(6, glm::vec3(0, 1, 0));
+    std::vector<glm::vec2> uv;
+    for (const glm::vec3& c : corners) uv.push_back(u_along_z ? glm::vec2((c.z + 1) / 2, (c.x + 1) / 2)
+                                                              : glm::vec2((c.x + 1) / 2, (1 - c.z) / 2));
+    g.mesh(corners, normals, uv, {}, 0, tangents);
+    g.node({{"mesh", 0}, {"scale", {mirror_x, 1.0, 1.0}}});
+    g.write(dir / (name + ".gltf"));
+    return dir / (name + ".gltf");
+  };
+  auto render = [&](const fs::path& model) {
+    const json scene = {{"camera", camera_json({0.3, 2.5, 0.2}, {0, 0, 0}, {0, 0, -1}, 40)},
+                        {"film", {{"width", 24}, {"height", 24}}},
+                        {"background", {0, 0, 0}},
+                        {"lights", {{{"type", "directional"}, {"direction", {-0.5, -1.0, -0.7}}, {"intensity", 3}}}},
+                        {"materials", json::object()},
+                        {"shapes", {{{"type", "asset"}, {"file", model.filename().string()}}}}};
+    return xi::test::render_shot(load_json(dir, scene), options(2, 3, XI_SAMPLER_RANDOM)).mean;
+  };
+  auto max_rel = [](const xi::Image& a, const xi::Image& b) {
+    double m = 0.0;
+    for (size_t i = 0; i < a.pixels.size(); ++i)
+      for (int c = 0; c < 3; ++c)
+        m = std::max(m, std::abs(double(a.pixels[i][c]) - b.pixels[i][c]) / std::max(double(b.pixels[i][c]), 1e-3));
+    return m;
+  };
+  const glm::vec4 along_z(0, 0, 1, 1), along_z_reversed(0, 0, 1, -1);
+  const xi::Image from_u = render(write("u-along-z", true, {}, 1.0));
+  const xi::Image file = render(write("tangent", false, std::vector<glm::vec4>(6, along_z), 1.0));
+  const xi::Image reversed = render(write("reversed", false, std::vector<glm::vec4>(6, along_z_reversed), 1.0));
+  const xi::Image without = render(write("no-tangent", false, {}, 1.0));
+  size_t lit = 0;
+  for (const glm::vec3& p : from_u.pixels) lit += p.x > 0.01f;
+  EXPECT_GT(lit, from_u.pixels.size() / 2);
+  const double same = max_rel(file, from_u), flipped = max_rel(reversed, from_u), derived = max_rel(without, from_u);
+  std::printf("[ tangents ] file vs u's frame: %.2e; w = -1: %.3f; no TANGENT: %.3f\n", same, flipped, derived);
+  EXPECT_LT(same, 1e-4);
+  EXPECT_GT(flipped, 0.05);
+  EXPECT_GT(derived, 0.05);
+  const xi::Image mirrored = render(write("mirrored", false, std::vector<glm::vec4>(6, along_z), -1.0));
+  EXPECT_LT(max_rel(mirrored, reversed), 1e-4);
+  EXPECT_GT(max_rel(mirrored, file), 0.05);  // w kept through the mirroring
+  fs::remove_all(dir);
+}
+
 // f. KHR_lights_punctual (a point light placed by its node's translation, a directional light
 // turned by its node's rotation), alphaMode MASK with a texture's alpha, KHR_materials_transmission
 // with KHR_materials_ior: read as the file says; a file with lights is not given the sky; it renders

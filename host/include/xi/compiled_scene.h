@@ -39,6 +39,8 @@ struct CompiledScene {
   std::vector<MaterialData> materials;
   // Textures (where the scene has some; else one unused entry each, as OpenCL needs buffers):
   std::vector<glm::vec4> tri_uv;       // 3 per triangle: texture coordinates u0, v0 (set 0), u1, v1 (set 1)
+  // 3 per triangle where a material has a normal map: the file's tangents (Triangle::tangent).
+  std::vector<glm::vec4> tri_tangents;
   std::vector<TextureRef> texture_refs;
   std::vector<ImageHeader> images;
   std::vector<uint32_t> texels;        // every image's RGBA8 texels

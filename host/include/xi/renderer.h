@@ -213,7 +213,7 @@ class Renderer {
   cl::Buffer queue_a_, queue_b_, counters_;
   cl::Buffer nodes_, tri_blocks_, tri_verts_, tri_normals_, tri_material_, materials_;
   cl::Buffer light_cdf_, light_tri_, tri_light_pdf_;
-  cl::Buffer tri_uv_, texture_refs_, images_, texels_, punctual_, environment_texels_, environment_cdf_;
+  cl::Buffer tri_uv_, tri_tangents_, texture_refs_, images_, texels_, punctual_, environment_texels_, environment_cdf_;
   cl::Buffer film_sum_, film_sum_sq_, film_albedo_, film_normal_;
 };
 

@@ -70,6 +70,9 @@ struct Triangle {
   glm::vec3 v[3];
   glm::vec3 n[3];            // per-vertex shading normals, valid when has_normals
   glm::vec2 uv[2][3] = {};   // texture coordinates, sets 0 and 1, as the file has them (v down)
+  // The file's tangents (glTF TANGENT): xyz along increasing u of the normal map's coordinates, w
+  // the bitangent's sign (bitangent = w · normal × tangent); all 0 where the file has none.
+  glm::vec4 tangent[3] = {};
   bool has_normals = false;
   uint32_t material = 0;     // index into Scene::materials
 };

@@ -1,5 +1,6 @@
 #include "xi/compiled_scene.h"
 
+#include <algorithm>
 #include <cfloat>
 #include <cmath>
 #include <cstddef>
@@ -186,6 +187,14 @@ CompiledScene compile_scene(const Scene& scene, int bvh_width, bool spatial_spli
       for (int k = 0; k < 3; ++k) cs.tri_uv[3 * i + k] = glm::vec4(t.uv[0][k], t.uv[1][k]);
     }
   }
+  const bool normal_maps = std::any_of(cs.materials.begin(), cs.materials.end(), [](const MaterialData& m) {
+    return m.textures[XI_TEXTURE_NORMAL] != XI_NO_TEXTURE;
+  });
+  if (normal_maps) {
+    cs.tri_tangents.resize(3 * n);
+    for (size_t i = 0; i < n; ++i)
+      for (int k = 0; k < 3; ++k) cs.tri_tangents[3 * i + k] = scene.triangles[cs.bvh.order[i]].tangent[k];
+  }
   // The lights in the scene's order, not the BVH's, so that a light sample does not depend on
   // how the BVH was built (spatial splits or not): only a tie between two hits can.
   std::vector<double> power;
@@ -233,6 +242,7 @@ CompiledScene compile_scene(const Scene& scene, int bvh_width, bool spatial_spli
   }
   if (cs.punctual.empty()) cs.punctual.push_back(PunctualLightData{});
   if (cs.tri_uv.empty()) cs.tri_uv.push_back(glm::vec4(0.0f));
+  if (cs.tri_tangents.empty()) cs.tri_tangents.push_back(glm::vec4(0.0f));
   if (cs.texture_refs.empty()) cs.texture_refs.push_back(TextureRef{});
   if (cs.images.empty()) cs.images.push_back(ImageHeader{});
   if (cs.texels.empty()) cs.texels.push_back(0u);

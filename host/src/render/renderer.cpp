@@ -214,7 +214,8 @@ void Renderer::check_memory() const {
                    sizeof(glm::vec4) * scene_.tri_normals.size(), sizeof(uint32_t) * scene_.tri_material.size(),
                    sizeof(MaterialData) * scene_.materials.size(), sizeof(float) * scene_.light_cdf.size(),
                    sizeof(uint32_t) * scene_.light_tri.size(), sizeof(float) * scene_.tri_light_pdf.size(),
-                   sizeof(glm::vec4) * scene_.tri_uv.size(), sizeof(TextureRef) * scene_.texture_refs.size(),
+                   sizeof(glm::vec4) * scene_.tri_uv.size(), sizeof(glm::vec4) * scene_.tri_tangents.size(),
+                   sizeof(TextureRef) * scene_.texture_refs.size(),
                    sizeof(ImageHeader) * scene_.images.size(), sizeof(uint32_t) * scene_.texels.size(),
                    sizeof(PunctualLightData) * scene_.punctual.size(),
                    sizeof(glm::vec4) * scene_.environment_texels.size(), sizeof(float) * scene_.environment_cdf.size()}) {
@@ -244,7 +245,12 @@ void Renderer::allocate() {
   light_cdf_ = upload(ctx, scene_.light_cdf);
   light_tri_ = upload(ctx, scene_.light_tri);
   tri_light_pdf_ = upload(ctx, scene_.tri_light_pdf);
-  tri_uv_ = upload(ctx, scene_.tri_uv);
+  // The kernels read 3 texture coordinates per triangle wherever their word has textures, an
+  // --all-features build of a scene without any too: zeros then.
+  tri_uv_ = kernels_.features.textures && scene_.tri_uv.size() < scene_.tri_verts.size()
+                ? upload(ctx, std::vector<glm::vec4>(scene_.tri_verts.size(), glm::vec4(0.0f)))
+                : upload(ctx, scene_.tri_uv);
+  tri_tangents_ = upload(ctx, scene_.tri_tangents);
   texture_refs_ = upload(ctx, scene_.texture_refs);
   images_ = upload(ctx, scene_.images);
   texels_ = upload(ctx, scene_.texels);
@@ -349,6 +355,7 @@ void Renderer::bind_shade(cl::Kernel& kernel, const cl::Buffer& queue_in, const 
   kernel.setArg(arg++, scene_.environment);
   kernel.setArg(arg++, environment_texels_);
   kernel.setArg(arg++, environment_cdf_);
+  kernel.setArg(arg++, tri_tangents_);
 }
 
 void Renderer::shade(const cl::Buffer& queue_in, const cl::Buffer& queue_out, int bounce, size_t global) {

@@ -40,6 +40,13 @@ std::vector<Triangle> mesh_triangles(const aiMesh& mesh, uint32_t material, bool
       if (t.has_normals) {
         const aiVector3D& n = mesh.mNormals[face.mIndices[k]];
         t.n[k] = {n.x, n.y, n.z};
+        if (mesh.HasTangentsAndBitangents()) {  // Assimp gives glTF's w as bitangent = w · normal × tangent
+          const aiVector3D& tg = mesh.mTangents[face.mIndices[k]];
+          const aiVector3D& b = mesh.mBitangents[face.mIndices[k]];
+          const glm::vec3 tv(tg.x, tg.y, tg.z), bv(b.x, b.y, b.z);
+          const float w = glm::dot(glm::cross(t.n[k], tv), bv) < 0.0f ? -1.0f : 1.0f;
+          if (std::isfinite(tv.x + tv.y + tv.z) && glm::dot(tv, tv) > 0.0f) t.tangent[k] = glm::vec4(tv, w);
+        }
       }
       for (int set = 0; set < 2; ++set)
         if (mesh.HasTextureCoords(set)) {

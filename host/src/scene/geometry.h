@@ -77,9 +77,15 @@ inline void apply(const Transform& t, Triangle& tri) {
   for (auto& v : tri.v) v = glm::vec3(t.m * glm::dvec4(v, 1.0));
   if (tri.has_normals)
     for (auto& n : tri.n) n = glm::vec3(glm::normalize(t.normal * glm::dvec3(n)));
+  // Tangents lie in the surface: they move as its points do; a mirroring transform flips the frame's
+  // handedness, so the bitangent's sign too.
+  for (auto& tg : tri.tangent)
+    if (tg.w != 0.0f)
+      tg = glm::vec4(glm::vec3(glm::normalize(glm::dmat3(t.m) * glm::dvec3(tg))), t.flips ? -tg.w : tg.w);
   if (t.flips) {  // keep the front face (from the winding) on the same side as the normals
     std::swap(tri.v[1], tri.v[2]);
     std::swap(tri.n[1], tri.n[2]);
+    std::swap(tri.tangent[1], tri.tangent[2]);
     for (auto& set : tri.uv) std::swap(set[1], set[2]);
   }
 }
