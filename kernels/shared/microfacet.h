@@ -166,6 +166,9 @@ static inline xfloat3 xi_ggx_multiple_scattering_fresnel(xfloat3 f0, xfloat e_av
 // surface, and in *albedo its integral over wi, F_ms (1 − E(mu_o)): the lobe chooser's estimate.
 // Both 0 for a smooth metal, and where multiple scattering is off.
 static inline xfloat3 xi_ggx_multiple_scattering(PbrLobes m, xfloat mu_o, xfloat mu_i, xfloat3* albedo) {
+  *albedo = make_xfloat3((xfloat)0.0f, (xfloat)0.0f, (xfloat)0.0f);
+  // Off, nothing is looked up (a constant, where the shading word is the program's).
+  if (!XI_ANY(m.multiple_scattering > 0.0f)) return *albedo;
   xfloat r = sqrt(fmax(m.alpha, (xfloat)0.0f)), e_avg = xi_ggx_albedo_average(r);
   xfloat3 f_ms = xi_ggx_multiple_scattering_fresnel(m.base_color, e_avg);
   xfloat lost = m.alpha >= XI_DELTA_ALPHA ? m.multiple_scattering * (1.0f - xi_ggx_albedo(mu_o, r)) : (xfloat)0.0f;
