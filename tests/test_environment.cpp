@@ -18,6 +18,7 @@
 #include <glm/glm.hpp>
 
 #include "environment.h"
+#include "fixtures.h"
 #include "stats.h"
 #include "warps.h"
 #include "xi/environment.h"
@@ -462,19 +463,12 @@ TEST(EnvironmentSampling, GuidedSearchMatchesBinarySearch) {
 // ---------------------------------------------------------------------------------------------
 // Files
 
-struct TempDir {
-  fs::path path = fs::temp_directory_path() / ("xi_env_test_" + std::to_string(::getpid()));
-  TempDir() { fs::create_directories(path); }
-  ~TempDir() {
-    std::error_code ec;
-    fs::remove_all(path, ec);
-  }
-  fs::path write(const std::string& name, const std::string& bytes) const {
-    fs::path p = path / name;
-    std::ofstream(p, std::ios::binary) << bytes;
-    return p;
-  }
-};
+// A file of `bytes` in the test's folder (fixtures.h's fresh_test_dir).
+fs::path write_bytes(const fs::path& dir, const std::string& name, const std::string& bytes) {
+  fs::path p = dir / name;
+  std::ofstream(p, std::ios::binary) << bytes;
+  return p;
+}
 
 // The load error's message, which must name the file; "" if it loaded.
 std::string load_error(const fs::path& p) {
@@ -496,9 +490,9 @@ xi::Image tiny_image(int w, int h) {
 }
 
 TEST(EnvironmentFiles, LoadsHdrAndExr) {
-  TempDir dir;
+  const fs::path dir = xi::test::fresh_test_dir("xi_env_");
   xi::Image img = tiny_image(6, 3);
-  fs::path exr = dir.path / "tiny.exr";
+  fs::path exr = dir / "tiny.exr";
   xi::write_exr(exr, {{"", &img}});
   xi::EnvironmentMap m = xi::load_environment(exr);
   ASSERT_EQ(m.width, 6);
@@ -509,7 +503,7 @@ TEST(EnvironmentFiles, LoadsHdrAndExr) {
   // A flat RGBE file: mantissas (128, 64, 255), exponent byte 129: (128, 64, 255)·2^(129−136).
   std::string hdr = "#?RADIANCE\nFORMAT=32-bit_rle_rgbe\n\n-Y 1 +X 2\n";
   hdr += std::string("\x80\x40\xff\x81\x00\x00\x00\x00", 8);
-  xi::EnvironmentMap h = xi::load_environment(dir.write("tiny.hdr", hdr));
+  xi::EnvironmentMap h = xi::load_environment(write_bytes(dir, "tiny.hdr", hdr));
   ASSERT_EQ(h.width, 2);
   ASSERT_EQ(h.height, 1);
   EXPECT_FLOAT_EQ(h.texels[0].x, 1.0f);
@@ -524,42 +518,43 @@ TEST(EnvironmentFiles, LoadsHdrAndExr) {
     rle += std::string("\x8a\x80\x06", 3) + std::string(6, '\x80');
     rle += std::string("\x90\x40\x90\x20\x90\x81", 6);
   }
-  h = xi::load_environment(dir.write("rle.hdr", rle));
+  h = xi::load_environment(write_bytes(dir, "rle.hdr", rle));
   ASSERT_EQ(h.width, 16);
   ASSERT_EQ(h.height, 2);
   for (const glm::vec4& t : h.texels) EXPECT_EQ(glm::vec3(t), glm::vec3(1.0f, 0.5f, 0.25f));
+  fs::remove_all(dir);
 }
 
 TEST(EnvironmentFiles, BadInputGivesErrors) {
-  TempDir dir;
+  const fs::path dir = xi::test::fresh_test_dir("xi_env_");
   auto expect = [](const std::string& msg, const std::string& part) {
     EXPECT_NE(msg.find(part), std::string::npos) << "'" << msg << "' lacks '" << part << "'";
   };
-  expect(load_error(dir.path / "missing.hdr"), "no such");
-  expect(load_error(dir.path / "missing.exr"), "no such");
-  expect(load_error(dir.write("garbage.hdr", "this is not an image at all")), "not a Radiance HDR");
-  expect(load_error(dir.write("badsize.hdr", "#?RADIANCE\nFORMAT=32-bit_rle_rgbe\n\n-Y x +X 8\n")), "corrupt");
-  expect(load_error(dir.write("garbage.exr", std::string(200, 'x'))), "corrupt");
+  expect(load_error(dir / "missing.hdr"), "no such");
+  expect(load_error(dir / "missing.exr"), "no such");
+  expect(load_error(write_bytes(dir, "garbage.hdr", "this is not an image at all")), "not a Radiance HDR");
+  expect(load_error(write_bytes(dir, "badsize.hdr", "#?RADIANCE\nFORMAT=32-bit_rle_rgbe\n\n-Y x +X 8\n")), "corrupt");
+  expect(load_error(write_bytes(dir, "garbage.exr", std::string(200, 'x'))), "corrupt");
   // Truncated RGBE files: flat (the bundled sky cut short) and run-length encoded (a 16-wide line
   // whose red channel is one run of 16 and the rest missing), and a zero-length literal run.
   {
     std::ifstream sky(fs::path(XI_SCENE_DIR) / "sky.hdr", std::ios::binary);
     std::string bytes((std::istreambuf_iterator<char>(sky)), std::istreambuf_iterator<char>());
-    expect(load_error(dir.write("cut_flat.hdr", bytes.substr(0, 300000))), "row 146 of 256 is missing");
+    expect(load_error(write_bytes(dir, "cut_flat.hdr", bytes.substr(0, 300000))), "row 146 of 256 is missing");
   }
   std::string rle = "#?RADIANCE\nFORMAT=32-bit_rle_rgbe\n\n-Y 2 +X 16\n";
   rle += std::string("\x02\x02\x00\x10\x90\x80", 6);
-  expect(load_error(dir.write("cut_rle.hdr", rle)), "row 0 of 2 is missing or malformed");
-  expect(load_error(dir.write("zero_run.hdr", rle.substr(0, rle.size() - 2) + std::string(20, '\0'))), "row 0 of 2");
-  expect(load_error(dir.write("empty.hdr", "")), "empty");
-  expect(load_error(dir.write("sky.txt", "x")), "unknown environment map format");
+  expect(load_error(write_bytes(dir, "cut_rle.hdr", rle)), "row 0 of 2 is missing or malformed");
+  expect(load_error(write_bytes(dir, "zero_run.hdr", rle.substr(0, rle.size() - 2) + std::string(20, '\0'))), "row 0 of 2");
+  expect(load_error(write_bytes(dir, "empty.hdr", "")), "empty");
+  expect(load_error(write_bytes(dir, "sky.txt", "x")), "unknown environment map format");
 
   xi::Image img = tiny_image(4, 2);
-  fs::path png = dir.path / "eight.png";
+  fs::path png = dir / "eight.png";
   xi::write_png(png, img);
   expect(load_error(png), "must be high dynamic range (.hdr or .exr), not an 8-bit image");
-  expect(load_error(dir.write("photo.JPG", "\xff\xd8\xff")), "not an 8-bit image");
-  fs::path png_as_hdr = dir.path / "png_inside.hdr";
+  expect(load_error(write_bytes(dir, "photo.JPG", "\xff\xd8\xff")), "not an 8-bit image");
+  fs::path png_as_hdr = dir / "png_inside.hdr";
   fs::copy_file(png, png_as_hdr);
   expect(load_error(png_as_hdr), "not a Radiance HDR");
 
@@ -568,7 +563,7 @@ TEST(EnvironmentFiles, BadInputGivesErrors) {
   for (int k = 0; k < 3; ++k) {
     xi::Image bad = tiny_image(4, 2);
     bad.at(3, 1).y = values[k];
-    fs::path p = dir.path / (std::string("bad_") + kinds[k] + ".exr");
+    fs::path p = dir / (std::string("bad_") + kinds[k] + ".exr");
     xi::write_exr(p, {{"", &bad}});
     std::string msg = load_error(p);
     expect(msg, "x 3, y 1");
@@ -576,12 +571,13 @@ TEST(EnvironmentFiles, BadInputGivesErrors) {
   }
 
   xi::Image wide(xi::kEnvironmentMaxWidth + 1, 1);
-  fs::path big = dir.path / "too_wide.exr";
+  fs::path big = dir / "too_wide.exr";
   xi::write_exr(big, {{"", &wide}});
   expect(load_error(big), "larger than");
 
   EXPECT_THROW(xi::make_environment(0, 0, {}), xi::Error);
   EXPECT_THROW(xi::make_environment(2, 2, std::vector<glm::vec4>(3)), xi::Error);
+  fs::remove_all(dir);
 }
 
 // The bundled sky (scripts/make-sky.py): 512 × 256, finite; the sun is the brightest texel, at 40°

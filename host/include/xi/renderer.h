@@ -161,6 +161,7 @@ class Renderer {
   // The constructor's steps, in order.
   void build_kernels();
   void size_waves();
+  size_t tri_uv_entries() const;  // the texture coordinates the kernels read (renderer.cpp)
   void check_memory() const;
   void allocate();
   // The scene's own generate and shade kernels, built on another thread and launched there once.

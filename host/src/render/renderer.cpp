@@ -206,22 +206,32 @@ void Renderer::size_waves() {
   if (paths_ > UINT32_MAX / 2) throw Error("too many paths in flight", std::to_string(paths_));
 }
 
+// The compiled scene's buffers the kernels read as they are: each uploaded from the CompiledScene
+// field of its name into the Renderer member of that name and a trailing _, and counted in the
+// memory check. (The BVH and the texture coordinates are chosen per kernel configuration, below.)
+#define XI_SCENE_BUFFERS(F)                                                                             \
+  F(tri_verts) F(tri_normals) F(tri_material) F(materials) F(light_cdf) F(light_tri) F(tri_light_pdf) \
+      F(tri_tangents) F(texture_refs) F(images) F(texels) F(punctual) F(environment_texels) F(environment_cdf)
+
+// The kernels read 3 texture coordinates per triangle wherever their word has textures, an
+// --all-features build of a scene without any too: zeros then.
+size_t Renderer::tri_uv_entries() const {
+  return kernels_.features.textures ? std::max(scene_.tri_uv.size(), scene_.tri_verts.size()) : scene_.tri_uv.size();
+}
+
 void Renderer::check_memory() const {
   MemoryNeeds needs{pixels_, paths_, path_bytes()};
   const Bvh& bvh = scene_.bvh;
-  for (size_t b : {sizeof(BvhNode) * bvh.nodes.size() + sizeof(BvhNode8) * bvh.nodes8.size(),
-                   sizeof(TriBlock) * bvh.blocks.size(), sizeof(glm::vec4) * scene_.tri_verts.size(),
-                   sizeof(glm::vec4) * scene_.tri_normals.size(), sizeof(uint32_t) * scene_.tri_material.size(),
-                   sizeof(MaterialData) * scene_.materials.size(), sizeof(float) * scene_.light_cdf.size(),
-                   sizeof(uint32_t) * scene_.light_tri.size(), sizeof(float) * scene_.tri_light_pdf.size(),
-                   sizeof(glm::vec4) * scene_.tri_uv.size(), sizeof(glm::vec4) * scene_.tri_tangents.size(),
-                   sizeof(TextureRef) * scene_.texture_refs.size(),
-                   sizeof(ImageHeader) * scene_.images.size(), sizeof(uint32_t) * scene_.texels.size(),
-                   sizeof(PunctualLightData) * scene_.punctual.size(),
-                   sizeof(glm::vec4) * scene_.environment_texels.size(), sizeof(float) * scene_.environment_cdf.size()}) {
+  auto add = [&](size_t b) {
     needs.scene_bytes += b;
     needs.largest_scene_buffer = std::max(needs.largest_scene_buffer, b);
-  }
+  };
+  add(sizeof(BvhNode) * bvh.nodes.size() + sizeof(BvhNode8) * bvh.nodes8.size());
+  add(sizeof(TriBlock) * bvh.blocks.size());
+  add(sizeof(glm::vec4) * tri_uv_entries());
+#define XI_COUNT_BUFFER(name) add(sizeof(scene_.name[0]) * scene_.name.size());
+  XI_SCENE_BUFFERS(XI_COUNT_BUFFER)
+#undef XI_COUNT_BUFFER
   xi::check_memory(device_, needs);
 }
 
@@ -238,25 +248,12 @@ void Renderer::allocate() {
   queue_counts_.assign(counter_count_, 0);
   nodes_ = scene_.bvh.width == 8 ? upload(ctx, scene_.bvh.nodes8) : upload(ctx, scene_.bvh.nodes);
   tri_blocks_ = upload(ctx, scene_.bvh.blocks);
-  tri_verts_ = upload(ctx, scene_.tri_verts);
-  tri_normals_ = upload(ctx, scene_.tri_normals);
-  tri_material_ = upload(ctx, scene_.tri_material);
-  materials_ = upload(ctx, scene_.materials);
-  light_cdf_ = upload(ctx, scene_.light_cdf);
-  light_tri_ = upload(ctx, scene_.light_tri);
-  tri_light_pdf_ = upload(ctx, scene_.tri_light_pdf);
-  // The kernels read 3 texture coordinates per triangle wherever their word has textures, an
-  // --all-features build of a scene without any too: zeros then.
-  tri_uv_ = kernels_.features.textures && scene_.tri_uv.size() < scene_.tri_verts.size()
-                ? upload(ctx, std::vector<glm::vec4>(scene_.tri_verts.size(), glm::vec4(0.0f)))
+  tri_uv_ = tri_uv_entries() > scene_.tri_uv.size()
+                ? upload(ctx, std::vector<glm::vec4>(tri_uv_entries(), glm::vec4(0.0f)))
                 : upload(ctx, scene_.tri_uv);
-  tri_tangents_ = upload(ctx, scene_.tri_tangents);
-  texture_refs_ = upload(ctx, scene_.texture_refs);
-  images_ = upload(ctx, scene_.images);
-  texels_ = upload(ctx, scene_.texels);
-  punctual_ = upload(ctx, scene_.punctual);
-  environment_texels_ = upload(ctx, scene_.environment_texels);
-  environment_cdf_ = upload(ctx, scene_.environment_cdf);
+#define XI_UPLOAD_BUFFER(name) name##_ = upload(ctx, scene_.name);
+  XI_SCENE_BUFFERS(XI_UPLOAD_BUFFER)
+#undef XI_UPLOAD_BUFFER
   film_sum_ = cl::Buffer(ctx, CL_MEM_READ_WRITE, sizeof(glm::vec4) * pixels_);
   film_sum_sq_ = cl::Buffer(ctx, CL_MEM_READ_WRITE, sizeof(glm::vec4) * pixels_);
   film_albedo_ = cl::Buffer(ctx, CL_MEM_READ_WRITE, sizeof(glm::vec4) * pixels_);
