@@ -569,6 +569,40 @@ TEST_F(CliCommands, HelpExits0) {
   }
 }
 
+// `xi COMMAND --help` (or -h, anywhere among its arguments) and `xi help COMMAND` print that
+// command's part of the usage, exit 0 and do nothing else; an unknown command's --help still errs.
+TEST_F(CliCommands, CommandHelpPrintsItsOwnOptions) {
+  const auto before = files();
+  struct Case {
+    std::vector<std::string> argv;
+    const char* own;     // one of the command's options
+    const char* other;   // another command's option
+  };
+  for (const Case& c : {Case{{"render", "--help"}, "--spp", "--metric"}, Case{{"render", "scene.json", "-h"}, "--env", "--map"},
+                        Case{{"diff", "-h"}, "--metric", "--spp"}, Case{{"warp", "--help"}, "--map", "--metric"},
+                        Case{{"help", "tonemap"}, "--exposure", "--spp"}}) {
+    SCOPED_TRACE(c.argv[0] + " " + c.argv[1]);
+    const Outcome r = run_xi(c.argv);
+    EXPECT_EQ(r.code, 0);
+    EXPECT_EQ(r.out.rfind("usage: xi ", 0), 0u) << r.out;
+    EXPECT_NE(r.out.find(c.own), std::string::npos) << r.out;
+    EXPECT_EQ(r.out.find(c.other), std::string::npos) << r.out;
+    EXPECT_EQ(r.err, "");
+  }
+  EXPECT_EQ(files(), before);
+  expect_user_error(run_xi({"frobnicate", "--help"}), {"unknown command", "frobnicate"}, before);
+}
+
+TEST_F(CliCommands, VersionPrintsTheProjectVersion) {
+  for (const std::string v : {"--version", "version"}) {
+    SCOPED_TRACE(v);
+    const Outcome r = run_xi({v});
+    EXPECT_EQ(r.code, 0);
+    EXPECT_EQ(r.out, std::string("xi ") + XI_VERSION + "\n");
+    EXPECT_EQ(r.err, "");
+  }
+}
+
 TEST_F(CliCommands, UnknownCommandExits1) {
   const auto before = files();
   expect_user_error(run_xi({"frobnicate"}), {"unknown command", "frobnicate"}, before);

@@ -179,16 +179,52 @@ static const char* kUsage =
     "                        flat triangles first, each with its face normal at its three\n"
     "                        vertices) and manifest.json naming each file's material and its\n"
     "                        count of flat triangles; OUT_DIR is made if its parent exists\n"
-    "  help                  this text\n";
+    "  help [COMMAND]        this text, or one command's part of it (also COMMAND --help)\n"
+    "  version               xi's version (also --version)\n";
+
+static bool is_help_flag(const std::string& a) { return a == "--help" || a == "-h"; }
+
+// The usage text's lines for one command: its own line and its options, up to the next command's.
+static std::string command_usage(const std::string& command) {
+  const std::string text = kUsage;
+  std::string out;
+  bool inside = false;
+  for (size_t at = 0; at < text.size();) {
+    size_t end = text.find('\n', at);
+    end = end == std::string::npos ? text.size() : end + 1;
+    const std::string line = text.substr(at, end - at);
+    at = end;
+    const bool command_line = line.size() > 2 && line.compare(0, 2, "  ") == 0 && line[2] != ' ';
+    if (command_line) inside = line.compare(2, command.size(), command) == 0 &&
+                               (line.size() == 2 + command.size() || line[2 + command.size()] == ' ');
+    if (inside) out += line;
+  }
+  return out;
+}
 
 int main(int argc, char** argv) {
   std::vector<std::string> args(argv + 1, argv + argc);
-  if (args.empty() || args[0] == "help" || args[0] == "--help" || args[0] == "-h") {
+  if (args.empty() || args[0] == "help" || is_help_flag(args[0])) {
+    // `xi help COMMAND`: that command's part of the text.
+    const std::string part = args.size() > 1 ? command_usage(args[1]) : "";
+    if (!part.empty()) {
+      std::printf("usage: xi %s [options]\n\n%s", args[1].c_str(), part.c_str());
+      return 0;
+    }
     std::fputs(kUsage, args.empty() ? stderr : stdout);
     return args.empty() ? 2 : 0;
   }
+  if (args[0] == "--version" || args[0] == "version") {
+    std::printf("xi %s\n", XI_VERSION);
+    return 0;
+  }
   std::string command = args[0];
   args.erase(args.begin());
+  for (const std::string& a : args)
+    if (is_help_flag(a) && !command_usage(command).empty()) {
+      std::printf("usage: xi %s [options]\n\n%s", command.c_str(), command_usage(command).c_str());
+      return 0;
+    }
   try {
     if (command == "render") return xi::cli::render(args);
     if (command == "devices") return xi::cli::devices(args);
