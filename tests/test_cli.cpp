@@ -104,6 +104,21 @@ TEST_F(CliRender, LeavesNoTemporaryFiles) {
   EXPECT_EQ(std::get<int>(xi::read_exr_attributes(work_ / "out.exr").at("seed")), 3);
 }
 
+// -o may name the PNG instead of the EXR: both are written, the EXR beside the PNG; any other
+// extension is refused before the render, naming the two it takes.
+TEST_F(CliRender, OutputNamedByItsPng) {
+  const Outcome r = run_xi(concat({"render", "-o", "picture.png"}, kFast));
+  ASSERT_EQ(r.code, 0) << r.err;
+  EXPECT_EQ(files(), (std::set<std::string>{"picture.exr", "picture.png"}));
+  const Outcome exr = run_xi(concat({"render", "-o", "same.exr"}, kFast));
+  ASSERT_EQ(exr.code, 0) << exr.err;
+  const xi::Image png = xi::read_png(work_ / "picture.png"), same_png = xi::read_png(work_ / "same.png");
+  EXPECT_EQ(png.pixels, same_png.pixels);
+  EXPECT_EQ(xi::read_exr(work_ / "picture.exr").pixels, xi::read_exr(work_ / "same.exr").pixels);
+  const auto before = files();
+  expect_user_error(run_xi(concat({"render", "-o", "picture.tiff"}, kFast)), {"picture.tiff", ".exr or a .png"}, before);
+}
+
 // The CLI passes --resolution, --spp and --seed through to the renderer: its EXR holds exactly the
 // floats the library produces for the same settings (the EXR stores 32-bit floats, so bitwise).
 TEST_F(CliRender, MatchesTheLibrary) {

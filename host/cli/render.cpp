@@ -284,12 +284,15 @@ void read_render_options(Job& job, const Args& args, const Team& team) {
   opt.rows = team.rows();
 }
 
-// The files the render writes: the EXR and the PNG beside it, the convergence log, the trace.
+// The files the render writes: the EXR and the PNG beside it (-o names either; the other takes
+// its name with the other extension), the convergence log, the trace.
 void read_output_names(Job& job, const Args& args) {
   job.out = args.get("-o", job.scene_path.stem().string() + ".exr");
-  if (job.out.extension() != ".exr") throw Error("the output must be an .exr file", "-o " + job.out.string());
+  if (job.out.extension() != ".exr" && job.out.extension() != ".png")
+    throw Error("the output must be an .exr or a .png file", "-o " + job.out.string());
   job.png = job.out;
   job.png.replace_extension(".png");
+  job.out.replace_extension(".exr");
   job.convergence = args.get("--convergence");
   job.trace = args.get("--trace");
   job.measured = args.has("--reference");
