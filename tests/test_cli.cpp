@@ -104,6 +104,23 @@ TEST_F(CliRender, LeavesNoTemporaryFiles) {
   EXPECT_EQ(std::get<int>(xi::read_exr_attributes(work_ / "out.exr").at("seed")), 3);
 }
 
+// --threads N: PoCL's CPU device runs N compute units (it reports them, and xi prints them); any
+// other device says that it keeps its own. Out of range is refused.
+TEST_F(CliRender, ThreadsCapsPoclsComputeUnits) {
+  const Outcome r = run_xi({"render", "-o", "out.exr", "--threads", "1", "--spp", "1", "--resolution", "16x16"});
+  ASSERT_EQ(r.code, 0) << r.err;
+  const xi::DeviceInfo d = xi::Device::open("").info();
+  if (d.platform.find("Portable Computing Language") != std::string::npos && d.type == "CPU") {
+    EXPECT_NE(r.out.find("1 compute units)"), std::string::npos) << r.out;
+    EXPECT_EQ(r.err.find("--threads"), std::string::npos) << r.err;
+  } else {
+    EXPECT_NE(r.err.find("warning: --threads 1"), std::string::npos) << r.err;
+  }
+  const auto before = files();
+  expect_user_error(run_xi(concat({"render", "-o", "out.exr", "--threads", "0"}, kFast)), {"--threads", "out of range"},
+                    before);
+}
+
 // -o may name the PNG instead of the EXR: both are written, the EXR beside the PNG; any other
 // extension is refused before the render, naming the two it takes.
 TEST_F(CliRender, OutputNamedByItsPng) {
@@ -201,6 +218,15 @@ TEST_F(CliDevices, UnknownNameFails) {
   const auto before = files();
   const Outcome r = run_xi(concat({"render", "-o", "out.exr", "--device", "nosuchdevice"}, kFast));
   expect_user_error(r, {"nosuchdevice", "--device"}, before);
+}
+
+// The same through $XI_DEVICE: the error names the variable, not a flag the user never typed.
+TEST_F(CliDevices, UnknownEnvironmentDeviceNamesTheVariable) {
+  const auto before = files();
+  const xi::test::ScopedEnv device("XI_DEVICE", "nosuchdevice");
+  const Outcome r = run_xi(concat({"render", "-o", "out.exr"}, kFast));
+  expect_user_error(r, {"nosuchdevice", "XI_DEVICE"}, before);
+  EXPECT_EQ(r.err.find("--device"), std::string::npos) << r.err;
 }
 
 TEST_F(CliDevices, IndexOutOfRangeFails) {

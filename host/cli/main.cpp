@@ -121,6 +121,7 @@ static const char* kUsage =
     "      --strategy NAME       mis | nee | bsdf (light transport)\n"
     "      --device D            OpenCL device: index or name substring (see `xi devices`); under\n"
     "                            mpirun a list D0,D1,... gives local rank i item i mod its length\n"
+    "      --threads N           CPU threads PoCL renders on (default: one per core)\n"
     "      --local-size N        work-group size, at most 1024 (default 64; 0: the largest the kernel allows)\n"
     "      --lanes N             paths per generate and shade work item, 1 or 8 (default: 8 on\n"
     "                            a CPU, 1 on a GPU)\n"

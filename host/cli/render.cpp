@@ -8,6 +8,7 @@
 #include <csignal>
 #include <cstdio>
 #include <cstdlib>
+#include <cstring>
 #include <map>
 #include <memory>
 #include <optional>
@@ -182,6 +183,7 @@ struct Job {
   CheckpointKey key;
   RenderState resumed;  // rank 0: the whole frame's state read from --resume
   double first_pass_seconds = 0.0;  // since the process started: the wait for a first image
+  int threads = 0;                   // --threads: PoCL's CPU threads (0: one per core)
 };
 
 // Each rank's device: --device (or $XI_DEVICE) as given; a comma-separated list gives local rank i
@@ -189,7 +191,10 @@ struct Job {
 // else share its CPU device.
 std::string device_selector(const Args& args, const Team& team) {
   std::string selector = args.get("--device");
-  if (const char* env = std::getenv("XI_DEVICE"); selector.empty() && env) selector = env;
+  // A single $XI_DEVICE is left to Device::open, whose errors then name it.
+  const char* env = std::getenv("XI_DEVICE");
+  const bool env_set = env && *env;
+  if (selector.empty() && env_set && std::strchr(env, ',')) selector = env;
   if (selector.find(',') != std::string::npos) {
     std::vector<std::string> items;
     for (size_t at = 0; at <= selector.size();) {
@@ -199,7 +204,7 @@ std::string device_selector(const Args& args, const Team& team) {
     }
     return items[team.local_rank() % items.size()];
   }
-  if (selector.empty() && team.size() > 1) {
+  if (selector.empty() && !env_set && team.size() > 1) {
     std::vector<DeviceInfo> gpus;
     for (const DeviceInfo& d : list_devices())
       if (d.type == "GPU") gpus.push_back(d);
@@ -216,7 +221,7 @@ Args parse_render_args(const std::vector<std::string>& argv) {
                "--local-size", "--lanes", "--bvh-width", "--ray-packets", "--kernels", "--reference", "--convergence", "--trace",
                "--paths-in-flight", "--samples-per-pass",
                "--time", "--snapshot-every", "--checkpoint", "--checkpoint-every", "--resume", "--camera", "--env",
-               "--env-strength", "--env-rotate", "--background"},
+               "--env-strength", "--env-rotate", "--background", "--threads"},
               {"--profile", "--quiet", "--all-features", "--no-spatial-splits"});
 }
 
@@ -359,8 +364,20 @@ void open_renderer(Job& job, const Args& args, const Team& team) {
   if (!job.resume.empty() && team.leader()) job.resumed = read_checkpoint(job.resume, job.key);
 }
 
+// --threads N caps the CPU threads PoCL runs work groups on. PoCL reads its environment when the
+// OpenCL platform is first queried, so this comes before anything opens a device. (PoCL 3 names the
+// variable POCL_MAX_PTHREAD_COUNT, PoCL 5 POCL_CPU_MAX_CU_COUNT; other drivers ignore both.)
+void limit_cpu_threads(Job& job, const Args& args) {
+  job.threads = args.get_int("--threads", 0, 1, 4096);
+  if (job.threads == 0) return;
+  const std::string n = std::to_string(job.threads);
+  setenv("POCL_MAX_PTHREAD_COUNT", n.c_str(), 1);
+  setenv("POCL_CPU_MAX_CU_COUNT", n.c_str(), 1);
+}
+
 void prepare(Job& job, const std::vector<std::string>& argv, const Team& team) {
   const Args args = parse_render_args(argv);
+  limit_cpu_threads(job, args);
   load_job_scene(job, args, team);
   read_render_options(job, args, team);
   read_output_names(job, args);
@@ -487,6 +504,10 @@ class RenderRun {
     if (!job_.quiet) print_setup(job_, team_, rank_devices);
     if (!team_.leader()) return;
     for (const std::string& w : scene().warnings) std::fprintf(stderr, "xi: warning: %s\n", w.c_str());
+    const DeviceInfo& device = job_.device->info();
+    if (job_.threads > 0 && device.compute_units != job_.threads)
+      std::fprintf(stderr, "xi: warning: --threads %d: %s runs %d compute units of its own (only PoCL's CPU device "
+                           "takes a thread count)\n", job_.threads, device.name.c_str(), device.compute_units);
     // A point, spot or directional light is a delta: no BSDF sample ever reaches it.
     if (job_.opt.strategy == Strategy::Bsdf && renderer_.compiled().features.punctual)
       std::fprintf(stderr, "xi: warning: --strategy bsdf: punctual lights are reached by light sampling only, so "
