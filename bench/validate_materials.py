@@ -6,7 +6,8 @@ from `xi export`: (textured-quad) bilinear sRGB textures with repeat and mirror 
 transform, on diffuse quads under the sky; (diffuse-sky, diffuse-sun) a diffuse sphere and floor under
 scenes/sky.hdr turned 60 degrees and under a test map that is dim blue save a small bright sun; (ggx-metal)
 a pbr sphere of metallic 1, base colour 1, roughness 0.2 (alpha 0.04) against Mitsuba's roughconductor
-(GGX, alpha 0.04, Fresnel 1) under the sky.
+(GGX, alpha 0.04, Fresnel 1) under the sky; (punctual) a point and a directional light, no environment, on a
+diffuse ball, that metal ball and the floor (Mitsuba's point and directional emitters: W/sr and W/m^2).
 
 xi renders SPP samples per pixel (random sampler) and gives each pixel's variance of the mean (its EXR's
 variance layer); Mitsuba (independent sampler) renders K = --mitsuba-runs images of SPP / K each, and its
@@ -87,6 +88,21 @@ def scenes(d):
                         "shapes": [floor, ball("metal")],
                         # roughconductor is single-scattering GGX
                         "render": {"max_depth": 8, "multiple_scattering": False}}
+    # Delta lights alone, black background: a point light (W/sr) and a directional one (W/m^2) on a
+    # diffuse ball, a GGX metal ball and the floor. (A spot is left out: Mitsuba's falloff across the
+    # cone's edge is linear in the angle, glTF's is not.)
+    sphere = lambda mat, x: {"type": "sphere", "material": mat, "center": [x, 0.5, 0], "radius": 0.5,
+                             "subdivisions": 5}
+    out["punctual"] = {"camera": cam, "background": [0, 0, 0],
+                       "lights": [{"type": "point", "position": [1.2, 2.2, -1.4], "color": [1, 0.85, 0.7],
+                                   "intensity": 5},
+                                  {"type": "directional", "direction": [-0.5, -1, 0.4], "color": [0.6, 0.75, 1],
+                                   "intensity": 1.5}],
+                       "materials": {"floor": diffuse["floor"], "ball": diffuse["ball"],
+                                     "metal": {"type": "pbr", "base_color": [1, 1, 1], "metallic": 1,
+                                               "roughness": 0.2}},
+                       "shapes": [floor, sphere("ball", -0.65), sphere("metal", 0.65)],
+                       "render": {"max_depth": 8, "multiple_scattering": False}}
     paths = {}
     for name, s in out.items():
         s.setdefault("render", {"max_depth": 8})
@@ -147,7 +163,8 @@ def check(a, xi, mi, name, scene, d, log):
 
 def main():
     p = c.parser(__doc__)
-    p.add_argument("--checks", type=c.str_list, default=["textured-quad", "diffuse-sky", "diffuse-sun", "ggx-metal"])
+    p.add_argument("--checks", type=c.str_list,
+                   default=["textured-quad", "diffuse-sky", "diffuse-sun", "ggx-metal", "punctual"])
     p.add_argument("--resolution", default="64x64")
     p.add_argument("--spp", type=int, default=4096)
     p.add_argument("--mitsuba-runs", type=int, default=16, help="K: Mitsuba renders of SPP/K each, for its variance")
