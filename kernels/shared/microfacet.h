@@ -232,17 +232,23 @@ static inline xfloat3 xi_pbr_eval_pdf(PbrLobes m, xfloat3 wo, xfloat3 wi, xfloat
   xfloat pdf_d = fmax(wi.z, (xfloat)0.0f) * XI_INV_PI;
 
   // Transmission: h = normalize(wo + η wi) turned to +z; wo and wi must lie on opposite sides of it.
-  xfloat3 ht = xi_add3(wo, xi_scale3(wi, m.eta));
-  xfloat len2 = xi_dot3(ht, ht);
-  ht = xi_scale3(ht, (ht.z < 0.0f ? (xfloat)-1.0f : (xfloat)1.0f) / sqrt(fmax(len2, (xfloat)1e-30f)));
-  xfloat cot = xi_dot3(wo, ht), cit = xi_dot3(wi, ht);
-  xmask trans = below && rough && cot > 0.0f && cit < 0.0f && len2 > 1e-12f;
-  xfloat jac = m.eta * m.eta * fabs(cit) / fmax(len2, (xfloat)1e-12f);  // dω_h / dω_i, the denominator (wo·h + η wi·h)² = len2
-  xfloat bt = (1.0f - xi_schlick_dielectric(cot, m.eta)) * fabs(cot) * xi_ggx_d(ht, a) * g2 * jac / (zo * zi);
-  xfloat3 f_trans = xi_scale3(m.base_color, dielectric * m.transmission * bt);
-  xfloat pdf_t = xi_ggx_visible_pdf(wo, ht, a) * jac;
-
+  // (Where no path has transmission, pt and f_trans are 0: nothing to compute.)
   xfloat3 zero = make_xfloat3((xfloat)0.0f, (xfloat)0.0f, (xfloat)0.0f);
+  xmask trans = XI_FALSE;
+  xfloat3 f_trans = zero;
+  xfloat pdf_t = 0.0f;
+  if (XI_ANY(below && m.transmission > 0.0f)) {
+    xfloat3 ht = xi_add3(wo, xi_scale3(wi, m.eta));
+    xfloat len2 = xi_dot3(ht, ht);
+    ht = xi_scale3(ht, (ht.z < 0.0f ? (xfloat)-1.0f : (xfloat)1.0f) / sqrt(fmax(len2, (xfloat)1e-30f)));
+    xfloat cot = xi_dot3(wo, ht), cit = xi_dot3(wi, ht);
+    trans = below && rough && cot > 0.0f && cit < 0.0f && len2 > 1e-12f;
+    xfloat jac = m.eta * m.eta * fabs(cit) / fmax(len2, (xfloat)1e-12f);  // dω_h / dω_i, the denominator (wo·h + η wi·h)² = len2
+    xfloat bt = (1.0f - xi_schlick_dielectric(cot, m.eta)) * fabs(cot) * xi_ggx_d(ht, a) * g2 * jac / (zo * zi);
+    f_trans = xi_scale3(m.base_color, dielectric * m.transmission * bt);
+    pdf_t = xi_ggx_visible_pdf(wo, ht, a) * jac;
+  }
+
   *pdf = (refl ? pr * pdf_r : (xfloat)0.0f) + (above ? pd * pdf_d : (xfloat)0.0f) + (trans ? pt * pdf_t : (xfloat)0.0f);
   return xi_add3(xi_add3(xi_select3(refl, f_spec, zero), xi_select3(above, f_diff, zero)), xi_select3(trans, f_trans, zero));
 }
@@ -277,9 +283,14 @@ static inline xfloat3 xi_pbr_sample(PbrLobes m, xfloat3 wo, xfloat u_lobe, xfloa
   xfloat3 h = xi_ggx_sample_visible(wo, m.alpha, u);
   xfloat3 hs = xi_select3(smooth, n, h);  // the smooth lobes reflect and refract about n
   xfloat3 wr = xi_reflect(wo, hs);
-  xfloat3 wt;
-  xmask refracts = xi_refract(wo, hs, m.eta, &wt) && xi_dot3(wo, hs) > 0.0f;
-  wt = xi_normalize3(wt);
+  // Refraction only where some path has transmission (pt, and with it pick_t and weight_t, are 0
+  // elsewhere).
+  xfloat3 wt = n;
+  xmask refracts = XI_FALSE;
+  if (XI_ANY(m.transmission > 0.0f)) {
+    refracts = xi_refract(wo, hs, m.eta, &wt) && xi_dot3(wo, hs) > 0.0f;
+    wt = xi_normalize3(wt);
+  }
   xfloat3 wd = xi_square_to_cosine_hemisphere(u);
   xfloat3 w = xi_select3(pick_r, wr, xi_select3(pick_t, wt, wd));
   xmask valid = pick_t ? (refracts && w.z < 0.0f) : w.z > 0.0f;
