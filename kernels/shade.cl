@@ -390,21 +390,26 @@ __kernel void shade(XI_PATH_PARAMS __global const uint* restrict queue_in, __glo
   const uint group_first = (uint)get_group_id(0) * (uint)get_local_size(0) * XI_LANES;
   const uint group_entries = group_first < count ? min((uint)get_local_size(0) * XI_LANES, count - group_first) : 0u;
   const uint local_first = (uint)get_local_id(0) * XI_LANES;
-  if (partitioned) {
-    xmask escaped = active && xi_gather_float((__global const float*)hit, 4u * slot) < 0.0f;
-    xmask surface = active && !escaped;
-    uint surfaces = xi_count(surface), escapes = xi_count(escaped);
+  // The barriers are passed whether or not this launch partitions (see xi_may_use).
+  if (xi_may_use(XI_USE_ENVIRONMENT)) {
     if (get_local_id(0) == 0u) group_count[0] = group_count[1] = 0u;
     barrier(CLK_LOCAL_MEM_FENCE);
-    uint front = surfaces ? atomic_add(&group_count[0], surfaces) : 0u;
-    uint back = escapes ? atomic_add(&group_count[1], escapes) : 0u;
-    xi_local_scatter_uint(group_slots, xi_compact_index(front, surface), slot, surface);
-    xi_local_scatter_uint(group_slots, (xuint)(group_entries - 1u) - xi_compact_index(back, escaped), slot, escaped);
+    if (partitioned) {
+      xmask escaped = active && xi_gather_float((__global const float*)hit, 4u * slot) < 0.0f;
+      xmask surface = active && !escaped;
+      uint surfaces = xi_count(surface), escapes = xi_count(escaped);
+      uint front = surfaces ? atomic_add(&group_count[0], surfaces) : 0u;
+      uint back = escapes ? atomic_add(&group_count[1], escapes) : 0u;
+      xi_local_scatter_uint(group_slots, xi_compact_index(front, surface), slot, surface);
+      xi_local_scatter_uint(group_slots, (xuint)(group_entries - 1u) - xi_compact_index(back, escaped), slot, escaped);
+    }
     barrier(CLK_LOCAL_MEM_FENCE);
-    xuint local_entry = local_first + XI_LANE_INDEX;
-    active = local_entry < group_entries;
-    slot = xi_local_gather_uint(group_slots, active ? local_entry : (xuint)0u);
-    slot = active ? slot : (xuint)0u;
+    if (partitioned) {
+      xuint local_entry = local_first + XI_LANE_INDEX;
+      active = local_entry < group_entries;
+      slot = xi_local_gather_uint(group_slots, active ? local_entry : (xuint)0u);
+      slot = active ? slot : (xuint)0u;
+    }
   }
 #if XI_HAS_PREFETCH
   // The next work item's paths, fetched while this one shades (as extend does), so their loads no
