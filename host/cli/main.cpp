@@ -204,15 +204,18 @@ static std::string command_usage(const std::string& command) {
   return out;
 }
 
+// Prints one command's usage; false for a command the text does not know.
+static bool print_command_usage(const std::string& command) {
+  const std::string part = command_usage(command);
+  if (part.empty()) return false;
+  std::printf("usage: xi %s [options]\n\n%s", command.c_str(), part.c_str());
+  return true;
+}
+
 int main(int argc, char** argv) {
   std::vector<std::string> args(argv + 1, argv + argc);
   if (args.empty() || args[0] == "help" || is_help_flag(args[0])) {
-    // `xi help COMMAND`: that command's part of the text.
-    const std::string part = args.size() > 1 ? command_usage(args[1]) : "";
-    if (!part.empty()) {
-      std::printf("usage: xi %s [options]\n\n%s", args[1].c_str(), part.c_str());
-      return 0;
-    }
+    if (args.size() > 1 && print_command_usage(args[1])) return 0;  // `xi help COMMAND`
     std::fputs(kUsage, args.empty() ? stderr : stdout);
     return args.empty() ? 2 : 0;
   }
@@ -223,10 +226,7 @@ int main(int argc, char** argv) {
   std::string command = args[0];
   args.erase(args.begin());
   for (const std::string& a : args)
-    if (is_help_flag(a) && !command_usage(command).empty()) {
-      std::printf("usage: xi %s [options]\n\n%s", command.c_str(), command_usage(command).c_str());
-      return 0;
-    }
+    if (is_help_flag(a) && print_command_usage(command)) return 0;
   try {
     if (command == "render") return xi::cli::render(args);
     if (command == "devices") return xi::cli::devices(args);

@@ -365,8 +365,8 @@ void open_renderer(Job& job, const Args& args, const Team& team) {
 }
 
 // --threads N caps the CPU threads PoCL runs work groups on. PoCL reads its environment when the
-// OpenCL platform is first queried, so this comes before anything opens a device. (PoCL 3 names the
-// variable POCL_MAX_PTHREAD_COUNT, PoCL 5 POCL_CPU_MAX_CU_COUNT; other drivers ignore both.)
+// OpenCL platform is first queried, so this comes before anything opens a device. (PoCL 3 reads
+// POCL_MAX_PTHREAD_COUNT, PoCL 4 and later POCL_CPU_MAX_CU_COUNT; other drivers ignore both.)
 void limit_cpu_threads(Job& job, const Args& args) {
   job.threads = args.get_int("--threads", 0, 1, 4096);
   if (job.threads == 0) return;
