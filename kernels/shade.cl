@@ -414,9 +414,9 @@ __kernel void shade(XI_PATH_PARAMS __global const uint* restrict queue_in, __glo
 #if XI_HAS_PREFETCH
   // The next work item's paths, fetched while this one shades (as extend does), so their loads no
   // longer wait on memory.
-  for (uint k = XI_LANES; k < 2u * XI_LANES; ++k) {
-    const uint at = partitioned ? local_first + k : (uint)get_global_id(0) * XI_LANES + k;
-    if (at >= (partitioned ? group_entries : count)) break;
+  const uint ahead_first = (partitioned ? local_first : (uint)get_global_id(0) * XI_LANES) + XI_LANES;
+  const uint ahead_end = min(ahead_first + XI_LANES, partitioned ? group_entries : count);
+  for (uint at = ahead_first; at < ahead_end; ++at) {
     uint ahead = partitioned ? group_slots[at] : queue_in[at];
     XI_PREFETCH(&hit[ahead], 0);
     XI_PREFETCH(&throughput[ahead], 1);

@@ -134,13 +134,19 @@ static inline xfloat xi_luminance(xfloat3 c) { return 0.2126f * c.x + 0.7152f * 
 
 // --- multiple scattering
 
-// E(mu, r), r = √α: the table interpolated linearly in both (ggx_albedo.h's layout), clamped.
+// The tables' roughness axis (ggx_albedo.h's layout): r = √α's row below it and the fraction
+// towards the next, clamped.
+static inline xuint xi_ggx_albedo_row(xfloat r, xfloat* fy) {
+  const float n = (float)XI_GGX_ALBEDO_SIZE;
+  xfloat y = clamp(r * (n - 1.0f), 0.0f, n - 1.0f), y0 = fmin(floor(y), (xfloat)(n - 2.0f));
+  *fy = y - y0;
+  return convert_xuint(y0);
+}
+// E(mu, r): the table interpolated linearly in both, clamped.
 static inline xfloat xi_ggx_albedo(xfloat mu, xfloat r) {
   const float n = (float)XI_GGX_ALBEDO_SIZE;
-  xfloat x = clamp(mu * n - 0.5f, 0.0f, n - 1.0f), y = clamp(r * (n - 1.0f), 0.0f, n - 1.0f);
-  xfloat x0 = fmin(floor(x), (xfloat)(n - 2.0f)), y0 = fmin(floor(y), (xfloat)(n - 2.0f));
-  xfloat fx = x - x0, fy = y - y0;
-  xuint i = convert_xuint(y0) * XI_GGX_ALBEDO_SIZE + convert_xuint(x0);
+  xfloat x = clamp(mu * n - 0.5f, 0.0f, n - 1.0f), x0 = fmin(floor(x), (xfloat)(n - 2.0f)), fx = x - x0, fy;
+  xuint i = xi_ggx_albedo_row(r, &fy) * XI_GGX_ALBEDO_SIZE + convert_xuint(x0);
   xfloat a = xi_gather_table(xi_ggx_albedo_table, i), b = xi_gather_table(xi_ggx_albedo_table, i + 1u);
   xfloat c = xi_gather_table(xi_ggx_albedo_table, i + XI_GGX_ALBEDO_SIZE);
   xfloat d = xi_gather_table(xi_ggx_albedo_table, i + XI_GGX_ALBEDO_SIZE + 1u);
@@ -149,9 +155,8 @@ static inline xfloat xi_ggx_albedo(xfloat mu, xfloat r) {
 }
 // E_avg(r), interpolated likewise.
 static inline xfloat xi_ggx_albedo_average(xfloat r) {
-  const float n = (float)XI_GGX_ALBEDO_SIZE;
-  xfloat y = clamp(r * (n - 1.0f), 0.0f, n - 1.0f), y0 = fmin(floor(y), (xfloat)(n - 2.0f)), fy = y - y0;
-  xuint j = convert_xuint(y0);
+  xfloat fy;
+  xuint j = xi_ggx_albedo_row(r, &fy);
   xfloat a = xi_gather_table(xi_ggx_albedo_average_table, j), b = xi_gather_table(xi_ggx_albedo_average_table, j + 1u);
   return a + (b - a) * fy;
 }

@@ -108,11 +108,9 @@ void add_environment(const Scene& scene, CompiledScene& cs, std::vector<double>&
 
 }  // namespace
 
-Features Features::everything() {
-  Features f{true, true, true, true, true, true, true, true, true, true};
-  f.multiple_scattering = false;  // a choice of model, which stays the scene's (KernelConfig::make)
-  return f;
-}
+// Every kernel feature; multiple_scattering, a choice of model rather than a feature, is left false
+// here and taken from the scene (KernelConfig::make).
+Features Features::everything() { return Features{true, true, true, true, true, true, true, true, true, true}; }
 
 std::string Features::describe() const {
   std::string s = "diffuse";
