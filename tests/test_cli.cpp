@@ -121,6 +121,33 @@ TEST_F(CliRender, ThreadsCapsPoclsComputeUnits) {
                     before);
 }
 
+// A new scene's kernels are compiled once each, with their program: PoCL is not left to generate
+// another work-group function for each launch configuration at the first launches (seconds per
+// kernel), so its cache holds one function per kernel, the general one ("0-0-0").
+TEST_F(CliRender, PoclCompilesOneWorkGroupFunctionPerKernel) {
+  const xi::DeviceInfo d = xi::Device::open("").info();
+  if (d.platform.find("Portable Computing Language") == std::string::npos)
+    GTEST_SKIP() << "the default device is not PoCL's (" << d.platform << ")";
+  const fs::path xi_cache = root_ / "xi-cache", pocl_cache = root_ / "pocl-cache";
+  const Outcome r = run_xi(concat({"render", "-o", "out.exr", "--kernels", "scene"}, kFast),
+                           "unset POCL_WORK_GROUP_SPECIALIZATION; export XI_CACHE_DIR=" + quote(xi_cache.string()) +
+                               " POCL_CACHE_DIR=" + quote(pocl_cache.string()));
+  ASSERT_EQ(r.code, 0) << r.err;
+  // PoCL's cache: <two letters>/<program hash>/{program.bc, <kernel>/<work-group function>/...}.
+  std::set<std::string> kernels;
+  for (const auto& program : fs::recursive_directory_iterator(pocl_cache)) {
+    if (program.path().filename() != "program.bc") continue;
+    for (const auto& kernel : fs::directory_iterator(program.path().parent_path())) {
+      if (!kernel.is_directory()) continue;
+      kernels.insert(kernel.path().filename().string());
+      std::set<std::string> functions;
+      for (const auto& f : fs::directory_iterator(kernel.path())) functions.insert(f.path().filename().string());
+      EXPECT_EQ(functions, std::set<std::string>{"0-0-0"}) << kernel.path();
+    }
+  }
+  EXPECT_EQ(kernels, (std::set<std::string>{"accumulate", "extend", "generate", "shade", "shadow"}));
+}
+
 // -o may name the PNG instead of the EXR: both are written, the EXR beside the PNG (any other
 // extension: CliBadInput.OutputNeitherExrNorPng).
 TEST_F(CliRender, OutputNamedByItsPng) {

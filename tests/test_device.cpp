@@ -80,6 +80,20 @@ TEST(Device, XiDeviceVariablePicksTheDefault) {
   }
 }
 
+// PoCL is told to build one work-group function per kernel, unless the user said otherwise.
+TEST(Device, PoclWorkGroupSpecializationOffUnlessSet) {
+  {
+    xi::test::ScopedEnv unset("POCL_WORK_GROUP_SPECIALIZATION", nullptr);
+    xi::list_devices();
+    const char* v = std::getenv("POCL_WORK_GROUP_SPECIALIZATION");
+    ASSERT_NE(v, nullptr);
+    EXPECT_STREQ(v, "0");
+  }
+  xi::test::ScopedEnv user("POCL_WORK_GROUP_SPECIALIZATION", "1");
+  xi::list_devices();
+  EXPECT_STREQ(std::getenv("POCL_WORK_GROUP_SPECIALIZATION"), "1");
+}
+
 TEST(Device, SecondBuildComesFromTheCache) {
   TempEnv env;
   xi::Device device = xi::Device::open("");

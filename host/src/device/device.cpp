@@ -41,6 +41,11 @@ struct Found {
 };
 
 std::vector<Found> enumerate() {
+  // PoCL compiles each kernel's work-group function once more for every launch configuration it
+  // specialises on (the work-group size; grids of fewer than 65535 items or more), seconds per
+  // new program at the first launches. xi's kernels run as fast from the one general function
+  // built with the program, so PoCL builds only that. A value the user set is kept.
+  setenv("POCL_WORK_GROUP_SPECIALIZATION", "0", 0);
   std::vector<cl::Platform> platforms;
   try {
     cl::Platform::get(&platforms);
