@@ -126,7 +126,8 @@ class Renderer {
   const Program& program() const { return program_; }
   const KernelConfig& kernels() const { return kernels_; }
   // Where the constructor's kernel time went: building (or loading) the tracing and the shading
-  // program, and the first launches (where PoCL generates each kernel's code). Seconds.
+  // program, and the first launches (where a driver may still generate code per launch
+  // configuration). Seconds.
   struct KernelTimes {
     double trace_program = 0.0, shading_program = 0.0, first_launches = 0.0;
   };

@@ -20,8 +20,9 @@ namespace {
 const std::vector<std::string> kTraceFiles = {"extend.cl", "shadow.cl", "accumulate.cl"};
 const std::vector<std::string> kLaneFiles = {"generate.cl", "shade.cl"};
 
-// A launch size past PoCL's limit for "small grid" work-group functions (it compiles a kernel once
-// for launches below the limit and once for those above): warming up at 1 and at this many items
+// A launch size past PoCL's limit for "small grid" work-group functions (where its work-group
+// specialisation is on, which xi turns off unless the user set it, it compiles a kernel once for
+// launches below the limit and once for those above): warming up at 1 and at this many items
 // compiles both before the first pass.
 constexpr size_t kLargeLaunch = (size_t)1 << 20;
 
@@ -173,8 +174,9 @@ void Renderer::take_scene_shading(bool wait) {
 
 // On a thread of its own: builds the program, then launches both kernels once with no work on a
 // queue of its own, with counters of their own, so that a driver that compiles per launch
-// configuration (PoCL) does it here rather than in the render's queue. At a lower priority: the
-// generic program renders as fast, so on a CPU device the passes come first.
+// configuration (PoCL with work-group specialisation) does it here rather than in the render's
+// queue. At a lower priority: the generic program renders as fast, so on a CPU device the passes
+// come first.
 Renderer::ShadingKernels Renderer::build_scene_shading(const std::vector<std::string>& defines) const {
   setpriority(PRIO_PROCESS, (id_t)syscall(SYS_gettid), kBackgroundBuildNice);
   Program program = build_program(device_, kLaneFiles, defines);
@@ -490,7 +492,8 @@ void Renderer::finish_pass() {
 }
 
 // Launches every stage with no work (every queue is empty), small and large, so that a driver that
-// compiles per launch configuration (PoCL) does it now, counted in the kernel build, not in a pass.
+// compiles per launch configuration (PoCL with work-group specialisation) does it now, counted in
+// the kernel build, not in a pass.
 void Renderer::warm_up() {
   bind_generate(generate_, wave(0, 1, 0, 0), counters_);  // no items; one pixel so that nothing divides by zero
   bind_accumulate(wave(0, 0, 0, 0));
