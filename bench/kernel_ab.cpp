@@ -6,7 +6,7 @@
 //   xi_kernel_ab SCENE A B [RUNS] [WxH] [SPP]
 //
 // Extend alone on the same recorded rays (camera rays, then first-bounce rays, recorded through A, each
-// traced as a render traces it: camera rays in packets of 8 on an 8-wide tree, bounce rays one by one),
+// traced as a render traces it: camera rays in packets on an 8-wide tree, bounce rays one by one),
 // A and B alternated RUNS times (who goes first alternates too): Mrays/s medians and the median of the
 // per-pair time ratios B/A, and how many hits differ bitwise. Then whole renders of SPP samples per
 // pixel (random sampler; 0 skips them), alternated likewise: per-stage kernel time medians (ms), the

@@ -1,7 +1,7 @@
 // Stage 4, shadow: any-hit test of every queued shadow ray; an unoccluded ray adds its
 // contribution to its path. A path queues at most one shadow ray per bounce, so the add is safe.
-// Through a small 8-wide tree (XI_RAY_PACKETS, layout.h's XI_SHADOW_PACKET) eight rays go
-// together, one packet per work item (packet.h, xi_occluded_packet8); else one per work item
+// Through a small 8-wide tree (XI_RAY_PACKETS, layout.h's XI_SHADOW_PACKET) a packet of 8 or 16 rays
+// goes together, one packet per work item (packet.h, xi_occluded_packet); else one per work item
 // (traverse.h, xi_trace's any-hit query). In a scene with cut-out or transparent surfaces
 // (XI_ALPHA) a ray goes alone, from hit to hit, until an opaque one or its end.
 #include "layout.h"
@@ -73,32 +73,35 @@ static inline void xi_shadow_one(__global float4* radiance, __global const float
 }
 
 #if XI_BVH_WIDTH == 8
-// Shadow rays 8i to 8i + 7; a last packet of fewer than eight goes one ray at a time.
+// Shadow rays wi to wi + w - 1 (w = XI_PACKET_WIDTH); a last packet of fewer than w goes one ray
+// at a time.
 static inline void xi_shadow_packet(__global float4* radiance, __global const float4* shadow_org,
                                     __global const float4* shadow_dir, __global const float4* shadow_contrib,
                                     uint count, __global const TraceNode* nodes, __global const TriBlock* tri_blocks,
                                     XI_ALPHA_PARAMS, XI_PATH_ID_PARAMS) {
-  const uint first = (uint)get_global_id(0) * 8u;
+  const uint first = (uint)get_global_id(0) * XI_PACKET_WIDTH;
   if (first >= count) return;
-  if (count - first < 8u) {
+  if (count - first < XI_PACKET_WIDTH) {
     for (uint i = first; i < count; ++i)
       xi_shadow_one(radiance, shadow_org, shadow_dir, shadow_contrib, i, nodes, tri_blocks, XI_ALPHA_ARGS, XI_PATH_ID_ARGS);
     return;
   }
-  const float4 o0 = shadow_org[first], o1 = shadow_org[first + 1u], o2 = shadow_org[first + 2u],
-               o3 = shadow_org[first + 3u], o4 = shadow_org[first + 4u], o5 = shadow_org[first + 5u],
-               o6 = shadow_org[first + 6u], o7 = shadow_org[first + 7u];
-  const float4 d0 = shadow_dir[first], d1 = shadow_dir[first + 1u], d2 = shadow_dir[first + 2u],
-               d3 = shadow_dir[first + 3u], d4 = shadow_dir[first + 4u], d5 = shadow_dir[first + 5u],
-               d6 = shadow_dir[first + 6u], d7 = shadow_dir[first + 7u];
-  const uint occluded = xi_occluded_packet8(nodes, tri_blocks, (float8)(o0.x, o1.x, o2.x, o3.x, o4.x, o5.x, o6.x, o7.x),
-                                            (float8)(o0.y, o1.y, o2.y, o3.y, o4.y, o5.y, o6.y, o7.y),
-                                            (float8)(o0.z, o1.z, o2.z, o3.z, o4.z, o5.z, o6.z, o7.z),
-                                            (float8)(d0.x, d1.x, d2.x, d3.x, d4.x, d5.x, d6.x, d7.x),
-                                            (float8)(d0.y, d1.y, d2.y, d3.y, d4.y, d5.y, d6.y, d7.y),
-                                            (float8)(d0.z, d1.z, d2.z, d3.z, d4.z, d5.z, d6.z, d7.z),
-                                            (float8)(o0.w, o1.w, o2.w, o3.w, o4.w, o5.w, o6.w, o7.w));
-  for (uint k = 0u; k < 8u; ++k)
+  float4 o[XI_PACKET_WIDTH], d[XI_PACKET_WIDTH];
+  XI_UNROLL for (uint k = 0u; k < XI_PACKET_WIDTH; ++k) {
+    o[k] = shadow_org[first + k];
+    d[k] = shadow_dir[first + k];
+  }
+#define XI_OX(k) o[k].x
+#define XI_OY(k) o[k].y
+#define XI_OZ(k) o[k].z
+#define XI_OW(k) o[k].w
+#define XI_DX(k) d[k].x
+#define XI_DY(k) d[k].y
+#define XI_DZ(k) d[k].z
+  const uint occluded = xi_occluded_packet(nodes, tri_blocks, XI_PACKET_LANES(XI_OX), XI_PACKET_LANES(XI_OY),
+                                           XI_PACKET_LANES(XI_OZ), XI_PACKET_LANES(XI_DX), XI_PACKET_LANES(XI_DY),
+                                           XI_PACKET_LANES(XI_DZ), XI_PACKET_LANES(XI_OW));
+  for (uint k = 0u; k < XI_PACKET_WIDTH; ++k)
     if (!(occluded & (1u << k))) xi_add_unoccluded(radiance, shadow_contrib[first + k]);
 }
 #endif
@@ -108,7 +111,7 @@ __kernel void shadow(XI_PATH_PARAMS XI_SHADOW_PARAMS __global const uint* restri
                      XI_ALPHA_PARAMS) {
   uint count = counters[XI_COUNTER_SHADOW(bounce)];
 #if XI_BVH_WIDTH == 8
-  if (XI_SHADOW_PACKET(XI_BVH_WIDTH, XI_RAY_PACKETS) == 8) {
+  if (XI_SHADOW_PACKET(XI_BVH_WIDTH, XI_RAY_PACKETS, XI_PACKET_WIDTH) > 1) {
     xi_shadow_packet(radiance, shadow_org, shadow_dir, shadow_contrib, count, nodes, tri_blocks, XI_ALPHA_ARGS, XI_PATH_ID_ARGS);
     return;
   }

@@ -452,16 +452,18 @@ TEST_F(CliRender, NoSpatialSplitsBuildsOneReferencePerTriangle) {
   EXPECT_EQ(std::memcmp(a.pixels.data(), b.pixels.data(), a.pixels.size() * sizeof(glm::vec3)), 0);
 }
 
-// `xi render` says which rays go through the tree in packets, and --ray-packets changes it but
-// not the image (ties aside, none in this frame): the Cornell box's tree of 2 nodes takes bounce and
-// shadow packets by default, an 8-wide tree always takes camera packets, and a 4-wide one none.
+// `xi render` says which rays go through the tree in packets and how many rays a packet holds, and
+// --ray-packets and --packet-width change it but not the image (ties aside, none in this frame):
+// the Cornell box's tree of 2 nodes takes bounce and shadow packets by default, an 8-wide tree
+// always takes camera packets, and a 4-wide one none.
 TEST_F(CliRender, SaysWhichRaysGoInPackets) {
   const std::vector<std::string> base = {"render", kCornell.string(), "--spp", "2", "--resolution", "32x24"};
-  const Outcome automatic = run_xi(concat(base, {"-o", "a.exr", "--bvh-width", "8"}));
-  const Outcome off = run_xi(concat(base, {"-o", "b.exr", "--bvh-width", "8", "--ray-packets", "off"}));
+  const Outcome automatic = run_xi(concat(base, {"-o", "a.exr", "--bvh-width", "8", "--packet-width", "16"}));
+  const Outcome off =
+      run_xi(concat(base, {"-o", "b.exr", "--bvh-width", "8", "--ray-packets", "off", "--packet-width", "8"}));
   const Outcome four = run_xi(concat(base, {"-o", "c.exr", "--bvh-width", "4", "--ray-packets", "on"}));
   for (const Outcome* o : {&automatic, &off, &four}) ASSERT_EQ(o->code, 0) << o->err;
-  EXPECT_NE(automatic.out.find("; camera, bounce and shadow rays in packets of 8\n"), std::string::npos) << automatic.out;
+  EXPECT_NE(automatic.out.find("; camera, bounce and shadow rays in packets of 16\n"), std::string::npos) << automatic.out;
   EXPECT_NE(off.out.find("; camera rays in packets of 8\n"), std::string::npos) << off.out;
   EXPECT_EQ(four.out.find("in packets"), std::string::npos) << four.out;
   const xi::Image a = xi::read_exr(work_ / "a.exr"), b = xi::read_exr(work_ / "b.exr");

@@ -50,7 +50,7 @@ bool same_bits(const T& a, const T& b) { return std::memcmp(&a, &b, sizeof(T)) =
 
 // One program with every stage, built once for the suite, extend and shadow again for 8-wide BVH
 // nodes (the default one traverses 4-wide nodes), once more with bounce and shadow rays in packets
-// (XI_RAY_PACKETS), and generate and shade again for 8 lanes (the default: 1). Features of the
+// (XI_RAY_PACKETS) of 8 rays and of 16, and generate and shade again for 8 lanes (the default: 1). Features of the
 // Cornell box (emitters, no lens), so generate is the pinhole camera.
 class Kernel : public ::testing::Test {
  protected:
@@ -70,11 +70,15 @@ class Kernel : public ::testing::Test {
     lanes8_.emplace(xi::build_program(*device_, {"generate.cl", "shade.cl"}, lanes8.defines()));
     program8_.emplace(xi::build_program(*device_, {"extend.cl", "shadow.cl"}, width8.defines()));
     ray_packets8_.emplace(xi::build_program(*device_, {"extend.cl", "shadow.cl"}, packets8.defines()));
+    xi::KernelConfig packets16 = packets8;
+    packets16.packet_width = 16;
+    ray_packets16_.emplace(xi::build_program(*device_, {"extend.cl", "shadow.cl"}, packets16.defines()));
   }
   static void TearDownTestSuite() {  // release OpenCL objects before the driver unloads
     program_.reset();
     program8_.reset();
     ray_packets8_.reset();
+    ray_packets16_.reset();
     lanes8_.reset();
     device_.reset();
   }
@@ -146,11 +150,12 @@ class Kernel : public ::testing::Test {
   }
 
   static std::optional<xi::Device> device_;
-  static std::optional<xi::Program> program_, program8_, ray_packets8_, lanes8_;
+  static std::optional<xi::Program> program_, program8_, ray_packets8_, ray_packets16_, lanes8_;
   static uint32_t shading_word_;  // the programs' own (compiled in; the argument is read by generic programs)
 };
 std::optional<xi::Device> Kernel::device_;
-std::optional<xi::Program> Kernel::program_, Kernel::program8_, Kernel::ray_packets8_, Kernel::lanes8_;
+std::optional<xi::Program> Kernel::program_, Kernel::program8_, Kernel::ray_packets8_, Kernel::ray_packets16_,
+    Kernel::lanes8_;
 uint32_t Kernel::shading_word_ = 0;
 
 vec3 random_direction(std::mt19937& rng) {
@@ -303,11 +308,11 @@ TEST_F(Kernel, ExtendMatchesBruteForce) {
   EXPECT_LT(ties, (int)n / 1000);  // edge ties are rare for random rays: < 0.1%
 }
 
-// Rays in packets (xi_trace_packet8: extend at bounce 0 on an 8-wide tree, and at any bounce with
-// XI_RAY_PACKETS, eight queue entries per work item) find the hits that one ray per work item
+// Rays in packets (xi_trace_packet: extend at bounce 0 on an 8-wide tree, and at any bounce with
+// XI_RAY_PACKETS, 8 or 16 queue entries per work item) find the hits that one ray per work item
 // finds (extend at bounce 1 without it), bitwise but for ties: where two triangles are hit at the
 // same t (a shared edge), the order of traversal may pick the other. The scene sphere_and_boxes();
-// packets of eight rays of six kinds, cycled: camera fans (one origin outside, directions a pixel
+// packets of 8 (and then of 16) rays of six kinds, cycled: camera fans (one origin outside, directions a pixel
 // apart), thin-lens fans (origins on a lens, aimed at one focus), fans from inside the closed
 // icosphere aimed exactly at the vertices and edges of one of its triangles (where a crack would
 // let a ray escape: none may), fans leaving a point on the sphere (whose own triangle the error
@@ -317,115 +322,120 @@ TEST_F(Kernel, ExtendMatchesBruteForce) {
 // planes). 4001 packets and a last one of five rays, traced one at a time, in a queue whose entries
 // past the count point at slots that no work item may touch.
 TEST_F(Kernel, PacketsFindTheHitsOfSingleRays) {
-  const xi::Scene scene = sphere_and_boxes();
-  const size_t sphere_tris = kSphereTriangles;
-  ASSERT_EQ(scene.triangles.size(), kSphereTriangles + 36u);
-  const xi::CompiledScene cs = xi::compile_scene(scene, 8);
+  for (const uint32_t w : {8u, 16u}) {
+    SCOPED_TRACE(testing::Message() << "packets of " << w);
+    const xi::Scene scene = sphere_and_boxes();
+    const size_t sphere_tris = kSphereTriangles;
+    ASSERT_EQ(scene.triangles.size(), kSphereTriangles + 36u);
+    const xi::CompiledScene cs = xi::compile_scene(scene, 8);
 
-  enum Kind { kCamera, kLens, kInside, kSurface, kRandom, kStraddle, kKinds };
-  const uint32_t packets = 4001, n = 8 * packets + 5, extra = 64, slots = n + extra;
-  std::mt19937 rng(29);
-  std::uniform_real_distribution<float> u01(0.0f, 1.0f), jitter(-1e-3f, 1e-3f);
-  std::uniform_real_distribution<float> box(-2.0f, 2.0f);
-  PathState state(slots);
-  std::vector<int> kind(slots, kRandom);
-  for (uint32_t p = 0; p * 8 < n; ++p) {
-    const Kind k = (Kind)(p % kKinds);
-    const vec3 eye(0.0f, 0.0f, -5.0f), target(box(rng), box(rng), box(rng));
-    const vec3 inside = 0.5f * vec3(u01(rng), u01(rng), u01(rng));
-    const xi::Triangle& aim = scene.triangles[(size_t)(u01(rng) * (float)sphere_tris) % sphere_tris];
-    const vec3 origin_random(box(rng), box(rng), box(rng));
-    for (uint32_t lane = 0; lane < 8 && 8 * p + lane < n; ++lane) {
-      const uint32_t i = 8 * p + lane;
-      vec3 o = eye, d;
-      if (k == kCamera) {
-        d = glm::normalize(target - eye) + vec3(lane * 1e-3f, 0.0f, 0.0f);  // a row of pixels
-      } else if (k == kLens) {
-        o = eye + vec3(jitter(rng), jitter(rng), 0.0f) * 50.0f;
-        d = target - o;
-      } else if (k == kInside) {  // the triangle's vertices, its edges' midpoints, two points on an edge
-        o = inside;
-        const vec3 &a = aim.v[0], &b = aim.v[1], &c = aim.v[2];
-        const vec3 points[8] = {a, b, c, 0.5f * (a + b), 0.5f * (b + c), 0.5f * (c + a), a + u01(rng) * (b - a),
-                                b + u01(rng) * (c - b)};
-        d = points[lane] - o;
-      } else if (k == kSurface) {  // from a point of the triangle, outwards
-        o = aim.v[0] + 0.3f * (aim.v[1] - aim.v[0]) + 0.3f * (aim.v[2] - aim.v[0]);
-        d = glm::normalize(glm::cross(aim.v[1] - aim.v[0], aim.v[2] - aim.v[0])) + vec3(lane * 1e-3f, 0.0f, 0.0f);
-        if (glm::dot(d, o) < 0.0f) d = -d;
-      } else if (k == kRandom) {
-        o = origin_random;
-        d = random_direction(rng);
-      } else {  // across x = 0
-        d = vec3((float)lane - 3.5f, 0.0f, 0.0f) * 1e-3f + glm::normalize(vec3(0.0f, target.y, 5.0f));
+    enum Kind { kCamera, kLens, kInside, kSurface, kRandom, kStraddle, kKinds };
+    const uint32_t packets = 4001, n = w * packets + 5, extra = 64, slots = n + extra;
+    std::mt19937 rng(29);
+    std::uniform_real_distribution<float> u01(0.0f, 1.0f), jitter(-1e-3f, 1e-3f);
+    std::uniform_real_distribution<float> box(-2.0f, 2.0f);
+    PathState state(slots);
+    std::vector<int> kind(slots, kRandom);
+    for (uint32_t p = 0; p * w < n; ++p) {
+      const Kind k = (Kind)(p % kKinds);
+      const vec3 eye(0.0f, 0.0f, -5.0f), target(box(rng), box(rng), box(rng));
+      const vec3 inside = 0.5f * vec3(u01(rng), u01(rng), u01(rng));
+      const xi::Triangle& aim = scene.triangles[(size_t)(u01(rng) * (float)sphere_tris) % sphere_tris];
+      const vec3 origin_random(box(rng), box(rng), box(rng));
+      for (uint32_t lane = 0; lane < w && w * p + lane < n; ++lane) {
+        const uint32_t i = w * p + lane;
+        vec3 o = eye, d;
+        if (k == kCamera) {
+          d = glm::normalize(target - eye) + vec3(lane * 1e-3f, 0.0f, 0.0f);  // a row of pixels
+        } else if (k == kLens) {
+          o = eye + vec3(jitter(rng), jitter(rng), 0.0f) * 50.0f;
+          d = target - o;
+        } else if (k == kInside) {  // the triangle's vertices, its edges' midpoints, two points on an edge
+          o = inside;
+          const vec3 &a = aim.v[0], &b = aim.v[1], &c = aim.v[2];
+          const vec3 points[8] = {a, b, c, 0.5f * (a + b), 0.5f * (b + c), 0.5f * (c + a), a + u01(rng) * (b - a),
+                                  b + u01(rng) * (c - b)};
+          d = points[lane % 8] - o;
+        } else if (k == kSurface) {  // from a point of the triangle, outwards
+          o = aim.v[0] + 0.3f * (aim.v[1] - aim.v[0]) + 0.3f * (aim.v[2] - aim.v[0]);
+          d = glm::normalize(glm::cross(aim.v[1] - aim.v[0], aim.v[2] - aim.v[0])) + vec3(lane * 1e-3f, 0.0f, 0.0f);
+          if (glm::dot(d, o) < 0.0f) d = -d;
+        } else if (k == kRandom) {
+          o = origin_random;
+          d = random_direction(rng);
+        } else {  // across x = 0
+          d = vec3((float)lane - 3.5f, 0.0f, 0.0f) * 1e-3f + glm::normalize(vec3(0.0f, target.y, 5.0f));
+        }
+        state.ray_org[i] = vec4(o, 0.0f);
+        state.ray_dir[i] = vec4(glm::normalize(d), 0.0f);
+        kind[i] = k;
       }
-      state.ray_org[i] = vec4(o, 0.0f);
-      state.ray_dir[i] = vec4(glm::normalize(d), 0.0f);
-      kind[i] = k;
     }
-  }
-  std::vector<uint32_t> q(slots);
-  std::iota(q.begin(), q.end(), 0u);
+    std::vector<uint32_t> q(slots);
+    std::iota(q.begin(), q.end(), 0u);
 
-  // Which packets share one axis permutation and one sign per axis (as xi_trace_packet8 decides):
-  // the four kinds meant to, mostly, and never random or straddling rays, so both paths are taken.
-  size_t together = 0;
-  for (uint32_t p = 0; p + 1 < (n + 7) / 8; ++p) {
-    int kz0 = -1;
-    bool same = true;
-    glm::bvec3 back0{};
-    for (uint32_t lane = 0; lane < 8; ++lane) {
-      const vec3 d(state.ray_dir[8 * p + lane]), a = glm::abs(d);
-      const int kz = a.x > a.y ? (a.x > a.z ? 0 : 2) : (a.y > a.z ? 1 : 2);
-      const glm::bvec3 back = glm::lessThan(d, vec3(0.0f));
-      if (lane == 0) kz0 = kz, back0 = back;
-      same = same && kz == kz0 && back == back0;
+    // Which packets share one axis permutation and one sign per axis (as xi_packet decides):
+    // the four kinds meant to, mostly, and never random or straddling rays, so both paths are taken.
+    size_t together = 0;
+    for (uint32_t p = 0; p + 1 < (n + w - 1) / w; ++p) {
+      int kz0 = -1;
+      bool same = true;
+      glm::bvec3 back0{};
+      for (uint32_t lane = 0; lane < w; ++lane) {
+        const vec3 d(state.ray_dir[w * p + lane]), a = glm::abs(d);
+        const int kz = a.x > a.y ? (a.x > a.z ? 0 : 2) : (a.y > a.z ? 1 : 2);
+        const glm::bvec3 back = glm::lessThan(d, vec3(0.0f));
+        if (lane == 0) kz0 = kz, back0 = back;
+        same = same && kz == kz0 && back == back0;
+      }
+      const int k = kind[w * p];
+      if (k == kRandom || k == kStraddle) EXPECT_FALSE(same) << "packet " << p << " should take the per-ray path";
+      together += same;
     }
-    const int k = kind[8 * p];
-    if (k == kRandom || k == kStraddle) EXPECT_FALSE(same) << "packet " << p << " should take the per-ray path";
-    together += same;
-  }
-  EXPECT_GE(together, (size_t)packets / 2);  // most of the four kinds meant to share
+    EXPECT_GE(together, (size_t)packets / 2);  // most of the four kinds meant to share
 
-  // Eight rays per work item at bounce 0, and at bounce 3 with ray packets; one at bounce 1 without.
-  auto trace = [&](uint32_t bounce, bool ray_packets) {
-    PathBuffers b = upload(state);
-    std::vector<uint32_t> counters(XI_COUNTER_COUNT(8), 7u);
-    counters[XI_COUNTER_RAYS(bounce)] = n;
-    cl::Buffer qb = buffer(q), cb = buffer(counters), nodes = bvh_nodes(cs.bvh), blocks = buffer(cs.bvh.blocks);
-    cl::Kernel k = ray_packets ? cl::Kernel(ray_packets8_->program, "extend") : kernel("extend", 8);
-    bind(k, b, qb, cb, bounce, nodes, blocks);
-    launch(k, slots / XI_EXTEND_PACKET(8, bounce, ray_packets ? 1 : 0) + 1);
-    return read<vec4>(b.hit, slots);
-  };
-  const std::vector<vec4> packet = trace(0, false), single = trace(1, false), bounce_packet = trace(3, true);
-  for (uint32_t i = 0; i < slots; ++i)
-    if (!same_bits(packet[i], bounce_packet[i]))
-      ADD_FAILURE() << "slot " << i << ": a bounce packet's hit is not the camera packet's";
-  size_t aimed_ties = 0, other_ties = 0, differ = 0, hits = 0, inside = 0;
-  for (uint32_t i = 0; i < n; ++i) {
-    const vec4 a = packet[i], b = single[i];
-    hits += b.x > 0.0f;
-    if (kind[i] == kInside) {
-      inside++;
-      EXPECT_GT(a.x, 0.0f) << "ray " << i << " from inside the sphere escaped its packet";
-      EXPECT_GT(b.x, 0.0f) << "ray " << i << " from inside the sphere escaped";
+    // Eight rays per work item at bounce 0, and at bounce 3 with ray packets; one at bounce 1 without.
+    auto trace = [&](uint32_t bounce, bool ray_packets) {
+      PathBuffers b = upload(state);
+      std::vector<uint32_t> counters(XI_COUNTER_COUNT(8), 7u);
+      counters[XI_COUNTER_RAYS(bounce)] = n;
+      cl::Buffer qb = buffer(q), cb = buffer(counters), nodes = bvh_nodes(cs.bvh), blocks = buffer(cs.bvh.blocks);
+      // Packets of 16: bounce 0 from the program with ray packets too.
+      const xi::Program& packets = w == 16 ? *ray_packets16_ : *ray_packets8_;
+      cl::Kernel k = ray_packets || (w == 16 && bounce == 0) ? cl::Kernel(packets.program, "extend") : kernel("extend", 8);
+      bind(k, b, qb, cb, bounce, nodes, blocks);
+      launch(k, slots / XI_EXTEND_PACKET(8, bounce, ray_packets ? 1 : 0, w) + 1);
+      return read<vec4>(b.hit, slots);
+    };
+    const std::vector<vec4> packet = trace(0, false), single = trace(1, false), bounce_packet = trace(3, true);
+    for (uint32_t i = 0; i < slots; ++i)
+      if (!same_bits(packet[i], bounce_packet[i]))
+        ADD_FAILURE() << "slot " << i << ": a bounce packet's hit is not the camera packet's";
+    size_t aimed_ties = 0, other_ties = 0, differ = 0, hits = 0, inside = 0;
+    for (uint32_t i = 0; i < n; ++i) {
+      const vec4 a = packet[i], b = single[i];
+      hits += b.x > 0.0f;
+      if (kind[i] == kInside) {
+        inside++;
+        EXPECT_GT(a.x, 0.0f) << "ray " << i << " from inside the sphere escaped its packet";
+        EXPECT_GT(b.x, 0.0f) << "ray " << i << " from inside the sphere escaped";
+      }
+      if (same_bits(a, b)) continue;
+      const bool tie = a.x > 0.0f && b.x > 0.0f && as_uint(a.w) != as_uint(b.w) &&
+                       std::abs(a.x - b.x) <= 1e-5f * std::max(a.x, b.x);
+      (kind[i] == kInside ? aimed_ties : other_ties) += tie;  // rays aimed at edges tie often
+      differ += !tie;
+      if (!tie && differ <= 10)
+        ADD_FAILURE() << "ray " << i << " (kind " << kind[i] << "): packet hit (" << a.x << ", " << as_uint(a.w)
+                      << "), alone (" << b.x << ", " << as_uint(b.w) << ")";
     }
-    if (same_bits(a, b)) continue;
-    const bool tie = a.x > 0.0f && b.x > 0.0f && as_uint(a.w) != as_uint(b.w) &&
-                     std::abs(a.x - b.x) <= 1e-5f * std::max(a.x, b.x);
-    (kind[i] == kInside ? aimed_ties : other_ties) += tie;  // rays aimed at edges tie often
-    differ += !tie;
-    if (!tie && differ <= 10)
-      ADD_FAILURE() << "ray " << i << " (kind " << kind[i] << "): packet hit (" << a.x << ", " << as_uint(a.w)
-                    << "), alone (" << b.x << ", " << as_uint(b.w) << ")";
+    EXPECT_EQ(differ, 0u);
+    EXPECT_LE(other_ties, (size_t)n / 1000) << "ties at shared edges are rare but where rays are aimed at them";
+    EXPECT_LE(aimed_ties, inside / 4);
+    EXPECT_GT(hits, (size_t)n / 2);  // so that agreeing says something
+    EXPECT_GE(inside, (size_t)n / 7);
+    for (uint32_t i = n; i < slots; ++i) EXPECT_EQ(as_uint(packet[i].x), kGarbage) << "slot " << i << " past the count";
   }
-  EXPECT_EQ(differ, 0u);
-  EXPECT_LE(other_ties, (size_t)n / 1000) << "ties at shared edges are rare but where rays are aimed at them";
-  EXPECT_LE(aimed_ties, inside / 4);
-  EXPECT_GT(hits, (size_t)n / 2);  // so that agreeing says something
-  EXPECT_GE(inside, (size_t)n / 7);
-  for (uint32_t i = n; i < slots; ++i) EXPECT_EQ(as_uint(packet[i].x), kGarbage) << "slot " << i << " past the count";
 }
 
 // The lane masks the traversal branches on (one movmskps on PoCL with AVX, a portable form on
@@ -713,16 +723,18 @@ TEST_F(Kernel, ShadeFirstHitsFromTheCamera) {
 
 // Shadow rays between random points of the Cornell box's interior, occlusion known from brute
 // force: only unoccluded rays add their contribution to their path's radiance (4- and 8-wide BVHs,
-// and 8 wide with rays in packets, XI_RAY_PACKETS). Every other group of eight rays is a fan
-// between two small neighbourhoods, which share their axis permutation and signs, so packets take
-// both the coherent and the per-ray traversal (packet.h); 500 rays leave a last packet of four,
-// traced one by one.
+// and 8 wide with rays in packets of 8 and of 16, XI_RAY_PACKETS). Every other packet's worth of
+// rays is a fan between two small neighbourhoods, which share their axis permutation and signs, so
+// packets take both the coherent and the per-ray traversal (packet.h); 500 rays leave a last packet
+// of four, traced one by one.
 TEST_F(Kernel, ShadowAddsOnlyUnoccluded) {
   xi::Scene scene = xi::load_scene(XI_SCENE_DIR "/cornell-box.json");
-  for (int config : {4, 8, 80}) {
+  for (int config : {4, 8, 80, 160}) {
     const int width = config == 4 ? 4 : 8;
-    const bool packets = config == 80;
-    SCOPED_TRACE(testing::Message() << width << "-wide BVH" << (packets ? ", packets" : ""));
+    const bool packets = config >= 80;
+    const uint32_t packet = config == 160 ? 16 : 8;  // rays per packet (and per fan)
+    SCOPED_TRACE(testing::Message() << width << "-wide BVH" << (packets ? ", packets of " : "")
+                                    << (packets ? std::to_string(packet) : ""));
     xi::CompiledScene cs = xi::compile_scene(scene, width);
     BruteForce brute(scene.triangles);
     const uint32_t n = 500, slots = 1024, extra = 64;
@@ -741,10 +753,10 @@ TEST_F(Kernel, ShadowAddsOnlyUnoccluded) {
     int blocked = 0;
     vec3 fan_from, fan_to;
     for (uint32_t i = 0; i < n + extra; ++i) {
-      if (i % 16 == 8) fan_from = vec3(x(rng), y(rng), z(rng)), fan_to = vec3(x(rng), y(rng), z(rng));
+      if (i % (2 * packet) == packet) fan_from = vec3(x(rng), y(rng), z(rng)), fan_to = vec3(x(rng), y(rng), z(rng));
       for (;;) {
         vec3 a(x(rng), y(rng), z(rng)), b(x(rng), y(rng), z(rng));
-        if (i % 16 >= 8) {
+        if (i % (2 * packet) >= packet) {
           a = fan_from + vec3(near(rng), near(rng), near(rng));
           b = fan_to + vec3(near(rng), near(rng), near(rng));
         }
@@ -772,12 +784,13 @@ TEST_F(Kernel, ShadowAddsOnlyUnoccluded) {
     std::vector<uint32_t> counters(XI_COUNTER_COUNT(8), 3u);
     counters[XI_COUNTER_SHADOW(bounce)] = n;  // the entries past n must be ignored
     cl::Buffer cb = buffer(counters);
-    cl::Kernel k = packets ? cl::Kernel(ray_packets8_->program, "shadow") : kernel("shadow", width);
+    cl::Kernel k = packets ? cl::Kernel((packet == 16 ? ray_packets16_ : ray_packets8_)->program, "shadow")
+                           : kernel("shadow", width);
     cl::Buffer materials = buffer(cs.materials), tri_material = buffer(cs.tri_material), tri_uv = buffer(cs.tri_uv),
                refs = buffer(cs.texture_refs), images = buffer(cs.images), texels = buffer(cs.texels);
     bind(k, b, org_b, dir_b, contrib_b, cb, bounce, nodes, blocks, materials, tri_material, tri_uv, refs, images, texels,
          0u);
-    launch(k, (n + extra) / XI_SHADOW_PACKET(width, packets ? 1 : 0));  // over an upper bound, as the renderer launches
+    launch(k, (n + extra) / XI_SHADOW_PACKET(width, packets ? 1 : 0, packet));  // over an upper bound, as the renderer launches
     std::vector<vec4> got = read<vec4>(b.radiance, slots);
 
     std::vector<vec4> want = state.radiance;

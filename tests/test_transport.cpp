@@ -681,12 +681,15 @@ TEST(TransportFeatures, KernelConfigFollowsDeviceSceneAndOptions) {
   EXPECT_EQ(on_cpu.bvh_width, 8);
   EXPECT_TRUE(on_cpu.cpu_device);
   EXPECT_TRUE(on_cpu.ray_packets);  // the Cornell box's tree is one or two nodes
+  // A CPU device runs on this CPU: packets of 16 where it has 512-bit vectors.
+  EXPECT_EQ(on_cpu.packet_width, __builtin_cpu_supports("avx512f") ? 16 : 8);
   EXPECT_EQ(on_cpu.features, wide.features);
   const xi::KernelConfig on_gpu = xi::KernelConfig::make(gpu, narrow, opt);
   EXPECT_EQ(on_gpu.lanes, 1);
   EXPECT_EQ(on_gpu.bvh_width, 4);
   EXPECT_FALSE(on_gpu.cpu_device);
   EXPECT_FALSE(on_gpu.ray_packets);  // packets need an 8-wide tree
+  EXPECT_EQ(on_gpu.packet_width, 8);
 
   opt.lanes = 1;
   opt.bvh_width = 4;
@@ -708,6 +711,15 @@ TEST(TransportFeatures, KernelConfigFollowsDeviceSceneAndOptions) {
   opt.ray_packets = xi::RenderOptions::RayPackets::On;
   EXPECT_TRUE(xi::KernelConfig::make(cpu, xi::compile_scene(engine, 8), opt).ray_packets);
 
+  for (int width : {8, 16}) {
+    opt = xi::RenderOptions{};
+    opt.packet_width = width;
+    EXPECT_EQ(xi::KernelConfig::make(cpu, wide, opt).packet_width, width);
+    EXPECT_EQ(xi::KernelConfig::make(gpu, narrow, opt).packet_width, width);
+  }
+  opt.packet_width = 4;
+  EXPECT_THROW(xi::KernelConfig::make(cpu, wide, opt), xi::Error);
+
   opt = xi::RenderOptions{};
   opt.lanes = 4;
   EXPECT_THROW(xi::KernelConfig::make(cpu, wide, opt), xi::Error);
@@ -720,7 +732,7 @@ TEST(TransportFeatures, KernelConfigFollowsDeviceSceneAndOptions) {
 // binary (build_program hashes the flags), and describe() names every field's value.
 TEST(TransportFeatures, EveryKernelOptionChangesTheFlags) {
   const xi::KernelConfig base;
-  std::vector<xi::KernelConfig> variants(9, base);
+  std::vector<xi::KernelConfig> variants(10, base);
   variants[0].features.mirror = true;
   variants[1].features.lens = true;
   variants[2].sampler = XI_SAMPLER_RANDOM;
@@ -730,6 +742,7 @@ TEST(TransportFeatures, EveryKernelOptionChangesTheFlags) {
   variants[6].bvh_width = 8;
   variants[7].ray_packets = true;
   variants[8].generic = true;
+  variants[9].packet_width = 16;
   std::vector<std::vector<std::string>> flags{base.defines()};
   for (const xi::KernelConfig& v : variants) flags.push_back(v.defines());
   for (size_t i = 0; i < flags.size(); ++i)
@@ -744,6 +757,10 @@ TEST(TransportFeatures, EveryKernelOptionChangesTheFlags) {
   // The tracing stages' flags do not depend on the scene's materials, sampler or strategy.
   for (int k : {0, 1, 2, 3, 4, 8}) EXPECT_EQ(variants[k].trace_defines(), base.trace_defines()) << k;
   EXPECT_EQ(cpu.describe(), "diffuse; sampler sobol; strategy mis; lanes 1; bvh 4-wide; ray packets off; cpu device");
+  xi::KernelConfig wide = variants[9];
+  wide.bvh_width = 8;
+  EXPECT_EQ(wide.describe(),
+            "diffuse; sampler sobol; strategy mis; lanes 1; bvh 8-wide; packets of 16 rays; ray packets off");
 }
 
 // Features a scene does not use must change nothing: the Cornell box built with every feature

@@ -218,8 +218,8 @@ std::string device_selector(const Args& args, const Team& team) {
 Args parse_render_args(const std::vector<std::string>& argv) {
   return Args(argv,
               {"-o", "--spp", "--seed", "--device", "--max-depth", "--resolution", "--sampler", "--strategy",
-               "--local-size", "--lanes", "--bvh-width", "--ray-packets", "--kernels", "--reference", "--convergence", "--trace",
-               "--paths-in-flight", "--samples-per-pass",
+               "--local-size", "--lanes", "--bvh-width", "--ray-packets", "--packet-width", "--kernels", "--reference",
+               "--convergence", "--trace", "--paths-in-flight", "--samples-per-pass",
                "--time", "--snapshot-every", "--checkpoint", "--checkpoint-every", "--resume", "--camera", "--env",
                "--env-strength", "--env-rotate", "--background", "--threads"},
               {"--profile", "--quiet", "--all-features", "--no-spatial-splits"});
@@ -278,6 +278,7 @@ void read_render_options(Job& job, const Args& args, const Team& team) {
   opt.lanes = args.get_int("--lanes", 0, 1, 8);
   opt.bvh_width = args.get_int("--bvh-width", 0, 1, 8);
   opt.ray_packets = parse_ray_packets(args.get("--ray-packets", "auto"));
+  opt.packet_width = args.get_int("--packet-width", 0, 8, 16);
   opt.shading_program = parse_shading_program(args.get("--kernels", "auto"));
   opt.all_features = args.has("--all-features");
   opt.spatial_splits = !args.has("--no-spatial-splits");
@@ -416,14 +417,15 @@ void print_scene(const Job& job) {
 void print_kernels(const Job& job, const Team& team) {
   const Renderer& renderer = *job.renderer;
   const CompiledScene& cs = renderer.compiled();
-  std::printf("bvh: %zu %d-wide nodes, %zu leaves, %zu triangle references, depth %d, stack %zu, built in %.2f ms "
-              "on %zu thread%s%s\n",
-              cs.bvh.stats.nodes, cs.bvh.width, cs.bvh.stats.leaves, cs.bvh.stats.references, cs.bvh.stats.depth,
-              cs.bvh.stats.stack, cs.bvh.stats.build_seconds * 1e3, cs.bvh.stats.threads,
-              cs.bvh.stats.threads == 1 ? "" : "s",
-              renderer.kernels().ray_packets ? "; camera, bounce and shadow rays in packets of 8"
-              : cs.bvh.width == 8       ? "; camera rays in packets of 8"
-                                        : "");
+  std::printf(
+      "bvh: %zu %d-wide nodes, %zu leaves, %zu triangle references, depth %d, stack %zu, built in %.2f ms "
+      "on %zu thread%s%s%s\n",
+      cs.bvh.stats.nodes, cs.bvh.width, cs.bvh.stats.leaves, cs.bvh.stats.references, cs.bvh.stats.depth,
+      cs.bvh.stats.stack, cs.bvh.stats.build_seconds * 1e3, cs.bvh.stats.threads, cs.bvh.stats.threads == 1 ? "" : "s",
+      renderer.kernels().ray_packets ? "; camera, bounce and shadow rays in packets of "
+      : cs.bvh.width == 8            ? "; camera rays in packets of "
+                                     : "",
+      cs.bvh.width == 8 ? std::to_string(renderer.kernels().packet_width).c_str() : "");
   std::printf("kernels: %s in %.3f s%s\n", renderer.program().from_cache ? "loaded from cache" : "compiled",
               renderer.program().build_seconds,
               !renderer.generic_shading()        ? ""

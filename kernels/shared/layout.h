@@ -97,15 +97,24 @@ typedef struct {
 #if XI_BVH_WIDTH != 4 && XI_BVH_WIDTH != 8
 #error "XI_BVH_WIDTH must be 4 or 8"
 #endif
-// Rays per extend work item (extend.cl): packets of 8 through an 8-wide tree for camera rays
-// (bounce 0), and for bounce rays too where the host chose ray packets (XI_RAY_PACKETS: a small
-// tree, RenderOptions::ray_packets); otherwise one. The host launches extend accordingly.
+// Rays per extend work item (extend.cl): a packet (XI_PACKET_WIDTH rays) through an 8-wide tree for
+// camera rays (bounce 0), and for bounce rays too where the host chose ray packets (XI_RAY_PACKETS:
+// a small tree, RenderOptions::ray_packets); otherwise one. The host launches extend accordingly.
 #ifndef XI_RAY_PACKETS
 #define XI_RAY_PACKETS 0
 #endif
-#define XI_EXTEND_PACKET(bvh_width, bounce, ray_packets) ((bvh_width) == 8 && ((bounce) == 0 || (ray_packets)) ? 8 : 1)
-// Shadow rays per shadow work item (shadow.cl): packets of 8 with ray packets, else one.
-#define XI_SHADOW_PACKET(bvh_width, ray_packets) ((bvh_width) == 8 && (ray_packets) ? 8 : 1)
+#define XI_EXTEND_PACKET(bvh_width, bounce, ray_packets, packet_width) \
+  ((bvh_width) == 8 && ((bounce) == 0 || (ray_packets)) ? (packet_width) : 1)
+// Shadow rays per shadow work item (shadow.cl): a packet with ray packets, else one.
+#define XI_SHADOW_PACKET(bvh_width, ray_packets, packet_width) ((bvh_width) == 8 && (ray_packets) ? (packet_width) : 1)
+// Rays in a packet (packet.h), set by the host (KernelConfig::packet_width): 16 on CPUs with 512-bit
+// vectors, else 8.
+#ifndef XI_PACKET_WIDTH
+#define XI_PACKET_WIDTH 8
+#endif
+#if XI_PACKET_WIDTH != 8 && XI_PACKET_WIDTH != 16
+#error "XI_PACKET_WIDTH must be 8 or 16"
+#endif
 typedef struct {
   float4 bounds[6];  // child boxes, lane k = child k: lo x, hi x, lo y, hi y, lo z, hi z
   uint child[4];     // interior child: its node index; leaf: see above

@@ -1,13 +1,15 @@
-// Rays in packets of eight through an 8-wide tree: the extend kernel's camera rays, and in a small
-// tree its bounce rays and the shadow kernel's rays too (layout.h's XI_EXTEND_PACKET and
-// XI_SHADOW_PACKET).
+// Rays in packets through an 8-wide tree: the extend kernel's camera rays, and in a small tree its
+// bounce rays and the shadow kernel's rays too (layout.h's XI_EXTEND_PACKET and XI_SHADOW_PACKET).
+// A packet is XI_PACKET_WIDTH rays, one per vector lane: 8 (float8), or 16 (float16) where the CPU
+// has 512-bit vectors, so that one instruction tests a box or a triangle against all of them.
 //
-// Eight rays go through the tree together: a node's eight child boxes are each tested against the
-// eight rays, and a leaf's triangles each against the eight rays at once, so a node's loads, its
-// stack entries and its branches serve eight rays, and a leaf of two triangles no longer costs each
-// ray a whole eight-lane block test. A node is entered when any of the rays enters it, so the packet
-// does the union of its rays' work: for neighbouring camera rays little more than each one's; for
-// bounce rays, which part ways, little more only where each ray visits most of the tree anyway.
+// The packet's rays go through the tree together: a node's eight child boxes are each tested
+// against all the rays, and a leaf's triangles each against all the rays at once, so a node's
+// loads, its stack entries and its branches serve every ray, and a leaf of two triangles no longer
+// costs each ray a whole eight-lane block test. A node is entered when any of the rays enters it,
+// so the packet does the union of its rays' work: for neighbouring camera rays little more than
+// each one's; for bounce rays, which part ways, little more only where each ray visits most of the
+// tree anyway.
 // Each ray's hit is the one xi_trace finds, bitwise (the same box and triangle arithmetic per lane;
 // where two triangles are hit at exactly the same t, the order of traversal may pick the other).
 #ifndef XI_PACKET_H
@@ -19,62 +21,84 @@
 // Every operation rounded as written, as in xi_trace.
 #pragma OPENCL FP_CONTRACT OFF
 
-static inline float xi_lanes_min8(float8 v) {
-  float4 a = xi_min(v.lo, v.hi);
+// The least and the greatest of a packet's lanes.
+static inline float xi_packet_min(PacketFloat v) {
+#if XI_PACKET_WIDTH == 16
+  float8 w = xi_min(v.lo, v.hi);
+#else
+  float8 w = v;
+#endif
+  float4 a = xi_min(w.lo, w.hi);
   float2 b = xi_min(a.lo, a.hi);
   return b.x < b.y ? b.x : b.y;
 }
-static inline float xi_lanes_max8(float8 v) {
-  float4 a = xi_max(v.lo, v.hi);
+static inline float xi_packet_max(PacketFloat v) {
+#if XI_PACKET_WIDTH == 16
+  float8 w = xi_max(v.lo, v.hi);
+#else
+  float8 w = v;
+#endif
+  float4 a = xi_max(w.lo, w.hi);
   float2 b = xi_max(a.lo, a.hi);
   return b.x > b.y ? b.x : b.y;
 }
 
-// Eight rays (lane k = ray k) as the traversal uses them. Each ray has its own axis permutation
+// A packet's rays (lane k = ray k) as the traversal uses them. Each ray has its own axis permutation
 // (the triangle test's) and near planes (the slab test's), chosen per lane by selects. Where all
-// eight share both, as neighbouring camera rays do, the packet is `coherent`: it loads the one
+// rays share both, as neighbouring camera rays do, the packet is `coherent`: it loads the one
 // permutation's coordinates and the one set of near planes by index, as xi_trace does for one ray,
 // which spares a select per plane and per coordinate on every node and triangle the packet visits.
 typedef struct {
-  RayShear8 shear;
-  float8 ox, oy, oz;             // origins
-  float8 inv_x, inv_y, inv_z;    // 1 / direction, as xi_safe_inverse
-  int8 back_x, back_y, back_z;   // direction negative on the axis: the box's hi plane is the near one
-  bool coherent;                 // one permutation and one sign per axis for all eight rays
+  RayShearPacket shear;
+  PacketFloat ox, oy, oz;            // origins
+  PacketFloat inv_x, inv_y, inv_z;   // 1 / direction, as xi_safe_inverse
+  PacketInt back_x, back_y, back_z;  // direction negative on the axis: the box's hi plane is the near one
+  bool coherent;                     // one permutation and one sign per axis for all the rays
   int near_x, near_y, near_z;    // lane 0's near planes as xi_trace's, all rays' where coherent
 } Packet;
 
-static inline XI_INLINE Packet xi_packet(float8 ox, float8 oy, float8 oz, float8 dx, float8 dy, float8 dz) {
+static inline XI_INLINE Packet xi_packet(PacketFloat ox, PacketFloat oy, PacketFloat oz, PacketFloat dx, PacketFloat dy,
+                                         PacketFloat dz) {
   Packet p;
-  p.shear = xi_ray_shear8(ox, oy, oz, dx, dy, dz);
+  p.shear = xi_ray_shear_packet(ox, oy, oz, dx, dy, dz);
   p.ox = ox, p.oy = oy, p.oz = oz;
-  p.inv_x = select((float8)1e30f, 1.0f / dx, dx != 0.0f);
-  p.inv_y = select((float8)1e30f, 1.0f / dy, dy != 0.0f);
-  p.inv_z = select((float8)1e30f, 1.0f / dz, dz != 0.0f);
+  p.inv_x = select((PacketFloat)1e30f, 1.0f / dx, dx != 0.0f);
+  p.inv_y = select((PacketFloat)1e30f, 1.0f / dy, dy != 0.0f);
+  p.inv_z = select((PacketFloat)1e30f, 1.0f / dz, dz != 0.0f);
   p.back_x = p.inv_x < 0.0f, p.back_y = p.inv_y < 0.0f, p.back_z = p.inv_z < 0.0f;
   p.near_x = p.back_x.s0 ? 1 : 0, p.near_y = p.back_y.s0 ? 3 : 2, p.near_z = p.back_z.s0 ? 5 : 4;
-  const uint back_x = xi_lane_bits8(dx < 0.0f), back_y = xi_lane_bits8(dy < 0.0f), back_z = xi_lane_bits8(dz < 0.0f);
-  p.coherent = p.shear.same_axes && (back_x == 0u || back_x == 0xffu) && (back_y == 0u || back_y == 0xffu) &&
-               (back_z == 0u || back_z == 0xffu);
+  const uint back_x = xi_packet_bits(dx < 0.0f), back_y = xi_packet_bits(dy < 0.0f), back_z = xi_packet_bits(dz < 0.0f);
+  p.coherent = p.shear.same_axes && (back_x == 0u || back_x == XI_PACKET_ALL) &&
+               (back_y == 0u || back_y == XI_PACKET_ALL) && (back_z == 0u || back_z == XI_PACKET_ALL);
   return p;
 }
 
-// Lane k of node n's bound `plane` (lo x, hi x, lo y, ...: 0 to 5), for all eight rays.
-static inline XI_INLINE float8 xi_node_plane(__global const BvhNode8* n, int plane, uint k) {
+// A packet's vector from one value per ray: f(k) for lane k.
+#if XI_PACKET_WIDTH == 16
+#define XI_PACKET_LANES(f) \
+  (PacketFloat)(f(0), f(1), f(2), f(3), f(4), f(5), f(6), f(7), f(8), f(9), f(10), f(11), f(12), f(13), f(14), f(15))
+#else
+#define XI_PACKET_LANES(f) (PacketFloat)(f(0), f(1), f(2), f(3), f(4), f(5), f(6), f(7))
+#endif
+// Lane k of a packet's vector; k is a constant once a loop over the lanes is unrolled.
+#define XI_PACKET_LANE(type, v, k) (((const type*)&(v))[k])
+
+// Lane k of node n's bound `plane` (lo x, hi x, lo y, ...: 0 to 5), for all the packet's rays.
+static inline XI_INLINE PacketFloat xi_node_plane(__global const BvhNode8* n, int plane, uint k) {
   __global const float* lanes = (__global const float*)&n->bounds[plane];
-  return (float8)(lanes[k]);
+  return (PacketFloat)(lanes[k]);
 }
 
 // Child k's near and far planes on one axis (lo: that axis's lo plane, 0, 2 or 4) for each ray:
 // the lo plane is the near one where the ray's direction is positive on the axis, the hi plane
 // where it is negative (`back`). Coherent: the packet's near plane `near`, by index.
-static inline XI_INLINE void xi_packet_slab(__global const BvhNode8* n, uint k, int lo, int8 back, int near,
-                                            bool coherent, float8* near_plane, float8* far_plane) {
+static inline XI_INLINE void xi_packet_slab(__global const BvhNode8* n, uint k, int lo, PacketInt back, int near,
+                                            bool coherent, PacketFloat* near_plane, PacketFloat* far_plane) {
   if (coherent) {
     *near_plane = xi_node_plane(n, near, k);
     *far_plane = xi_node_plane(n, near ^ 1, k);
   } else {
-    const float8 lo_plane = xi_node_plane(n, lo, k), hi_plane = xi_node_plane(n, lo + 1, k);
+    const PacketFloat lo_plane = xi_node_plane(n, lo, k), hi_plane = xi_node_plane(n, lo + 1, k);
     *near_plane = select(lo_plane, hi_plane, back);
     *far_plane = select(hi_plane, lo_plane, back);
   }
@@ -83,43 +107,43 @@ static inline XI_INLINE void xi_packet_slab(__global const BvhNode8* n, uint k, 
 // Whether any ray enters child k of node n before its best hit, each by xi_trace's slab test; if
 // so, *t_enter is the nearest distance at which one does.
 static inline XI_INLINE bool xi_packet_enters(const Packet* p, bool coherent, __global const BvhNode8* n, uint k,
-                                              float8 best, float* t_enter) {
-  float8 nx, fx, ny, fy, nz, fz;
+                                              PacketFloat best, float* t_enter) {
+  PacketFloat nx, fx, ny, fy, nz, fz;
   xi_packet_slab(n, k, 0, p->back_x, p->near_x, coherent, &nx, &fx);
   xi_packet_slab(n, k, 2, p->back_y, p->near_y, coherent, &ny, &fy);
   xi_packet_slab(n, k, 4, p->back_z, p->near_z, coherent, &nz, &fz);
-  const float8 tn = xi_max(xi_max((nx - p->ox) * p->inv_x, (ny - p->oy) * p->inv_y),
-                           xi_max((nz - p->oz) * p->inv_z, (float8)0.0f));
-  const float8 tf = xi_min(xi_min((fx - p->ox) * p->inv_x, (fy - p->oy) * p->inv_y),
-                           xi_min((fz - p->oz) * p->inv_z, best));
-  const int8 enter = xi_less_equal(tn, tf * XI_BOX_SLACK);
-  if (xi_lane_bits8(enter) == 0u) return false;
-  *t_enter = xi_lanes_min8(select((float8)INFINITY, tn, enter));
+  const PacketFloat tn = xi_max(xi_max((nx - p->ox) * p->inv_x, (ny - p->oy) * p->inv_y),
+                                xi_max((nz - p->oz) * p->inv_z, (PacketFloat)0.0f));
+  const PacketFloat tf =
+      xi_min(xi_min((fx - p->ox) * p->inv_x, (fy - p->oy) * p->inv_y), xi_min((fz - p->oz) * p->inv_z, best));
+  const PacketInt enter = xi_less_equal(tn, tf * XI_BOX_SLACK);
+  if (xi_packet_bits(enter) == 0u) return false;
+  *t_enter = xi_packet_min(select((PacketFloat)INFINITY, tn, enter));
   return true;
 }
 
 // The traversal of one packet, as xi_trace's of one ray: closest hits, or with any_hit, for each ray
 // whether there is a hit before its tmax. Called with `coherent` and `any_hit` constants
-// (xi_packet8_query), so each of the four cases compiles to its own loop, neither tested inside it.
-static inline XI_INLINE void xi_packet8_traverse(__global const BvhNode8* nodes, __global const TriBlock* blocks,
-                                                 const Packet* p, bool coherent, bool any_hit, float8 tmax,
-                                                 float8* t, float8* u, float8* v, uint8* tri) {
+// (xi_packet_query), so each of the four cases compiles to its own loop, neither tested inside it.
+static inline XI_INLINE void xi_packet_traverse(__global const BvhNode8* nodes, __global const TriBlock* blocks,
+                                                const Packet* p, bool coherent, bool any_hit, PacketFloat tmax,
+                                                PacketFloat* t, PacketFloat* u, PacketFloat* v, PacketUint* tri) {
   uint2 stack[XI_BVH_STACK];  // distances: the nearest at which one of the rays enters the entry
   uint sp = 0u, entry = 0u;
-  float8 best = tmax, best_u = 0.0f, best_v = 0.0f;
-  uint8 found = (uint8)XI_NO_HIT;
+  PacketFloat best = tmax, best_u = 0.0f, best_v = 0.0f;
+  PacketUint found = (PacketUint)XI_NO_HIT;
   for (;;) {
     if (entry & XI_BVH_LEAF) {
       const uint end = xi_leaf_end(entry);
       for (uint k = xi_leaf_first(entry); k < end; ++k) {
         for (uint j = 0u; j < 4u && blocks[k].tri[j] != XI_NO_HIT; ++j) {  // unused lanes come last
-          float8 tt, uu, vv;
-          const int8 hit = xi_intersect_packet(&p->shear, coherent, blocks + k, j, best, &tt, &uu, &vv);
-          if (xi_lane_bits8(hit) == 0u) continue;
-          found = select(found, (uint8)blocks[k].tri[j], hit);
+          PacketFloat tt, uu, vv;
+          const PacketInt hit = xi_intersect_packet(&p->shear, coherent, blocks + k, j, best, &tt, &uu, &vv);
+          if (xi_packet_bits(hit) == 0u) continue;
+          found = select(found, (PacketUint)blocks[k].tri[j], hit);
           if (any_hit) {  // a ray that is done enters no box and hits no triangle again
-            best = select(best, (float8)(-INFINITY), hit);
-            if (xi_lane_bits8(found != (uint8)XI_NO_HIT) == 0xffu) {
+            best = select(best, (PacketFloat)(-INFINITY), hit);
+            if (xi_packet_bits(found != (PacketUint)XI_NO_HIT) == XI_PACKET_ALL) {
               *tri = found;
               return;
             }
@@ -145,42 +169,43 @@ static inline XI_INLINE void xi_packet8_traverse(__global const BvhNode8* nodes,
         if (hits & (1u << k)) xi_push(stack, &sp, base, n->child[k], t_enter[k], any_hit);
     }
     // The nearest entry that some ray enters before its best hit so far.
-    if (!xi_pop(stack, &sp, xi_lanes_max8(best) * XI_BOX_SLACK, &entry)) {
+    if (!xi_pop(stack, &sp, xi_packet_max(best) * XI_BOX_SLACK, &entry)) {
       *t = best, *u = best_u, *v = best_v, *tri = found;
       return;
     }
   }
 }
 
-// Eight rays (origins o, unit directions d, lane k = ray k) as xi_trace takes one: the coherent or
+// A packet's rays (origins o, unit directions d, lane k = ray k) as xi_trace takes one: the coherent or
 // the per-ray traversal, whichever the rays allow.
-static inline XI_INLINE void xi_packet8_query(__global const BvhNode8* nodes, __global const TriBlock* blocks,
-                                              float8 ox, float8 oy, float8 oz, float8 dx, float8 dy, float8 dz,
-                                              float8 tmax, bool any_hit, float8* t, float8* u, float8* v,
-                                              uint8* tri) {
+static inline XI_INLINE void xi_packet_query(__global const BvhNode8* nodes, __global const TriBlock* blocks,
+                                             PacketFloat ox, PacketFloat oy, PacketFloat oz, PacketFloat dx,
+                                             PacketFloat dy, PacketFloat dz, PacketFloat tmax, bool any_hit,
+                                             PacketFloat* t, PacketFloat* u, PacketFloat* v, PacketUint* tri) {
   const Packet p = xi_packet(ox, oy, oz, dx, dy, dz);
   if (p.coherent)
-    xi_packet8_traverse(nodes, blocks, &p, true, any_hit, tmax, t, u, v, tri);
+    xi_packet_traverse(nodes, blocks, &p, true, any_hit, tmax, t, u, v, tri);
   else
-    xi_packet8_traverse(nodes, blocks, &p, false, any_hit, tmax, t, u, v, tri);
+    xi_packet_traverse(nodes, blocks, &p, false, any_hit, tmax, t, u, v, tri);
 }
 
-// Closest hits of eight rays in (0, ∞): sets *t, *u, *v and *tri per lane as xi_trace would (tri
+// Closest hits of a packet's rays in (0, ∞): sets *t, *u, *v and *tri per lane as xi_trace would (tri
 // XI_NO_HIT for a miss).
-static inline void xi_trace_packet8(__global const BvhNode8* nodes, __global const TriBlock* blocks, float8 ox,
-                                    float8 oy, float8 oz, float8 dx, float8 dy, float8 dz, float8* t, float8* u,
-                                    float8* v, uint8* tri) {
-  xi_packet8_query(nodes, blocks, ox, oy, oz, dx, dy, dz, (float8)INFINITY, false, t, u, v, tri);
+static inline void xi_trace_packet(__global const BvhNode8* nodes, __global const TriBlock* blocks, PacketFloat ox,
+                                   PacketFloat oy, PacketFloat oz, PacketFloat dx, PacketFloat dy, PacketFloat dz,
+                                   PacketFloat* t, PacketFloat* u, PacketFloat* v, PacketUint* tri) {
+  xi_packet_query(nodes, blocks, ox, oy, oz, dx, dy, dz, (PacketFloat)INFINITY, false, t, u, v, tri);
 }
 
-// The rays of eight (tmax per ray) that hit something before their tmax, as bits (lane k: bit k),
+// The rays of a packet (tmax per ray) that hit something before their tmax, as bits (lane k: bit k),
 // each as xi_trace's any-hit query finds.
-static inline uint xi_occluded_packet8(__global const BvhNode8* nodes, __global const TriBlock* blocks, float8 ox,
-                                       float8 oy, float8 oz, float8 dx, float8 dy, float8 dz, float8 tmax) {
-  float8 t, u, v;
-  uint8 tri;
-  xi_packet8_query(nodes, blocks, ox, oy, oz, dx, dy, dz, tmax, true, &t, &u, &v, &tri);
-  return xi_lane_bits8(tri != (uint8)XI_NO_HIT);
+static inline uint xi_occluded_packet(__global const BvhNode8* nodes, __global const TriBlock* blocks, PacketFloat ox,
+                                      PacketFloat oy, PacketFloat oz, PacketFloat dx, PacketFloat dy, PacketFloat dz,
+                                      PacketFloat tmax) {
+  PacketFloat t, u, v;
+  PacketUint tri;
+  xi_packet_query(nodes, blocks, ox, oy, oz, dx, dy, dz, tmax, true, &t, &u, &v, &tri);
+  return xi_packet_bits(tri != (PacketUint)XI_NO_HIT);
 }
 
 #pragma OPENCL FP_CONTRACT DEFAULT

@@ -1,7 +1,7 @@
 // The watertight ray/triangle test (Woop, Benthin and Wald 2013) with a bound on the rounding error
 // of t, in three forms that find bitwise the same hits: one ray and one triangle (the reference the
-// host's tests use), one ray and a leaf's block of 4 or 8 triangles (xi_trace), and eight rays and
-// one triangle (ray packets, 8-wide trees only).
+// host's tests use), one ray and a leaf's block of 4 or 8 triangles (xi_trace), and a packet of
+// rays and one triangle (ray packets, 8-wide trees only).
 #ifndef XI_TRIANGLE_H
 #define XI_TRIANGLE_H
 #include "compat.h"
@@ -182,39 +182,55 @@ static inline uint xi_intersect_block(RayShear s, __global const TriBlock* b0, _
   return xi_block_lane_bits(candidate & xi_greater4(t, e->t_err_det / fabs(det)));
 }
 
-// --- eight rays, one triangle ------------------------------------------------------------------
+// --- a packet of rays, one triangle ---------------------------------------------------------------
 
 #if XI_BVH_WIDTH == 8
-// xi_ray_shear's constants for eight rays (lane k = ray k), each with its own axis permutation.
-// Where all eight share it, as neighbouring camera rays do, a vertex's coordinates are loaded by
+// A packet's lanes, one ray each: XI_PACKET_WIDTH of them (layout.h).
+#if XI_PACKET_WIDTH == 16
+typedef float16 PacketFloat;
+typedef int16 PacketInt;
+typedef uint16 PacketUint;
+static inline uint xi_packet_bits(PacketInt m) { return xi_lane_bits8(m.lo) | xi_lane_bits8(m.hi) << 8; }
+#else
+typedef float8 PacketFloat;
+typedef int8 PacketInt;
+typedef uint8 PacketUint;
+static inline uint xi_packet_bits(PacketInt m) { return xi_lane_bits8(m); }
+#endif
+#define XI_PACKET_ALL ((1u << XI_PACKET_WIDTH) - 1u)
+
+// xi_ray_shear's constants for a packet's rays (lane k = ray k), each with its own axis permutation.
+// Where all share it, as neighbouring camera rays do, a vertex's coordinates are loaded by
 // the packet's permutation as indices, as for one ray, instead of chosen per lane by selects.
 typedef struct {
-  int8 kz0, kz1;       // the lanes whose ray permutes with kz 0, with kz 1 (kz 2: unchanged)
-  bool same_axes;      // all eight rays permute their axes alike: by to_x, to_y, kz
+  PacketInt kz0, kz1;  // the lanes whose ray permutes with kz 0, with kz 1 (kz 2: unchanged)
+  bool same_axes;      // all the rays permute their axes alike: by to_x, to_y, kz
   int to_x, to_y, kz;  // lane 0's permutation
-  float8 ox, oy, oz;   // the origins, permuted
-  float8 sx, sy, sz;
-} RayShear8;
+  PacketFloat ox, oy, oz;  // the origins, permuted
+  PacketFloat sx, sy, sz;
+} RayShearPacket;
 
 // The rays' permuted axes, lane by lane (xi_permute_axes with each lane's kz).
-static inline float8 xi_permuted_x(const RayShear8* s, float8 x, float8 y, float8 z) {
+static inline PacketFloat xi_permuted_x(const RayShearPacket* s, PacketFloat x, PacketFloat y, PacketFloat z) {
   return select(select(x, z, s->kz1), y, s->kz0);
 }
-static inline float8 xi_permuted_y(const RayShear8* s, float8 x, float8 y, float8 z) {
+static inline PacketFloat xi_permuted_y(const RayShearPacket* s, PacketFloat x, PacketFloat y, PacketFloat z) {
   return select(select(y, x, s->kz1), z, s->kz0);
 }
-static inline float8 xi_permuted_z(const RayShear8* s, float8 x, float8 y, float8 z) {
+static inline PacketFloat xi_permuted_z(const RayShearPacket* s, PacketFloat x, PacketFloat y, PacketFloat z) {
   return select(select(z, y, s->kz1), x, s->kz0);
 }
 
-static inline XI_INLINE RayShear8 xi_ray_shear8(float8 ox, float8 oy, float8 oz, float8 dx, float8 dy, float8 dz) {
-  const float8 adx = fabs(dx), ady = fabs(dy), adz = fabs(dz);
-  const int8 kz = select(select((int8)2, (int8)1, ady > adz), select((int8)2, (int8)0, adx > adz), adx > ady);
-  RayShear8 s;
-  s.kz0 = kz == (int8)0;
-  s.kz1 = kz == (int8)1;
+static inline XI_INLINE RayShearPacket xi_ray_shear_packet(PacketFloat ox, PacketFloat oy, PacketFloat oz,
+                                                           PacketFloat dx, PacketFloat dy, PacketFloat dz) {
+  const PacketFloat adx = fabs(dx), ady = fabs(dy), adz = fabs(dz);
+  const PacketInt kz =
+      select(select((PacketInt)2, (PacketInt)1, ady > adz), select((PacketInt)2, (PacketInt)0, adx > adz), adx > ady);
+  RayShearPacket s;
+  s.kz0 = kz == (PacketInt)0;
+  s.kz1 = kz == (PacketInt)1;
   s.kz = kz.s0;
-  s.same_axes = xi_lane_bits8(kz != (int8)s.kz) == 0u;
+  s.same_axes = xi_packet_bits(kz != (PacketInt)s.kz) == 0u;
   s.to_x = xi_axis_to_x(s.kz);
   s.to_y = xi_axis_to_y(s.kz);
   s.ox = xi_permuted_x(&s, ox, oy, oz);
@@ -226,48 +242,50 @@ static inline XI_INLINE RayShear8 xi_ray_shear8(float8 ox, float8 oy, float8 oz,
   return s;
 }
 
-// Coordinate `axis` of vertex `vertex` of triangle j of a block, for all eight rays.
-static inline XI_INLINE float8 xi_packet_coord(__global const TriBlock* block, int axis, int vertex, uint j) {
+// Coordinate `axis` of vertex `vertex` of triangle j of a block, for all the packet's rays.
+static inline XI_INLINE PacketFloat xi_packet_coord(__global const TriBlock* block, int axis, int vertex, uint j) {
   __global const float* coord = (__global const float*)block->coord;  // [axis][vertex][triangle]
-  return (float8)(coord[(axis * 3 + vertex) * 4 + j]);
+  return (PacketFloat)(coord[(axis * 3 + vertex) * 4 + j]);
 }
 
 // Vertex `vertex` of triangle j of a block, for each ray: axes permuted as its own (`same_axes`: as
 // lane 0's, which all share, by index) and relative to its origin.
-static inline XI_INLINE void xi_packet_vertex(__global const TriBlock* block, uint j, int vertex, const RayShear8* s,
-                                              bool same_axes, float8* x, float8* y, float8* z) {
+static inline XI_INLINE void xi_packet_vertex(__global const TriBlock* block, uint j, int vertex,
+                                              const RayShearPacket* s, bool same_axes, PacketFloat* x, PacketFloat* y,
+                                              PacketFloat* z) {
   if (same_axes) {
     *x = xi_packet_coord(block, s->to_x, vertex, j) - s->ox;
     *y = xi_packet_coord(block, s->to_y, vertex, j) - s->oy;
     *z = xi_packet_coord(block, s->kz, vertex, j) - s->oz;
   } else {
-    const float8 vx = xi_packet_coord(block, 0, vertex, j), vy = xi_packet_coord(block, 1, vertex, j),
-                 vz = xi_packet_coord(block, 2, vertex, j);
+    const PacketFloat vx = xi_packet_coord(block, 0, vertex, j), vy = xi_packet_coord(block, 1, vertex, j),
+                      vz = xi_packet_coord(block, 2, vertex, j);
     *x = xi_permuted_x(s, vx, vy, vz) - s->ox;
     *y = xi_permuted_y(s, vx, vy, vz) - s->oy;
     *z = xi_permuted_z(s, vx, vy, vz) - s->oz;
   }
 }
 
-// Triangle j of a block against eight rays, each as xi_intersect_block's test and then xi_edge_hit's
+// Triangle j of a block against a packet's rays, each as xi_intersect_block's test and then xi_edge_hit's
 // finish would find it: the lanes whose ray hits it in (t error, tmax), with t, u, v there. The
 // bound is computed only once some ray has passed the cheaper tests (packets run on CPUs only).
-static inline XI_INLINE int8 xi_intersect_packet(const RayShear8* s, bool same_axes, __global const TriBlock* block,
-                                                 uint j, float8 tmax, float8* t, float8* u, float8* v) {
-  float8 ax, ay, az, bx, by, bz, cx, cy, cz, e0, e1, e2, t_det;
+static inline XI_INLINE PacketInt xi_intersect_packet(const RayShearPacket* s, bool same_axes,
+                                                      __global const TriBlock* block, uint j, PacketFloat tmax,
+                                                      PacketFloat* t, PacketFloat* u, PacketFloat* v) {
+  PacketFloat ax, ay, az, bx, by, bz, cx, cy, cz, e0, e1, e2, t_det;
   xi_packet_vertex(block, j, 0, s, same_axes, &ax, &ay, &az);
   xi_packet_vertex(block, j, 1, s, same_axes, &bx, &by, &bz);
   xi_packet_vertex(block, j, 2, s, same_axes, &cx, &cy, &cz);
   XI_SHEAR_EDGES(s->sx, s->sy, s->sz, ax, ay, az, bx, by, bz, cx, cy, cz, e0, e1, e2, t_det);
-  const float8 zero = 0.0f;
-  int8 mixed = (xi_less4(e0, zero) | xi_less4(e1, zero) | xi_less4(e2, zero)) &
-               (xi_greater4(e0, zero) | xi_greater4(e1, zero) | xi_greater4(e2, zero));
-  float8 det = e0 + e1 + e2;
+  const PacketFloat zero = 0.0f;
+  PacketInt mixed = (xi_less4(e0, zero) | xi_less4(e1, zero) | xi_less4(e2, zero)) &
+                    (xi_greater4(e0, zero) | xi_greater4(e1, zero) | xi_greater4(e2, zero));
+  PacketFloat det = e0 + e1 + e2;
   *t = t_det / det;
-  int8 hit = xi_greater4(*t, zero) & xi_less4(*t, tmax) & ~mixed;
-  if (xi_lane_bits8(hit) == 0u) return hit;
-  float8 t_err_det;
-  XI_T_ERROR_DET(float8, xi_max, s->sz, ax, ay, az, bx, by, bz, cx, cy, cz, e0, e1, e2, t_err_det)
+  PacketInt hit = xi_greater4(*t, zero) & xi_less4(*t, tmax) & ~mixed;
+  if (xi_packet_bits(hit) == 0u) return hit;
+  PacketFloat t_err_det;
+  XI_T_ERROR_DET(PacketFloat, xi_max, s->sz, ax, ay, az, bx, by, bz, cx, cy, cz, e0, e1, e2, t_err_det)
   *u = e1 / det;
   *v = e2 / det;
   return hit & xi_greater4(*t, t_err_det / fabs(det));

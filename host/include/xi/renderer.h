@@ -53,11 +53,14 @@ struct RenderOptions {
   // counted it. Auto: exact on a CPU device, lagged elsewhere (Renderer::run_wave says why).
   enum class LaunchBound { Auto, Exact, Lagged };
   LaunchBound launch_bound = LaunchBound::Auto;
-  // Bounce and shadow rays through an 8-wide tree in packets of eight, as camera rays always go
+  // Bounce and shadow rays through an 8-wide tree in packets, as camera rays always go
   // (kernels/extend.cl, shadow.cl); the image does not depend on it. Auto: where the tree is small
   // enough that each ray visits most of it anyway (KernelConfig::make decides).
   enum class RayPackets { Auto, On, Off };
   RayPackets ray_packets = RayPackets::Auto;
+  // Rays per packet, 8 or 16; 0: the device's default (KernelConfig::make: 16 on a CPU device with
+  // 512-bit vectors, else 8). The image does not depend on it.
+  int packet_width = 0;
   // Which program shades (generate and shade). Scene: the scene's own, compiled for what it uses
   // (the constructor waits for its build unless it is cached). Generic: the one program that reads
   // the scene's shading word at run time (kernels/shared/shading.h). Auto: the scene's own if

@@ -24,7 +24,7 @@ class RayProbe {
   const RayBatch& recorded() const { return recorded_; }
 
   // Runs the extend stage alone on the given rays (at most the paths in flight) as it runs at
-  // `bounce`: in packets of 8 consecutive rays where XI_EXTEND_PACKET says so, else one by one.
+  // `bounce`: in packets of consecutive rays where XI_EXTEND_PACKET says so, else one by one.
   // Returns the kernel's time in seconds and the hits (t or −1, u, v, triangle in BVH order as
   // float bits).
   double trace_closest(const RayBatch& rays, std::vector<glm::vec4>* hits, int bounce);

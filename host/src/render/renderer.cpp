@@ -317,7 +317,8 @@ void Renderer::extend(const cl::Buffer& queue, int bounce, size_t global) {
   extend_.setArg(arg++, (uint32_t)bounce);
   extend_.setArg(arg++, nodes_);
   extend_.setArg(arg++, tri_blocks_);
-  launch(extend_, "extend", bounce, global, XI_EXTEND_PACKET(kernels_.bvh_width, bounce, kernels_.ray_packets));
+  launch(extend_, "extend", bounce, global,
+         XI_EXTEND_PACKET(kernels_.bvh_width, bounce, kernels_.ray_packets, kernels_.packet_width));
 }
 
 // Texture coordinates, texture records, image headers and texels, in that order (shade, shadow).
@@ -372,7 +373,8 @@ void Renderer::shadow(int bounce, size_t global) {
   shadow_.setArg(arg++, tri_material_);
   arg = bind_textures(shadow_, arg);
   shadow_.setArg(arg++, options_.seed);
-  launch(shadow_, "shadow", bounce, global, XI_SHADOW_PACKET(kernels_.bvh_width, kernels_.ray_packets));
+  launch(shadow_, "shadow", bounce, global,
+         XI_SHADOW_PACKET(kernels_.bvh_width, kernels_.ray_packets, kernels_.packet_width));
 }
 
 void Renderer::bind_accumulate(const WaveParams& wave) {
