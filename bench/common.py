@@ -84,10 +84,9 @@ def render(xi, scene, out, spp, seed=1, resolution=None, sampler=None, strategy=
     """Renders SCENE to OUT (an .exr; xi writes a .png beside it). Returns a dict: seconds (render time, from
     the EXR's renderSeconds), msamples and mrays (per second), features, and with a reference rmse and relmse.
 
-    The first time a kernel set runs at a resolution, PoCL compiles a work-group function inside the first
-    pass (xi's zero-item warm-up launch does not cover it), which adds up to seconds to that render's time
-    until PoCL's cache holds it. So each (scene, resolution, sampler, strategy, kernel set) is first rendered
-    once at 1 spp, untimed, unless warm_up is False."""
+    Each (scene, resolution, sampler, strategy, kernel set) is first rendered once at 1 spp, untimed, unless
+    warm_up is False, so that no timed render includes a kernel build (or, where PoCL's work-group
+    specialisation is on, the work-group functions it compiles per launch size inside the first pass)."""
     key = (str(xi), str(scene), resolution, sampler, strategy, all_features, device, max_depth)
     if warm_up and key not in _warm:
         _warm.add(key)

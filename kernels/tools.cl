@@ -56,13 +56,19 @@ __kernel void sample_bsdf(__global float4* restrict out, uint material, float4 n
   }
 }
 
-// xi_lane_bits8 and xi_lane_bits (the BVH traversal branches on them) on the comparison whose true
-// lanes are the set bits of i: out[i] = the 8-lane form, out[256 + i] = the 4-lane form on lanes 0–3.
+// xi_lane_bits8, xi_lane_bits and xi_lane_bits16 (the BVH traversal branches on them) on the
+// comparison whose true lanes are the set bits of i: out[i] = the 8-lane form, out[256 + i] = the
+// 4-lane form on lanes 0–3, out[512 + i] = the 16-lane form with lanes 8–15 set as the bits of
+// i ^ 0xa5.
 __kernel void lane_bits(__global uint* restrict out) {
   uint i = get_global_id(0);
   if (i >= 256u) return;
-  uint8 bit = ((uint8)(i) >> (uint8)(0u, 1u, 2u, 3u, 4u, 5u, 6u, 7u)) & (uint8)(1u);
+  const uint8 shift = (uint8)(0u, 1u, 2u, 3u, 4u, 5u, 6u, 7u);
+  uint8 bit = ((uint8)(i) >> shift) & (uint8)(1u);
   int8 m = convert_float8(bit) > (float8)(0.5f);
   out[i] = xi_lane_bits8(m);
   out[256u + i] = xi_lane_bits(m.lo);
+  uint8 high = ((uint8)(i ^ 0xa5u) >> shift) & (uint8)(1u);
+  int16 m16 = convert_float16((uint16)(bit, high)) > (float16)(0.5f);
+  out[512u + i] = xi_lane_bits16(m16);
 }

@@ -439,20 +439,21 @@ TEST_F(Kernel, PacketsFindTheHitsOfSingleRays) {
 }
 
 // The lane masks the traversal branches on (one movmskps on PoCL with AVX, a portable form on
-// other devices, built here too) name exactly the true lanes of every 8-lane comparison, and of its
-// low four lanes.
+// other devices, built here too) name exactly the true lanes of every 8-lane comparison, of its
+// low four lanes, and of 16-lane comparisons.
 TEST_F(Kernel, LaneBitsNameTheTrueLanes) {
   for (std::vector<std::string> defines : {std::vector<std::string>{}, {"XI_PORTABLE_LANE_BITS"}}) {
     SCOPED_TRACE(defines.empty() ? "the device's own form" : "the portable form");
     xi::Program tools = xi::build_program(*device_, {"tools.cl"}, defines);
     cl::Kernel k(tools.program, "lane_bits");
-    cl::Buffer out = buffer(garbage<uint32_t>(512));
+    cl::Buffer out = buffer(garbage<uint32_t>(768));
     k.setArg(0, out);
     launch(k, 256);
-    std::vector<uint32_t> bits = read<uint32_t>(out, 512);
+    std::vector<uint32_t> bits = read<uint32_t>(out, 768);
     for (uint32_t i = 0; i < 256; ++i) {
       EXPECT_EQ(bits[i], i) << "8 lanes";
       EXPECT_EQ(bits[256 + i], i & 15u) << "4 lanes, mask " << i;
+      EXPECT_EQ(bits[512 + i], i | (i ^ 0xa5u) << 8) << "16 lanes, mask " << i;
     }
   }
 }

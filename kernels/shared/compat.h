@@ -116,20 +116,28 @@ static inline float as_float_i(int i) { float f; std::memcpy(&f, &i, 4); return 
 #define XI_INV_PI 0.31830988618379067154f
 #define XI_ONE_MINUS_EPSILON 0x1.fffffep-1f  // the largest float below 1
 
-// Bit k set where lane k of a comparison (−1 true, 0 false) is true; xi_lane_bits8 for 8 lanes.
-// Compiled for x86 with AVX (PoCL on a CPU), one movmskps reads the lanes' sign bits: LLVM does
-// not find it in the portable form, which became some twenty shuffles, ands, ors and extracts per
-// node test; every hit is the same either way. (A test builds with XI_PORTABLE_LANE_BITS to check
-// the other devices' form on PoCL too.)
+// Bit k set where lane k of a comparison (−1 true, 0 false) is true; xi_lane_bits8 and
+// xi_lane_bits16 for 8 and 16 lanes. Compiled for x86 with AVX (PoCL on a CPU), one movmskps reads
+// the lanes' sign bits (with AVX-512, one vpmovd2m those of 16): LLVM does not find it in the
+// portable form, which became some twenty shuffles, ands, ors and extracts per node test; every
+// hit is the same either way. (A test builds with XI_PORTABLE_LANE_BITS to check the other
+// devices' form on PoCL too.)
 #if defined(__OPENCL_VERSION__) && defined(__clang__) && defined(__AVX__) && !defined(XI_PORTABLE_LANE_BITS)
 typedef float xi_m128 __attribute__((vector_size(16)));
 typedef float xi_m256 __attribute__((vector_size(32)));
 static inline uint xi_lane_bits(int4 m) { return (uint)__builtin_ia32_movmskps((xi_m128)as_float4(m)); }
 static inline uint xi_lane_bits8(int8 m) { return (uint)__builtin_ia32_movmskps256((xi_m256)as_float8(m)); }
+#ifdef __AVX512DQ__
+typedef int xi_m512i __attribute__((vector_size(64)));
+static inline uint xi_lane_bits16(int16 m) { return (uint)__builtin_ia32_cvtd2mask512((xi_m512i)m); }
+#else
+static inline uint xi_lane_bits16(int16 m) { return xi_lane_bits8(m.lo) | xi_lane_bits8(m.hi) << 8; }
+#endif
 #else
 static inline uint xi_lane_bits(int4 m) { return (uint)((m.x & 1) | (m.y & 2) | (m.z & 4) | (m.w & 8)); }
 #ifdef __OPENCL_VERSION__
 static inline uint xi_lane_bits8(int8 m) { return xi_lane_bits(m.lo) | xi_lane_bits(m.hi) << 4; }
+static inline uint xi_lane_bits16(int16 m) { return xi_lane_bits8(m.lo) | xi_lane_bits8(m.hi) << 8; }
 #endif
 #endif
 

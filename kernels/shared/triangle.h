@@ -190,7 +190,7 @@ static inline uint xi_intersect_block(RayShear s, __global const TriBlock* b0, _
 typedef float16 PacketFloat;
 typedef int16 PacketInt;
 typedef uint16 PacketUint;
-static inline uint xi_packet_bits(PacketInt m) { return xi_lane_bits8(m.lo) | xi_lane_bits8(m.hi) << 8; }
+static inline uint xi_packet_bits(PacketInt m) { return xi_lane_bits16(m); }
 #else
 typedef float8 PacketFloat;
 typedef int8 PacketInt;
