@@ -48,9 +48,15 @@ static inline void xi_extend_packet(__global const float4* ray_org, __global con
   PacketUint tri;
   xi_trace_packet(nodes, tri_blocks, XI_PACKET_LANES(XI_OX), XI_PACKET_LANES(XI_OY), XI_PACKET_LANES(XI_OZ),
                   XI_PACKET_LANES(XI_DX), XI_PACKET_LANES(XI_DY), XI_PACKET_LANES(XI_DZ), &t, &u, &v, &tri);
+#undef XI_OX
+#undef XI_OY
+#undef XI_OZ
+#undef XI_DX
+#undef XI_DY
+#undef XI_DZ
   XI_UNROLL for (uint k = 0u; k < XI_PACKET_WIDTH; ++k)
-      xi_store_hit(hit, slot[k], XI_PACKET_LANE(uint, tri, k), XI_PACKET_LANE(float, t, k), XI_PACKET_LANE(float, u, k),
-                   XI_PACKET_LANE(float, v, k));
+    xi_store_hit(hit, slot[k], XI_PACKET_LANE(uint, tri, k), XI_PACKET_LANE(float, t, k), XI_PACKET_LANE(float, u, k),
+                 XI_PACKET_LANE(float, v, k));
 }
 #endif
 

@@ -101,6 +101,13 @@ static inline void xi_shadow_packet(__global float4* radiance, __global const fl
   const uint occluded = xi_occluded_packet(nodes, tri_blocks, XI_PACKET_LANES(XI_OX), XI_PACKET_LANES(XI_OY),
                                            XI_PACKET_LANES(XI_OZ), XI_PACKET_LANES(XI_DX), XI_PACKET_LANES(XI_DY),
                                            XI_PACKET_LANES(XI_DZ), XI_PACKET_LANES(XI_OW));
+#undef XI_OX
+#undef XI_OY
+#undef XI_OZ
+#undef XI_OW
+#undef XI_DX
+#undef XI_DY
+#undef XI_DZ
   for (uint k = 0u; k < XI_PACKET_WIDTH; ++k)
     if (!(occluded & (1u << k))) xi_add_unoccluded(radiance, shadow_contrib[first + k]);
 }

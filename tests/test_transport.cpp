@@ -682,7 +682,11 @@ TEST(TransportFeatures, KernelConfigFollowsDeviceSceneAndOptions) {
   EXPECT_TRUE(on_cpu.cpu_device);
   EXPECT_TRUE(on_cpu.ray_packets);  // the Cornell box's tree is one or two nodes
   // A CPU device runs on this CPU: packets of 16 where it has 512-bit vectors.
+#if defined(__x86_64__) || defined(__i386__)
   EXPECT_EQ(on_cpu.packet_width, __builtin_cpu_supports("avx512f") ? 16 : 8);
+#else
+  EXPECT_EQ(on_cpu.packet_width, 8);
+#endif
   EXPECT_EQ(on_cpu.features, wide.features);
   const xi::KernelConfig on_gpu = xi::KernelConfig::make(gpu, narrow, opt);
   EXPECT_EQ(on_gpu.lanes, 1);

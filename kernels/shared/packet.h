@@ -54,7 +54,7 @@ typedef struct {
   PacketFloat inv_x, inv_y, inv_z;   // 1 / direction, as xi_safe_inverse
   PacketInt back_x, back_y, back_z;  // direction negative on the axis: the box's hi plane is the near one
   bool coherent;                     // one permutation and one sign per axis for all the rays
-  int near_x, near_y, near_z;    // lane 0's near planes as xi_trace's, all rays' where coherent
+  int near_x, near_y, near_z;        // lane 0's near planes as xi_trace's, all rays' where coherent
 } Packet;
 
 static inline XI_INLINE Packet xi_packet(PacketFloat ox, PacketFloat oy, PacketFloat oz, PacketFloat dx, PacketFloat dy,

@@ -13,6 +13,15 @@ constexpr size_t kRayPacketNodes = 8;
 
 bool is_cpu(const DeviceInfo& device) { return device.type == "CPU"; }
 
+// Whether this CPU has 512-bit vector registers (AVX-512), as a CPU device's kernels then do.
+bool cpu_has_512_bit_vectors() {
+#if defined(__x86_64__) || defined(__i386__)
+  return __builtin_cpu_supports("avx512f");
+#else
+  return false;
+#endif
+}
+
 }  // namespace
 
 Strategy parse_strategy(const std::string& name) {
@@ -67,8 +76,7 @@ KernelConfig KernelConfig::make(const DeviceInfo& device, const CompiledScene& s
   c.cpu_device = is_cpu(device);
   // A CPU device runs on this CPU: with 512-bit vectors, a packet of sixteen rays tests a box or a
   // triangle in one instruction, as eight do with 256-bit ones.
-  c.packet_width =
-      options.packet_width ? options.packet_width : (c.cpu_device && __builtin_cpu_supports("avx512f") ? 16 : 8);
+  c.packet_width = options.packet_width ? options.packet_width : (c.cpu_device && cpu_has_512_bit_vectors() ? 16 : 8);
   if (c.packet_width != 8 && c.packet_width != 16)
     throw Error("packet width must be 8 or 16, not " + std::to_string(c.packet_width), "--packet-width");
   return c;
