@@ -49,9 +49,9 @@ template <class T>
 bool same_bits(const T& a, const T& b) { return std::memcmp(&a, &b, sizeof(T)) == 0; }
 
 // One program with every stage, built once for the suite, extend and shadow again for 8-wide BVH
-// nodes (the default one traverses 4-wide nodes), once more with bounce and shadow rays in packets
-// (XI_RAY_PACKETS) of 8 rays and of 16, and generate and shade again for 8 lanes (the default: 1). Features of the
-// Cornell box (emitters, no lens), so generate is the pinhole camera.
+// nodes (the default one traverses 4-wide nodes), twice more with bounce and shadow rays in
+// packets (XI_RAY_PACKETS) of 8 rays and of 16, and generate and shade again for 8 lanes (the
+// default: 1). Features of the Cornell box (emitters, no lens), so generate is the pinhole camera.
 class Kernel : public ::testing::Test {
  protected:
   static void SetUpTestSuite() {
@@ -312,15 +312,15 @@ TEST_F(Kernel, ExtendMatchesBruteForce) {
 // XI_RAY_PACKETS, 8 or 16 queue entries per work item) find the hits that one ray per work item
 // finds (extend at bounce 1 without it), bitwise but for ties: where two triangles are hit at the
 // same t (a shared edge), the order of traversal may pick the other. The scene sphere_and_boxes();
-// packets of 8 (and then of 16) rays of six kinds, cycled: camera fans (one origin outside, directions a pixel
-// apart), thin-lens fans (origins on a lens, aimed at one focus), fans from inside the closed
-// icosphere aimed exactly at the vertices and edges of one of its triangles (where a crack would
-// let a ray escape: none may), fans leaving a point on the sphere (whose own triangle the error
-// bound of t must refuse), all of which share one axis permutation and near planes (the packet's
-// shared path), and two kinds that do not, as bounce rays do not (its per-ray path): random
-// directions (different axis permutations) and fans across the plane x = 0 (different near
-// planes). 4001 packets and a last one of five rays, traced one at a time, in a queue whose entries
-// past the count point at slots that no work item may touch.
+// packets of 8 (and then of 16) rays of six kinds, cycled: camera fans (one origin outside,
+// directions a pixel apart), thin-lens fans (origins on a lens, aimed at one focus), fans from
+// inside the closed icosphere aimed exactly at the vertices and edges of one of its triangles
+// (where a crack would let a ray escape: none may), fans leaving a point on the sphere (whose own
+// triangle the error bound of t must refuse), all of which share one axis permutation and near
+// planes (the packet's shared path), and two kinds that do not, as bounce rays do not (its per-ray
+// path): random directions (different axis permutations) and fans across the plane x = 0 (different
+// near planes). 4001 packets and a last one of five rays, traced one at a time, in a queue whose
+// entries past the count point at slots that no work item may touch.
 TEST_F(Kernel, PacketsFindTheHitsOfSingleRays) {
   for (const uint32_t w : {8u, 16u}) {
     SCOPED_TRACE(testing::Message() << "packets of " << w);
@@ -402,7 +402,8 @@ TEST_F(Kernel, PacketsFindTheHitsOfSingleRays) {
       cl::Buffer qb = buffer(q), cb = buffer(counters), nodes = bvh_nodes(cs.bvh), blocks = buffer(cs.bvh.blocks);
       // Packets of 16: bounce 0 from the program with ray packets too.
       const xi::Program& packets = w == 16 ? *ray_packets16_ : *ray_packets8_;
-      cl::Kernel k = ray_packets || (w == 16 && bounce == 0) ? cl::Kernel(packets.program, "extend") : kernel("extend", 8);
+      cl::Kernel k = ray_packets || (w == 16 && bounce == 0) ? cl::Kernel(packets.program, "extend")
+                                                              : kernel("extend", 8);
       bind(k, b, qb, cb, bounce, nodes, blocks);
       launch(k, slots / XI_EXTEND_PACKET(8, bounce, ray_packets ? 1 : 0, w) + 1);
       return read<vec4>(b.hit, slots);
@@ -791,7 +792,8 @@ TEST_F(Kernel, ShadowAddsOnlyUnoccluded) {
                refs = buffer(cs.texture_refs), images = buffer(cs.images), texels = buffer(cs.texels);
     bind(k, b, org_b, dir_b, contrib_b, cb, bounce, nodes, blocks, materials, tri_material, tri_uv, refs, images, texels,
          0u);
-    launch(k, (n + extra) / XI_SHADOW_PACKET(width, packets ? 1 : 0, packet));  // over an upper bound, as the renderer launches
+    // Over an upper bound, as the renderer launches.
+    launch(k, (n + extra) / XI_SHADOW_PACKET(width, packets ? 1 : 0, packet));
     std::vector<vec4> got = read<vec4>(b.radiance, slots);
 
     std::vector<vec4> want = state.radiance;
