@@ -556,7 +556,7 @@ TEST_F(CliBadInput, BadSpp) {
   }
 }
 
-TEST_F(CliBadInput, BadLanes) { expect_each_refused("--lanes", {"0", "3", "9", "-1", "abc"}); }
+TEST_F(CliBadInput, BadLanes) { expect_each_refused("--lanes", {"0", "3", "9", "17", "-1", "abc"}); }
 
 TEST_F(CliBadInput, BadBvhWidth) { expect_each_refused("--bvh-width", {"0", "5", "16", "-4", "wide"}); }
 

@@ -499,9 +499,10 @@ TEST(EndToEndDeterminism, SpatialSplitsDoNotChangePixels) {
   EXPECT_TRUE(bitwise_equal(split.variance, plain.variance));
 }
 
-// The lane count of generate and shade (kernels/shared/lanes.h: 8 paths per work item on CPUs, 1 on
-// GPUs) runs the same code on other types, so the images agree but for rounding: with one lane
-// normalize and length are the OpenCL built-ins, with eight 1/sqrt of a dot product. The cases cover
+// The lane count of generate and shade (kernels/shared/lanes.h: 8 or 16 paths per work item on
+// CPUs, 1 on GPUs) runs the same code on other types, so the images agree but for rounding: with
+// one lane normalize and length are the OpenCL built-ins, with eight 1/sqrt of a dot product. 8 and
+// 16 lanes are the same arithmetic on wider vectors: their images are bitwise the same. The cases cover
 // every material, shading normals (the spheres), the thin lens, stratified's per-path cycle walk and
 // each strategy's kernel. Now and
 // then rounding may send a path another way at a decision (roulette, Fresnel), which moves its one
@@ -525,6 +526,10 @@ TEST(EndToEndDeterminism, LanesAgree) {
     const Result one = render(kDetW, kDetH, o, file);
     o.lanes = 8;
     const Result eight = render(kDetW, kDetH, o, file);
+    o.lanes = 16;
+    const Result sixteen = render(kDetW, kDetH, o, file);
+    EXPECT_TRUE(bitwise_equal(eight.mean, sixteen.mean)) << differing_pixels(eight.mean, sixteen.mean) << " pixels differ";
+    EXPECT_TRUE(bitwise_equal(eight.variance, sixteen.variance));
     auto largest = [](glm::vec3 v) { return std::max({v.x, v.y, v.z}); };
     size_t lit = 0, differ = 0;
     for (size_t i = 0; i < one.mean.pixels.size(); ++i) {

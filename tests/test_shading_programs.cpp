@@ -57,11 +57,11 @@ xi::RenderOptions options(int spp, uint32_t seed) {
 
 // Every bundled scene (each uses other features: glass, mirrors, normals, a lens), and the bench's
 // material scene (textures, the metallic-roughness material, an environment, under which shade
-// partitions its work groups), in 8 lanes and 1.
+// partitions its work groups), in 16 lanes, 8 and 1.
 TEST(ShadingPrograms, GenericRendersEveryBundledSceneBitwise) {
   for (const char* name : {"cornell-box.json", "caustics.json", "mirror.json", "depth-of-field.json",
                            "soft-shadows.json", "../bench/scenes/material.json"}) {
-    for (int lanes : {8, 1}) {
+    for (int lanes : {16, 8, 1}) {
       SCOPED_TRACE(testing::Message() << name << ", " << lanes << " lanes");
       const xi::Scene scene = small(fs::path(XI_SCENE_DIR) / name);
       xi::RenderOptions o = options(8, 11);

@@ -13,7 +13,7 @@ int prebuild(const std::vector<std::string>& argv) {
   Args args(argv, {"--device", "--lanes", "--bvh-width"}, {});
   if (!args.positional().empty()) throw Error("expected no file", args.positional()[0]);
   RenderOptions options;
-  options.lanes = args.get_int("--lanes", 0, 1, 8);  // 0: the device's default
+  options.lanes = args.get_int("--lanes", 0, 1, 16);  // 0: the device's default
   options.bvh_width = args.get_int("--bvh-width", 0, 1, 8);
   Device device = Device::open(args.get("--device"));
   const auto start = std::chrono::steady_clock::now();

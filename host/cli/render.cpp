@@ -275,7 +275,7 @@ void read_render_options(Job& job, const Args& args, const Team& team) {
   opt.strategy = parse_strategy(args.get("--strategy", "mis"));
   opt.local_size = (size_t)args.get_int("--local-size", (int)opt.local_size, 0, (int)kMaxLocalSize);
   // 0 (the fallback, never a value a user may give): the device's default.
-  opt.lanes = args.get_int("--lanes", 0, 1, 8);
+  opt.lanes = args.get_int("--lanes", 0, 1, 16);
   opt.bvh_width = args.get_int("--bvh-width", 0, 1, 8);
   opt.ray_packets = parse_ray_packets(args.get("--ray-packets", "auto"));
   opt.packet_width = args.get_int("--packet-width", 0, 8, 16);

@@ -46,7 +46,9 @@
 #include "layout.h"
 
 // float → uint of values already clamped to [0, 2^24) (rounds toward zero).
-#if XI_LANES == 8
+#if XI_LANES == 16
+#define xi_env_to_uint(v) convert_uint16_sat_rtz(v)
+#elif XI_LANES == 8
 #define xi_env_to_uint(v) convert_uint8_sat_rtz(v)
 #elif defined(XI_DEVICE)
 #define xi_env_to_uint(v) convert_uint_sat_rtz(v)

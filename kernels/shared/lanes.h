@@ -1,10 +1,10 @@
 // Lane types for the sampling and shading code. generate and shade take XI_LANES paths per work
 // item: 8 on CPU devices, where PoCL runs work items one after another and only float8 arithmetic
-// fills the vector units; 1 on GPUs, whose hardware already gives each path its own lane. The
-// sampler, camera, warps, BSDFs, light sampling and spawn offsets they call are written once on
-// these types: with XI_LANES 1 (GPU
-// builds, the tool kernels, the host's tests) they are float, uint, bool, float2 and float3; with 8,
-// float8, uint8, int8 masks and structs of float8 for 2D and 3D values.
+// fills the vector units, 16 (float16) on CPUs with 512-bit vectors; 1 on GPUs, whose hardware
+// already gives each path its own lane. The sampler, camera, warps, BSDFs, light sampling and spawn
+// offsets they call are written once on these types: with XI_LANES 1 (GPU builds, the tool
+// kernels, the host's tests) they are float, uint, bool, float2 and float3; with 8, float8, uint8,
+// int8 masks and structs of float8 for 2D and 3D values (with 16, the same of float16).
 //
 // Generic code keeps to what both forms accept: arithmetic and comparison operators, built-ins
 // such as sqrt and fmax, `m ? a : b` on xfloat/xuint with constants cast to the lane type, the
@@ -18,12 +18,37 @@
 #define XI_LANES 1
 #endif
 
-#if XI_LANES == 8
+#if XI_LANES == 8 || XI_LANES == 16
 
+#if XI_LANES == 16
+typedef float16 xfloat;
+typedef uint16 xuint;
+typedef int16 xint;
+typedef int16 xmask;  // a comparison's result: −1 in a lane where true, 0 where false
+#define xi_to_float(v) convert_float16(v)
+#define convert_xint(v) convert_int16(v)
+#define convert_xuint(v) convert_uint16(v)
+#define xi_as_uint(v) as_uint16(v)
+#define xi_as_int(v) as_int16(v)
+#define xi_as_float(v) as_float16(v)
+#define XI_LANE_INDEX ((uint16)(0u, 1u, 2u, 3u, 4u, 5u, 6u, 7u, 8u, 9u, 10u, 11u, 12u, 13u, 14u, 15u))
+#define XI_VLOAD vload16
+#define XI_VSTORE vstore16
+#else
 typedef float8 xfloat;
 typedef uint8 xuint;
 typedef int8 xint;
 typedef int8 xmask;  // a comparison's result: −1 in a lane where true, 0 where false
+#define xi_to_float(v) convert_float8(v)
+#define convert_xint(v) convert_int8(v)
+#define convert_xuint(v) convert_uint8(v)
+#define xi_as_uint(v) as_uint8(v)
+#define xi_as_int(v) as_int8(v)
+#define xi_as_float(v) as_float8(v)
+#define XI_LANE_INDEX ((uint8)(0u, 1u, 2u, 3u, 4u, 5u, 6u, 7u))
+#define XI_VLOAD vload8
+#define XI_VSTORE vstore8
+#endif
 typedef struct {
   xfloat x, y;
 } xfloat2;
@@ -31,20 +56,13 @@ typedef struct {
   xfloat x, y, z;
 } xfloat3;
 
-#define xi_to_float(v) convert_float8(v)
-#define convert_xint(v) convert_int8(v)
-#define convert_xuint(v) convert_uint8(v)
-#define xi_as_uint(v) as_uint8(v)
-#define xi_as_int(v) as_int8(v)
-#define xi_as_float(v) as_float8(v)
 #define XI_ANY(m) any(m)
 #define XI_TRUE ((xmask)-1)
 #define XI_FALSE ((xmask)0)
-#define XI_LANE_INDEX ((uint8)(0u, 1u, 2u, 3u, 4u, 5u, 6u, 7u))
 // Every function here is forced inline: left as calls, the structs of float8 went through memory.
 // Lane loops: unrolled, so every lane access has a constant index and stays in registers (left as
 // a loop, PoCL went through the stack for each lane).
-#define XI_FOR_LANES(k) _Pragma("unroll") for (int k = 0; k < 8; ++k)
+#define XI_FOR_LANES(k) _Pragma("unroll") for (int k = 0; k < XI_LANES; ++k)
 
 static inline XI_INLINE xfloat2 make_xfloat2(xfloat x, xfloat y) {
   xfloat2 v;
@@ -80,11 +98,11 @@ static inline XI_INLINE xfloat3 xi_splat3(float3 v) { return make_xfloat3((xfloa
 // Loads of per-path memory: lane k reads element i[k] of global, constant (XI_TABLE) or local memory.
 #define XI_GATHER(name, space, type, lane_type)                      \
   static inline XI_INLINE lane_type name(space const type* p, xuint i) { \
-    uint idx[8];                                                     \
-    type v[8];                                                       \
-    vstore8(i, 0, idx);                                              \
+    uint idx[XI_LANES];                                                     \
+    type v[XI_LANES];                                                       \
+    XI_VSTORE(i, 0, idx);                                              \
     XI_FOR_LANES(k) v[k] = p[idx[k]];                                \
-    return vload8(0, v);                                             \
+    return XI_VLOAD(0, v);                                             \
   }
 XI_GATHER(xi_gather_float, __global, float, xfloat)
 XI_GATHER(xi_gather_uint, __global, uint, xuint)
@@ -92,9 +110,9 @@ XI_GATHER(xi_gather_table, __constant, float, xfloat)
 XI_GATHER(xi_local_gather_uint, __local, uint, xuint)
 // xyz of float4 elements, and their w.
 static inline XI_INLINE xfloat3 xi_gather_xyz(__global const float4* p, xuint i, xfloat* w) {
-  uint idx[8];
-  float x[8], y[8], z[8], ww[8];
-  vstore8(i, 0, idx);
+  uint idx[XI_LANES];
+  float x[XI_LANES], y[XI_LANES], z[XI_LANES], ww[XI_LANES];
+  XI_VSTORE(i, 0, idx);
   XI_FOR_LANES(k) {
     float4 e = p[idx[k]];
     x[k] = e.x;
@@ -102,25 +120,29 @@ static inline XI_INLINE xfloat3 xi_gather_xyz(__global const float4* p, xuint i,
     z[k] = e.z;
     ww[k] = e.w;
   }
-  if (w) *w = vload8(0, ww);
-  return make_xfloat3(vload8(0, x), vload8(0, y), vload8(0, z));
+  if (w) *w = XI_VLOAD(0, ww);
+  return make_xfloat3(XI_VLOAD(0, x), XI_VLOAD(0, y), XI_VLOAD(0, z));
 }
 // Stores (xyz, w) to element i[k] of the lanes where m is true.
 static inline XI_INLINE void xi_scatter4(__global float4* p, xuint i, xfloat3 v, xfloat w, xmask m) {
-  uint idx[8];
-  int on[8];
-  float x[8], y[8], z[8], ww[8];
-  vstore8(i, 0, idx);
-  vstore8(m, 0, on);
-  vstore8(v.x, 0, x);
-  vstore8(v.y, 0, y);
-  vstore8(v.z, 0, z);
-  vstore8(w, 0, ww);
+  uint idx[XI_LANES];
+  int on[XI_LANES];
+  float x[XI_LANES], y[XI_LANES], z[XI_LANES], ww[XI_LANES];
+  XI_VSTORE(i, 0, idx);
+  XI_VSTORE(m, 0, on);
+  XI_VSTORE(v.x, 0, x);
+  XI_VSTORE(v.y, 0, y);
+  XI_VSTORE(v.z, 0, z);
+  XI_VSTORE(w, 0, ww);
   XI_FOR_LANES(k) if (on[k]) p[idx[k]] = (float4)(x[k], y[k], z[k], ww[k]);
 }
 // The number of lanes where m is true.
 static inline XI_INLINE uint xi_count(xmask m) {
+#if XI_LANES == 16
+  int8 ones = (m & 1).lo + (m & 1).hi;
+#else
   int8 ones = m & 1;
+#endif
   int4 s4 = ones.lo + ones.hi;
   int2 s2 = s4.lo + s4.hi;
   return (uint)(s2.x + s2.y);
@@ -128,25 +150,25 @@ static inline XI_INLINE uint xi_count(xmask m) {
 // Stores v[k] to element i[k] of the lanes where m is true, in global or local memory.
 #define XI_SCATTER_UINT(name, space)                                            \
   static inline XI_INLINE void name(space uint* p, xuint i, xuint v, xmask m) { \
-    uint idx[8], vv[8];                                                       \
-    int on[8];                                                                \
-    vstore8(i, 0, idx);                                                       \
-    vstore8(v, 0, vv);                                                        \
-    vstore8(m, 0, on);                                                        \
+    uint idx[XI_LANES], vv[XI_LANES];                                                       \
+    int on[XI_LANES];                                                                \
+    XI_VSTORE(i, 0, idx);                                                       \
+    XI_VSTORE(v, 0, vv);                                                        \
+    XI_VSTORE(m, 0, on);                                                        \
     XI_FOR_LANES(k) if (on[k]) p[idx[k]] = vv[k];                             \
   }
 XI_SCATTER_UINT(xi_scatter_uint, __global)
 XI_SCATTER_UINT(xi_local_scatter_uint, __local)
 // Where the lanes with m true go when appended, in lane order, to consecutive elements from `at`.
 static inline XI_INLINE xuint xi_compact_index(uint at, xmask m) {
-  int on[8];
-  uint idx[8];
-  vstore8(m, 0, on);
+  int on[XI_LANES];
+  uint idx[XI_LANES];
+  XI_VSTORE(m, 0, on);
   XI_FOR_LANES(k) {
     idx[k] = at;
     at += on[k] & 1;
   }
-  return vload8(0, idx);
+  return XI_VLOAD(0, idx);
 }
 
 #elif XI_LANES == 1
@@ -209,7 +231,7 @@ static inline xuint xi_compact_index(uint at, xmask m) { return at; }
 #endif
 
 #else
-#error "XI_LANES must be 1 or 8"
+#error "XI_LANES must be 1, 8 or 16"
 #endif
 
 static inline xfloat xi_max3(xfloat3 v) { return fmax(v.x, fmax(v.y, v.z)); }

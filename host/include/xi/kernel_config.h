@@ -33,7 +33,7 @@ struct KernelConfig {
   Features features;
   int sampler = XI_SAMPLER_SOBOL;
   Strategy strategy = Strategy::Mis;
-  int lanes = 1;             // paths per generate and shade work item (kernels/shared/lanes.h): 1 or 8
+  int lanes = 1;             // paths per generate and shade work item (kernels/shared/lanes.h): 1, 8 or 16
   int bvh_width = 4;         // children per BVH node (kernels/shared/layout.h): 4 or 8
   bool ray_packets = false;  // bounce and shadow rays in packets, as camera rays go (8-wide trees)
   int packet_width = 8;      // rays per packet (kernels/shared/packet.h): 8 or 16

@@ -30,7 +30,7 @@ struct RenderOptions {
   // and queue lengths change every bounce.
   size_t local_size = 64;
   bool all_features = false;    // compile every feature in, whatever the scene uses
-  // Paths each generate and shade work item takes, 1 or 8; 0: the device's default (KernelConfig).
+  // Paths each generate and shade work item takes, 1, 8 or 16; 0: the device's default (KernelConfig).
   int lanes = 0;
   // Children per BVH node, 4 or 8; 0: the device's default (KernelConfig::bvh_width_for).
   int bvh_width = 0;

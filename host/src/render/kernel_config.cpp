@@ -65,9 +65,11 @@ KernelConfig KernelConfig::make(const DeviceInfo& device, const CompiledScene& s
   c.features.multiple_scattering = scene.features.multiple_scattering;
   c.sampler = options.sampler;
   c.strategy = options.strategy;
-  // On a CPU, float8 arithmetic across eight paths is what fills the vector units.
-  c.lanes = options.lanes ? options.lanes : (is_cpu(device) ? 8 : 1);
-  if (c.lanes != 1 && c.lanes != 8) throw Error("lanes must be 1 or 8, not " + std::to_string(c.lanes), "--lanes");
+  // On a CPU, float8 arithmetic across eight paths is what fills the vector units (float16 across
+  // sixteen where the CPU has 512-bit vectors).
+  c.lanes = options.lanes ? options.lanes : (is_cpu(device) ? (cpu_has_512_bit_vectors() ? 16 : 8) : 1);
+  if (c.lanes != 1 && c.lanes != 8 && c.lanes != 16)
+    throw Error("lanes must be 1, 8 or 16, not " + std::to_string(c.lanes), "--lanes");
   c.bvh_width = scene.bvh.width;
   // Shadow rays through cut-out surfaces go one at a time (shadow.cl).
   c.ray_packets = c.bvh_width == 8 && !c.features.alpha && (options.ray_packets == RenderOptions::RayPackets::Auto
