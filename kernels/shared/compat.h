@@ -118,7 +118,7 @@ static inline float as_float_i(int i) { float f; std::memcpy(&f, &i, 4); return 
 
 // Bit k set where lane k of a comparison (−1 true, 0 false) is true; xi_lane_bits8 and
 // xi_lane_bits16 for 8 and 16 lanes. Compiled for x86 with AVX (PoCL on a CPU), one movmskps reads
-// the lanes' sign bits (with AVX-512, one vpmovd2m those of 16): LLVM does not find it in the
+// the lanes' sign bits (with AVX-512, one mask move those of 16): LLVM does not find it in the
 // portable form, which became some twenty shuffles, ands, ors and extracts per node test; every
 // hit is the same either way. (A test builds with XI_PORTABLE_LANE_BITS to check the other
 // devices' form on PoCL too.)

@@ -96,13 +96,13 @@ static inline XI_INLINE xfloat3 xi_select3(xmask m, xfloat3 a, xfloat3 b) {
 static inline XI_INLINE xfloat3 xi_splat3(float3 v) { return make_xfloat3((xfloat)v.x, (xfloat)v.y, (xfloat)v.z); }
 
 // Loads of per-path memory: lane k reads element i[k] of global, constant (XI_TABLE) or local memory.
-#define XI_GATHER(name, space, type, lane_type)                      \
+#define XI_GATHER(name, space, type, lane_type)                          \
   static inline XI_INLINE lane_type name(space const type* p, xuint i) { \
-    uint idx[XI_LANES];                                                     \
-    type v[XI_LANES];                                                       \
-    XI_VSTORE(i, 0, idx);                                              \
-    XI_FOR_LANES(k) v[k] = p[idx[k]];                                \
-    return XI_VLOAD(0, v);                                             \
+    uint idx[XI_LANES];                                                  \
+    type v[XI_LANES];                                                    \
+    XI_VSTORE(i, 0, idx);                                                \
+    XI_FOR_LANES(k) v[k] = p[idx[k]];                                    \
+    return XI_VLOAD(0, v);                                               \
   }
 XI_GATHER(xi_gather_float, __global, float, xfloat)
 XI_GATHER(xi_gather_uint, __global, uint, xuint)
@@ -150,12 +150,12 @@ static inline XI_INLINE uint xi_count(xmask m) {
 // Stores v[k] to element i[k] of the lanes where m is true, in global or local memory.
 #define XI_SCATTER_UINT(name, space)                                            \
   static inline XI_INLINE void name(space uint* p, xuint i, xuint v, xmask m) { \
-    uint idx[XI_LANES], vv[XI_LANES];                                                       \
-    int on[XI_LANES];                                                                \
+    uint idx[XI_LANES], vv[XI_LANES];                                           \
+    int on[XI_LANES];                                                           \
     XI_VSTORE(i, 0, idx);                                                       \
     XI_VSTORE(v, 0, vv);                                                        \
     XI_VSTORE(m, 0, on);                                                        \
-    XI_FOR_LANES(k) if (on[k]) p[idx[k]] = vv[k];                             \
+    XI_FOR_LANES(k) if (on[k]) p[idx[k]] = vv[k];                               \
   }
 XI_SCATTER_UINT(xi_scatter_uint, __global)
 XI_SCATTER_UINT(xi_local_scatter_uint, __local)
