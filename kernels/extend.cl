@@ -38,22 +38,10 @@ static inline void xi_extend_packet(__global const float4* ray_org, __global con
     o[k] = ray_org[slot[k]];
     d[k] = ray_dir[slot[k]];
   }
-#define XI_OX(k) o[k].x
-#define XI_OY(k) o[k].y
-#define XI_OZ(k) o[k].z
-#define XI_DX(k) d[k].x
-#define XI_DY(k) d[k].y
-#define XI_DZ(k) d[k].z
   PacketFloat t, u, v;
   PacketUint tri;
-  xi_trace_packet(nodes, tri_blocks, XI_PACKET_LANES(XI_OX), XI_PACKET_LANES(XI_OY), XI_PACKET_LANES(XI_OZ),
-                  XI_PACKET_LANES(XI_DX), XI_PACKET_LANES(XI_DY), XI_PACKET_LANES(XI_DZ), &t, &u, &v, &tri);
-#undef XI_OX
-#undef XI_OY
-#undef XI_OZ
-#undef XI_DX
-#undef XI_DY
-#undef XI_DZ
+  xi_trace_packet(nodes, tri_blocks, XI_PACKET_OF(o, x), XI_PACKET_OF(o, y), XI_PACKET_OF(o, z), XI_PACKET_OF(d, x),
+                  XI_PACKET_OF(d, y), XI_PACKET_OF(d, z), &t, &u, &v, &tri);
   XI_UNROLL for (uint k = 0u; k < XI_PACKET_WIDTH; ++k)
     xi_store_hit(hit, slot[k], XI_PACKET_LANE(uint, tri, k), XI_PACKET_LANE(float, t, k), XI_PACKET_LANE(float, u, k),
                  XI_PACKET_LANE(float, v, k));

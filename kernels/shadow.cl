@@ -91,23 +91,9 @@ static inline void xi_shadow_packet(__global float4* radiance, __global const fl
     o[k] = shadow_org[first + k];
     d[k] = shadow_dir[first + k];
   }
-#define XI_OX(k) o[k].x
-#define XI_OY(k) o[k].y
-#define XI_OZ(k) o[k].z
-#define XI_OW(k) o[k].w
-#define XI_DX(k) d[k].x
-#define XI_DY(k) d[k].y
-#define XI_DZ(k) d[k].z
-  const uint occluded = xi_occluded_packet(nodes, tri_blocks, XI_PACKET_LANES(XI_OX), XI_PACKET_LANES(XI_OY),
-                                           XI_PACKET_LANES(XI_OZ), XI_PACKET_LANES(XI_DX), XI_PACKET_LANES(XI_DY),
-                                           XI_PACKET_LANES(XI_DZ), XI_PACKET_LANES(XI_OW));
-#undef XI_OX
-#undef XI_OY
-#undef XI_OZ
-#undef XI_OW
-#undef XI_DX
-#undef XI_DY
-#undef XI_DZ
+  const uint occluded =
+      xi_occluded_packet(nodes, tri_blocks, XI_PACKET_OF(o, x), XI_PACKET_OF(o, y), XI_PACKET_OF(o, z),
+                         XI_PACKET_OF(d, x), XI_PACKET_OF(d, y), XI_PACKET_OF(d, z), XI_PACKET_OF(o, w));
   for (uint k = 0u; k < XI_PACKET_WIDTH; ++k)
     if (!(occluded & (1u << k))) xi_add_unoccluded(radiance, shadow_contrib[first + k]);
 }

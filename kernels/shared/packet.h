@@ -21,23 +21,20 @@
 // Every operation rounded as written, as in xi_trace.
 #pragma OPENCL FP_CONTRACT OFF
 
-// The least and the greatest of a packet's lanes.
-static inline float xi_packet_min(PacketFloat v) {
+// The least and the greatest of a packet's lanes: 16 folded onto 8 first, then halved down to one.
 #if XI_PACKET_WIDTH == 16
-  float8 w = xi_min(v.lo, v.hi);
+#define XI_PACKET_FOLD8(op, v) op((v).lo, (v).hi)
 #else
-  float8 w = v;
+#define XI_PACKET_FOLD8(op, v) (v)
 #endif
+static inline float xi_packet_min(PacketFloat v) {
+  float8 w = XI_PACKET_FOLD8(xi_min, v);
   float4 a = xi_min(w.lo, w.hi);
   float2 b = xi_min(a.lo, a.hi);
   return b.x < b.y ? b.x : b.y;
 }
 static inline float xi_packet_max(PacketFloat v) {
-#if XI_PACKET_WIDTH == 16
-  float8 w = xi_max(v.lo, v.hi);
-#else
-  float8 w = v;
-#endif
+  float8 w = XI_PACKET_FOLD8(xi_max, v);
   float4 a = xi_max(w.lo, w.hi);
   float2 b = xi_max(a.lo, a.hi);
   return b.x > b.y ? b.x : b.y;
@@ -73,12 +70,13 @@ static inline XI_INLINE Packet xi_packet(PacketFloat ox, PacketFloat oy, PacketF
   return p;
 }
 
-// A packet's vector from one value per ray: f(k) for lane k.
+// A packet's vector of member `c` of the rays' float4s a[0], a[1], ... (lane k: a[k].c).
+#define XI_PACKET_OF8(a, c) a[0].c, a[1].c, a[2].c, a[3].c, a[4].c, a[5].c, a[6].c, a[7].c
 #if XI_PACKET_WIDTH == 16
-#define XI_PACKET_LANES(f) \
-  (PacketFloat)(f(0), f(1), f(2), f(3), f(4), f(5), f(6), f(7), f(8), f(9), f(10), f(11), f(12), f(13), f(14), f(15))
+#define XI_PACKET_OF(a, c) \
+  (PacketFloat)(XI_PACKET_OF8(a, c), a[8].c, a[9].c, a[10].c, a[11].c, a[12].c, a[13].c, a[14].c, a[15].c)
 #else
-#define XI_PACKET_LANES(f) (PacketFloat)(f(0), f(1), f(2), f(3), f(4), f(5), f(6), f(7))
+#define XI_PACKET_OF(a, c) (PacketFloat)(XI_PACKET_OF8(a, c))
 #endif
 // Lane k of a packet's vector; k is a constant once a loop over the lanes is unrolled.
 #define XI_PACKET_LANE(type, v, k) (((const type*)&(v))[k])

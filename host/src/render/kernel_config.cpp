@@ -65,9 +65,12 @@ KernelConfig KernelConfig::make(const DeviceInfo& device, const CompiledScene& s
   c.features.multiple_scattering = scene.features.multiple_scattering;
   c.sampler = options.sampler;
   c.strategy = options.strategy;
+  c.cpu_device = is_cpu(device);
+  // A CPU device runs on this CPU: its vector width sets the lanes and the packets below.
+  const int cpu_vector_floats = c.cpu_device ? (cpu_has_512_bit_vectors() ? 16 : 8) : 0;
   // On a CPU, float8 arithmetic across eight paths is what fills the vector units (float16 across
   // sixteen where the CPU has 512-bit vectors).
-  c.lanes = options.lanes ? options.lanes : (is_cpu(device) ? (cpu_has_512_bit_vectors() ? 16 : 8) : 1);
+  c.lanes = options.lanes ? options.lanes : (c.cpu_device ? cpu_vector_floats : 1);
   if (c.lanes != 1 && c.lanes != 8 && c.lanes != 16)
     throw Error("lanes must be 1, 8 or 16, not " + std::to_string(c.lanes), "--lanes");
   c.bvh_width = scene.bvh.width;
@@ -75,10 +78,9 @@ KernelConfig KernelConfig::make(const DeviceInfo& device, const CompiledScene& s
   c.ray_packets = c.bvh_width == 8 && !c.features.alpha && (options.ray_packets == RenderOptions::RayPackets::Auto
                                            ? scene.bvh.nodes8.size() <= kRayPacketNodes
                                            : options.ray_packets == RenderOptions::RayPackets::On);
-  c.cpu_device = is_cpu(device);
-  // A CPU device runs on this CPU: with 512-bit vectors, a packet of sixteen rays tests a box or a
-  // triangle in one instruction, as eight do with 256-bit ones.
-  c.packet_width = options.packet_width ? options.packet_width : (c.cpu_device && cpu_has_512_bit_vectors() ? 16 : 8);
+  // With 512-bit vectors a packet of sixteen rays tests a box or a triangle in one instruction, as
+  // eight do with 256-bit ones.
+  c.packet_width = options.packet_width ? options.packet_width : (cpu_vector_floats == 16 ? 16 : 8);
   if (c.packet_width != 8 && c.packet_width != 16)
     throw Error("packet width must be 8 or 16, not " + std::to_string(c.packet_width), "--packet-width");
   return c;
