@@ -1,13 +1,19 @@
-// The ceiling: xi's extend kernel against Embree's rtcIntersect1 on the same rays, same scene,
-// same run. Rays: camera rays and first-bounce rays recorded from a real render of the scene.
-// Prints Mrays/s for both (medians of several timed runs) and the ratio xi / Embree; then Embree's
-// rtcIntersect16 on packets of 16 rays in the recorded order, which is how Mitsuba 3's LLVM
-// variant calls the same Embree (its wheel links Embree 3.13.4 and calls rtcIntersect4/8/16).
+// The ceiling: xi's extend and shadow kernels against Embree on the same rays, same scene, same
+// run. Rays: camera rays, first-bounce rays and the shadow rays of both bounces, recorded from a
+// real render of the scene (1 spp), traced as the renderer traces them at that bounce (in packets,
+// hybrid packets or alone: layout.h's XI_EXTEND_RAYS, XI_SHADOW_RAYS). Embree traces them one at a
+// time (rtcIntersect1, rtcOccluded1) and in packets of 16 consecutive rays (rtcIntersect16,
+// rtcOccluded16), which is how Mitsuba 3's LLVM variant calls the same Embree (its wheel links
+// Embree 3.13.4). Prints Mrays/s (medians of several timed runs) and how often the answers agree.
+// --rays-out DIR also writes the rays (float32 origin xyz, tmax, direction xyz, 0) for bench/peers.py
+// to time Mitsuba's own ray queries on them.
 #include <embree3/rtcore.h>
 
 #include <algorithm>
 #include <chrono>
 #include <cstdio>
+#include <filesystem>
+#include <fstream>
 #include <functional>
 #include <numeric>
 #include <string>
@@ -89,7 +95,63 @@ struct Embree {
     });
   }
 
-  // The same with rtcIntersect16 on packets of 16 consecutive rays (a thread takes every
+  // Any-hit queries (org.w: tmax) one ray at a time; *occluded gets 1 where a ray is blocked.
+  double occluded(const xi::RayBatch& rays, std::vector<char>* occluded) {
+    const size_t n = rays.org.size();
+    occluded->assign(n, 0);
+    return on_all_cores([&](unsigned t, unsigned threads) {
+      RTCIntersectContext ctx;
+      rtcInitIntersectContext(&ctx);
+      for (size_t i = t; i < n; i += threads) {
+        RTCRay r{};
+        r.org_x = rays.org[i].x;
+        r.org_y = rays.org[i].y;
+        r.org_z = rays.org[i].z;
+        r.dir_x = rays.dir[i].x;
+        r.dir_y = rays.dir[i].y;
+        r.dir_z = rays.dir[i].z;
+        r.tnear = 0.0f;
+        r.tfar = rays.org[i].w;
+        r.mask = ~0u;
+        rtcOccluded1(scene, &ctx, &r);
+        (*occluded)[i] = r.tfar < 0.0f;
+      }
+    });
+  }
+
+  // The same with rtcOccluded16 on packets of 16 consecutive rays.
+  double occluded16(const xi::RayBatch& rays, std::vector<char>* occluded) {
+    const size_t n = rays.org.size(), packets = (n + 15) / 16;
+    occluded->assign(n, 0);
+    return on_all_cores([&](unsigned t, unsigned threads) {
+      RTCIntersectContext ctx;
+      rtcInitIntersectContext(&ctx);
+      ctx.flags = RTC_INTERSECT_CONTEXT_FLAG_INCOHERENT;
+      alignas(64) RTCRay16 r;
+      alignas(64) int valid[16];
+      for (size_t p = t; p < packets; p += threads) {
+        for (size_t k = 0; k < 16; ++k) {
+          const size_t i = std::min(p * 16 + k, n - 1);
+          valid[k] = p * 16 + k < n ? -1 : 0;
+          r.org_x[k] = rays.org[i].x;
+          r.org_y[k] = rays.org[i].y;
+          r.org_z[k] = rays.org[i].z;
+          r.dir_x[k] = rays.dir[i].x;
+          r.dir_y[k] = rays.dir[i].y;
+          r.dir_z[k] = rays.dir[i].z;
+          r.tnear[k] = 0.0f;
+          r.tfar[k] = rays.org[i].w;
+          r.mask[k] = ~0u;
+          r.time[k] = 0.0f;
+          r.flags[k] = 0;
+        }
+        rtcOccluded16(valid, scene, &ctx, &r);
+        for (size_t k = 0; k < 16 && p * 16 + k < n; ++k) (*occluded)[p * 16 + k] = r.tfar[k] < 0.0f;
+      }
+    });
+  }
+
+  // Closest hits with rtcIntersect16 on packets of 16 consecutive rays (a thread takes every
   // `threads`-th packet); camera rays flagged coherent, as Mitsuba flags its primary rays.
   double trace16(const xi::RayBatch& rays, bool coherent, std::vector<int>* prim) {
     const size_t n = rays.org.size(), packets = (n + 15) / 16;
@@ -135,21 +197,48 @@ RTCBuildQuality parse_quality(const std::string& s) {
   throw xi::Error("expected an Embree build quality: high, medium or low", s);
 }
 
+const char* rays_kind(int rays) {
+  return rays == XI_RAYS_TOGETHER ? "packets" : rays == XI_RAYS_HYBRID ? "hybrid packets" : "alone";
+}
+
+// Origins (w: tmax) and directions, one after the other per ray, as float32.
+void write_rays(const std::filesystem::path& file, const xi::RayBatch& rays) {
+  std::ofstream out(file, std::ios::binary);
+  for (size_t i = 0; i < rays.org.size(); ++i) {
+    out.write((const char*)&rays.org[i], sizeof(glm::vec4));
+    out.write((const char*)&rays.dir[i], sizeof(glm::vec4));
+  }
+  if (!out) throw xi::Error("cannot write the rays", file.string());
+}
+
+void print_row(const char* what, size_t count, double xi_rate, int rays, double embree_rate, double embree16_rate,
+               double same) {
+  std::printf("%-13s %9zu rays  xi %7.2f Mrays/s (%s)  embree %7.2f Mrays/s  embree x16 %7.2f Mrays/s  same %.3f%%\n",
+              what, count, xi_rate, rays_kind(rays), embree_rate, embree16_rate, same);
+}
+
 int main(int argc, char** argv) {
-  if (argc < 2) {
-    std::fprintf(stderr, "usage: xi_ceiling SCENE.json [RUNS] [WIDTHxHEIGHT] [high|medium|low]\n");
+  std::vector<std::string> args(argv + 1, argv + argc);
+  std::filesystem::path rays_out;
+  if (auto at = std::find(args.begin(), args.end(), "--rays-out"); at != args.end()) {
+    if (at + 1 == args.end()) args.clear();
+    else rays_out = *(at + 1), args.erase(at, at + 2);
+  }
+  if (args.empty()) {
+    std::fprintf(stderr, "usage: xi_ceiling SCENE.json [RUNS] [WIDTHxHEIGHT] [high|medium|low] [--rays-out DIR]\n");
     return 2;
   }
   try {
-    int runs = argc > 2 ? std::max(1, std::atoi(argv[2])) : 5;
-    xi::Scene scene = xi::load_scene(argv[1]);
-    if (argc > 3 && std::sscanf(argv[3], "%dx%d", &scene.width, &scene.height) != 2)
-      throw xi::Error("expected WIDTHxHEIGHT", argv[3]);
-    const std::string quality = argc > 4 ? argv[4] : "high";
+    int runs = args.size() > 1 ? std::max(1, std::atoi(args[1].c_str())) : 5;
+    xi::Scene scene = xi::load_scene(args[0]);
+    if (args.size() > 2 && std::sscanf(args[2].c_str(), "%dx%d", &scene.width, &scene.height) != 2)
+      throw xi::Error("expected WIDTHxHEIGHT", args[2]);
+    const std::string quality = args.size() > 3 ? args[3] : "high";
     const RTCBuildQuality embree_quality = parse_quality(quality);
+    if (!rays_out.empty()) std::filesystem::create_directories(rays_out);
     xi::Device device = xi::Device::open("");
     std::printf("scene %s: %zu triangles, %dx%d; device %s; %u host threads for Embree, build quality %s\n",
-                argv[1], scene.triangles.size(), scene.width, scene.height, device.info().name.c_str(),
+                args[0].c_str(), scene.triangles.size(), scene.width, scene.height, device.info().name.c_str(),
                 std::thread::hardware_concurrency(), quality.c_str());
     for (int bounce : {0, 1}) {
       xi::RenderOptions opt;
@@ -159,8 +248,10 @@ int main(int argc, char** argv) {
       xi::RayProbe probe(recorder);
       probe.record(bounce);
       recorder.run_pass();
-      const xi::RayBatch& rays = probe.recorded();
+      const xi::KernelConfig& k = recorder.kernels();
       Embree embree(recorder.compiled().tri_verts, embree_quality);
+
+      const xi::RayBatch& rays = probe.recorded();
       std::vector<double> xi_s, em_s, em16_s;
       std::vector<glm::vec4> hits;
       std::vector<int> prim, prim16;
@@ -172,19 +263,35 @@ int main(int argc, char** argv) {
       size_t agree = 0;
       for (size_t i = 0; i < rays.org.size(); ++i) {
         int ours = hits[i].x < 0.0f ? -1 : (int)as_uint(hits[i].w);
-        agree += ours == prim[i];
+        agree += ours == prim[i] && prim[i] == prim16[i];
       }
-      double n = (double)rays.org.size();
-      double xi_rate = n / median(xi_s) * 1e-6, em_rate = n / median(em_s) * 1e-6;
-      std::printf("%-13s %9zu rays  xi extend %7.2f Mrays/s  embree %7.2f Mrays/s  ratio %.3f  same hit %.3f%%\n",
-                  bounce == 0 ? "camera rays" : "bounce rays", rays.org.size(), xi_rate, em_rate, xi_rate / em_rate,
-                  100.0 * agree / n);
-      const double em16_rate = n / median(em16_s) * 1e-6;
-      std::printf("%-13s embree rtcIntersect16 %7.2f Mrays/s (packets of 16 in the recorded order)  xi / packets "
-                  "%.3f  packet / single hits the same %.3f%%\n",
-                  "", em16_rate, xi_rate / em16_rate,
-                  100.0 * (double)std::inner_product(prim.begin(), prim.end(), prim16.begin(), size_t{0}, std::plus<>(),
-                                                     std::equal_to<>()) / n);
+      const double n = (double)rays.org.size();
+      print_row(bounce == 0 ? "camera rays" : "bounce rays", rays.org.size(), n / median(xi_s) * 1e-6,
+                XI_EXTEND_RAYS(k.bvh_width, bounce, k.ray_packets, k.hybrid_packets), n / median(em_s) * 1e-6,
+                n / median(em16_s) * 1e-6, 100.0 * agree / n);
+
+      const xi::RayBatch& shadow_rays = probe.recorded_shadow();
+      if (!shadow_rays.org.empty()) {
+        std::vector<double> xs, es, e16s;
+        std::vector<bool> xi_occ;
+        std::vector<char> em_occ, em16_occ;
+        for (int r = 0; r < runs; ++r) {
+          xs.push_back(probe.trace_shadow(shadow_rays, &xi_occ, bounce));
+          es.push_back(embree.occluded(shadow_rays, &em_occ));
+          e16s.push_back(embree.occluded16(shadow_rays, &em16_occ));
+        }
+        size_t same = 0;
+        for (size_t i = 0; i < shadow_rays.org.size(); ++i)
+          same += xi_occ[i] == (bool)em_occ[i] && em_occ[i] == em16_occ[i];
+        const double m = (double)shadow_rays.org.size();
+        print_row(bounce == 0 ? "shadow rays 0" : "shadow rays 1", shadow_rays.org.size(), m / median(xs) * 1e-6,
+                  XI_SHADOW_RAYS(k.bvh_width, bounce, k.ray_packets, k.hybrid_packets), m / median(es) * 1e-6,
+                  m / median(e16s) * 1e-6, 100.0 * same / m);
+      }
+      if (!rays_out.empty()) {
+        write_rays(rays_out / (bounce == 0 ? "camera.f32" : "bounce.f32"), rays);
+        write_rays(rays_out / (bounce == 0 ? "shadow0.f32" : "shadow1.f32"), shadow_rays);
+      }
     }
   } catch (const std::exception& e) {
     std::fprintf(stderr, "xi_ceiling: error: %s\n", e.what());

@@ -53,8 +53,34 @@ def read_rgb(path):
     return np.array(layers["<root>"], np.float64), (None if var is None else np.array(var, np.float64))
 
 
+def time_rays(scene, path, shadow, runs):
+    """Mrays/s of the loaded scene's own ray queries on the rays `xi_ceiling --rays-out` wrote to PATH
+    (float32 origin xyz, tmax, direction xyz, 0 per ray): ray_intersect_preliminary for closest hits, or
+    with SHADOW ray_test up to each ray's tmax; the median of RUNS after a warm-up (Dr.Jit compiles it)."""
+    import drjit as dr
+    import mitsuba as mi
+    import numpy as np
+    a = np.fromfile(path, dtype=np.float32).reshape(-1, 8)
+    if not len(a):
+        return dict(rays=0, mrays=None, hits=0)
+    col = [mi.Float(np.ascontiguousarray(a[:, i])) for i in range(8)]
+    maxt = col[3] if shadow else dr.inf
+    ray = mi.Ray3f(mi.Point3f(col[0], col[1], col[2]), mi.Vector3f(col[4], col[5], col[6]), maxt, 0.0, [])
+    dr.eval(ray)
+    seconds = []
+    for _ in range(runs + 1):
+        t0 = time.perf_counter()
+        hit = scene.ray_test(ray) if shadow else scene.ray_intersect_preliminary(ray).is_valid()
+        dr.eval(hit)
+        dr.sync_thread()  # Dr.Jit launches asynchronously
+        seconds.append(time.perf_counter() - t0)
+    seconds = sorted(seconds[1:])
+    return dict(rays=len(a), mrays=len(a) / seconds[len(seconds) // 2] * 1e-6,
+                hits=int(np.count_nonzero(np.array(hit))))
+
+
 def worker(variant):
-    """Answers one JSON line per request on stdin: hello, load, render, compare."""
+    """Answers one JSON line per request on stdin: hello, load, render, compare, rays."""
     reply = os.fdopen(os.dup(1), "w", buffering=1)
     os.dup2(2, 1)  # whatever Mitsuba prints goes to stderr, not into the replies
     import drjit as dr
@@ -95,6 +121,8 @@ def worker(variant):
                            xi_se=(np.sqrt(xi_var.sum(axis=(0, 1))) / npix).tolist() if xi_var is not None else None,
                            relmse=relmse(mi_rgb, xi_rgb), relmse_mirrored=relmse(mi_rgb[:, ::-1], xi_rgb),
                            relmse_flipped=relmse(mi_rgb[::-1], xi_rgb))
+            elif cmd == "rays":
+                res = time_rays(scene, req["file"], req["shadow"], req["runs"])
             else:
                 raise ValueError(f"unknown request {cmd}")
         except ms.Unsupported as e:
@@ -243,13 +271,17 @@ def check(a, xi, mitsuba, scene, resolution, out_dir, tmp):
     return [row + [r["relmse"]] for row in rows]
 
 
-CEILING = re.compile(r"^(camera|bounce) rays\s+(\d+) rays\s+xi extend\s+([\d.]+) Mrays/s\s+embree\s+([\d.]+) "
-                     r"Mrays/s\s+ratio ([\d.]+)\s+same hit ([\d.]+)%\n\s+embree rtcIntersect16\s+([\d.]+) Mrays/s",
-                     re.M)
+CEILING = re.compile(r"^(camera rays|bounce rays|shadow rays 0|shadow rays 1)\s+(\d+) rays\s+xi\s+([\d.]+) Mrays/s "
+                     r"\(([a-z ]+)\)\s+embree\s+([\d.]+) Mrays/s\s+embree x16\s+([\d.]+) Mrays/s\s+"
+                     r"same ([\d.]+)%", re.M)
+# The files `xi_ceiling --rays-out` writes, by row.
+CEILING_RAYS = {"camera rays": "camera.f32", "bounce rays": "bounce.f32", "shadow rays 0": "shadow0.f32",
+                "shadow rays 1": "shadow1.f32"}
 
 
-def ceiling(a, xi, scenes, resolution, out_dir):
-    """bench/ceiling.cpp (xi's extend kernel against Embree's rtcIntersect1 on the same rays), if built."""
+def ceiling(a, xi, mitsuba, scenes, resolution, out_dir, tmp):
+    """bench/ceiling.cpp (xi's extend and shadow kernels against Embree on the same rays), if built, and
+    Mitsuba's own ray queries on those rays."""
     tool = Path(a.ceiling) if a.ceiling else xi.parent / "bench" / "xi_ceiling"
     if not os.access(tool, os.X_OK):
         print(f"\nembree: no {tool}: configure with -DXI_WITH_EMBREE=ON (Debian's libembree-dev) and build "
@@ -257,17 +289,27 @@ def ceiling(a, xi, scenes, resolution, out_dir):
         return
     rows = []
     for scene in scenes:
-        text = c.run([tool, scene, a.runs, resolution])
+        rays_dir = Path(tmp) / f"rays-{scene.stem}"
+        text = c.run([tool, scene, a.runs, resolution, "--rays-out", rays_dir])
+        loaded = load(a, xi, mitsuba, scene, resolution, scene_depth(scene), tmp)
         for m in CEILING.finditer(text):
-            rows.append([scene.stem, resolution, m[1], int(m[2]), float(m[3]), float(m[4]), float(m[5]),
-                         float(m[6]), float(m[7]), float(m[3]) / float(m[7])])
-    headers = ["scene", "resolution", "rays", "count", "xi extend Mrays/s", "Embree Mrays/s", "xi / Embree",
-               "same hit %", "Embree x16 Mrays/s", "xi / x16"]
-    print(f"\nThe ceiling: xi's extend kernel against Embree's rtcIntersect1 on the same rays, and its "
-          f"rtcIntersect16 on packets of 16 (as Mitsuba's LLVM variant calls it) ({tool.name}, medians of {a.runs}; "
-          f"ratio > 1: xi is faster)")
-    c.print_table(headers, [[s, r, k, n, c.fmt(x, ".2f"), c.fmt(e, ".2f"), c.fmt(q, ".3f"), c.fmt(h, ".2f"),
-                             c.fmt(e16, ".2f"), c.fmt(q16, ".3f")] for s, r, k, n, x, e, q, h, e16, q16 in rows])
+            mi_rate = None
+            if loaded:
+                r = mitsuba.ask(cmd="rays", file=str(rays_dir / CEILING_RAYS[m[1]]), shadow=m[1].startswith("shadow"),
+                                runs=a.runs)
+                mi_rate = r.get("mrays")
+            xi_rate, em, em16 = float(m[3]), float(m[5]), float(m[6])
+            rows.append([scene.stem, resolution, m[1], int(m[2]), m[4], xi_rate, em, xi_rate / em, em16, xi_rate / em16,
+                         mi_rate, xi_rate / mi_rate if mi_rate else None, float(m[7])])
+    headers = ["scene", "resolution", "rays", "count", "xi traces them", "xi Mrays/s", "Embree Mrays/s", "xi / Embree",
+               "Embree x16 Mrays/s", "xi / x16", "Mitsuba Mrays/s", "xi / Mitsuba", "same %"]
+    print(f"\nThe ceiling: xi's extend and shadow kernels on rays recorded from a 1-spp render, against Embree's "
+          f"rtcIntersect1/rtcOccluded1, its 16-ray packets (as Mitsuba's LLVM variant calls it) and Mitsuba's own "
+          f"ray_intersect_preliminary/ray_test on the same rays ({tool.name}, medians of {a.runs}; ratio > 1: xi is "
+          f"faster; same: xi's and Embree's answers agree)")
+    c.print_table(headers, [[s, r, k, n, how, c.fmt(x, ".2f"), c.fmt(e, ".2f"), c.fmt(q, ".3f"), c.fmt(e16, ".2f"),
+                             c.fmt(q16, ".3f"), c.fmt(m, ".2f"), c.fmt(qm, ".3f"), c.fmt(same, ".3f")]
+                            for s, r, k, n, how, x, e, q, e16, q16, m, qm, same in rows])
     c.write_csv(out_dir / "peers-embree.csv", headers, rows)
 
 
@@ -324,8 +366,14 @@ def main():
             mitsuba.close()
             return
         rows = [measure(a, xi, mitsuba, scene, resolution, tmp) for scene in scenes]
+        print_rows(a, info, xi, rows, out_dir)
+        if a.embree:
+            ceiling(a, xi, mitsuba, scenes, resolution, out_dir, tmp)
     mitsuba.close()
 
+
+def print_rows(a, info, xi, rows, out_dir):
+    """The speed (and --error) table, printed and written to peers.csv."""
     headers = ["scene", "resolution", "spp", "depth", "xi s", "xi Ms/s", "Mitsuba s", "Mitsuba Ms/s", "xi/Mitsuba"]
     table = [[r["scene"], r["resolution"], r["spp"], r["max_depth"], c.fmt(r["xi_s"], ".3f"),
               c.fmt(r["xi_msamples"], ".3f"), c.fmt(r["mitsuba_s"], ".3f"), c.fmt(r["mitsuba_msamples"], ".3f"),
@@ -348,8 +396,6 @@ def main():
     c.write_csv(out_dir / "peers.csv", keys + ["xi_device", "xi_sampler", "mitsuba_variant", "mitsuba_sampler"],
                 [[r[k] for k in keys] + [a.xi_device or "default", a.xi_sampler, info["variant"], a.mitsuba_sampler]
                  for r in rows])
-    if a.embree:
-        ceiling(a, xi, scenes, resolution, out_dir)
 
 
 if __name__ == "__main__":

@@ -1,8 +1,8 @@
 // Stage 2, extend: the closest hit of every queued ray against the BVH. Through an 8-wide tree,
 // camera rays (bounce 0) go in packets of 8 or 16, one packet per work item (packet.h,
-// xi_trace_packet), and so do bounce rays where the host chose it for a small tree
-// (XI_RAY_PACKETS, layout.h's XI_EXTEND_PACKET); every other ray alone, one per work item
-// (traverse.h, xi_trace).
+// xi_trace_packet), as do the bounce rays of a small tree, and in a large one bounce 1's rays in
+// hybrid packets (xi_trace_hybrid) (layout.h's XI_EXTEND_RAYS); every other ray alone, one per work
+// item (traverse.h, xi_trace).
 #include "layout.h"
 #include "packet.h"
 #include "traverse.h"
@@ -23,8 +23,8 @@ static inline void xi_extend_one(__global const float4* ray_org, __global const 
 // in order, so these are neighbouring pixels of one sample; later, paths that survived in slot
 // order. A last packet of fewer than w is traced one ray at a time.
 static inline void xi_extend_packet(__global const float4* ray_org, __global const float4* ray_dir, __global float4* hit,
-                                    __global const uint* queue, uint count, __global const TraceNode* nodes,
-                                    __global const TriBlock* tri_blocks) {
+                                    __global const uint* queue, uint count, bool hybrid,
+                                    __global const TraceNode* nodes, __global const TriBlock* tri_blocks) {
   const uint first = (uint)get_global_id(0) * XI_PACKET_WIDTH;
   if (first >= count) return;
   if (count - first < XI_PACKET_WIDTH) {
@@ -40,8 +40,11 @@ static inline void xi_extend_packet(__global const float4* ray_org, __global con
   }
   PacketFloat t, u, v;
   PacketUint tri;
-  xi_trace_packet(nodes, tri_blocks, XI_PACKET_OF(o, x), XI_PACKET_OF(o, y), XI_PACKET_OF(o, z), XI_PACKET_OF(d, x),
-                  XI_PACKET_OF(d, y), XI_PACKET_OF(d, z), &t, &u, &v, &tri);
+  if (hybrid)
+    xi_trace_hybrid(nodes, tri_blocks, o, d, &t, &u, &v, &tri);
+  else
+    xi_trace_packet(nodes, tri_blocks, XI_PACKET_OF(o, x), XI_PACKET_OF(o, y), XI_PACKET_OF(o, z), XI_PACKET_OF(d, x),
+                    XI_PACKET_OF(d, y), XI_PACKET_OF(d, z), &t, &u, &v, &tri);
   XI_UNROLL for (uint k = 0u; k < XI_PACKET_WIDTH; ++k)
     xi_store_hit(hit, slot[k], XI_PACKET_LANE(uint, tri, k), XI_PACKET_LANE(float, t, k), XI_PACKET_LANE(float, u, k),
                  XI_PACKET_LANE(float, v, k));
@@ -52,8 +55,9 @@ __kernel void extend(XI_PATH_PARAMS __global const uint* restrict queue, __globa
                      uint bounce, __global const TraceNode* restrict nodes, __global const TriBlock* restrict tri_blocks) {
   uint count = counters[XI_COUNTER_RAYS(bounce)];
 #if XI_BVH_WIDTH == 8
-  if (XI_EXTEND_PACKET(XI_BVH_WIDTH, bounce, XI_RAY_PACKETS, XI_PACKET_WIDTH) > 1) {
-    xi_extend_packet(ray_org, ray_dir, hit, queue, count, nodes, tri_blocks);
+  const int rays = XI_EXTEND_RAYS(XI_BVH_WIDTH, bounce, XI_RAY_PACKETS, XI_HYBRID_PACKETS);
+  if (rays != XI_RAYS_ALONE) {
+    xi_extend_packet(ray_org, ray_dir, hit, queue, count, rays == XI_RAYS_HYBRID, nodes, tri_blocks);
     return;
   }
 #endif

@@ -1,9 +1,10 @@
 // Stage 4, shadow: any-hit test of every queued shadow ray; an unoccluded ray adds its
 // contribution to its path. A path queues at most one shadow ray per bounce, so the add is safe.
-// Through a small 8-wide tree (XI_RAY_PACKETS, layout.h's XI_SHADOW_PACKET) a packet of 8 or 16 rays
-// goes together, one packet per work item (packet.h, xi_occluded_packet); else one per work item
-// (traverse.h, xi_trace's any-hit query). In a scene with cut-out or transparent surfaces
-// (XI_ALPHA) a ray goes alone, from hit to hit, until an opaque one or its end.
+// Through an 8-wide tree the rays of a small tree go in packets of 8 or 16 rays, one packet per work
+// item (packet.h, xi_occluded_packet), and in a large one bounce 0's in hybrid packets
+// (xi_occluded_hybrid) (layout.h's XI_SHADOW_RAYS); else one per work item (traverse.h, xi_trace's
+// any-hit query). In a scene with cut-out or transparent surfaces (XI_ALPHA) a ray goes alone, from
+// hit to hit, until an opaque one or its end.
 #include "layout.h"
 #include "packet.h"
 #include "rng.h"
@@ -77,8 +78,8 @@ static inline void xi_shadow_one(__global float4* radiance, __global const float
 // at a time.
 static inline void xi_shadow_packet(__global float4* radiance, __global const float4* shadow_org,
                                     __global const float4* shadow_dir, __global const float4* shadow_contrib,
-                                    uint count, __global const TraceNode* nodes, __global const TriBlock* tri_blocks,
-                                    XI_ALPHA_PARAMS, XI_PATH_ID_PARAMS) {
+                                    uint count, bool hybrid, __global const TraceNode* nodes,
+                                    __global const TriBlock* tri_blocks, XI_ALPHA_PARAMS, XI_PATH_ID_PARAMS) {
   const uint first = (uint)get_global_id(0) * XI_PACKET_WIDTH;
   if (first >= count) return;
   if (count - first < XI_PACKET_WIDTH) {
@@ -92,8 +93,9 @@ static inline void xi_shadow_packet(__global float4* radiance, __global const fl
     d[k] = shadow_dir[first + k];
   }
   const uint occluded =
-      xi_occluded_packet(nodes, tri_blocks, XI_PACKET_OF(o, x), XI_PACKET_OF(o, y), XI_PACKET_OF(o, z),
-                         XI_PACKET_OF(d, x), XI_PACKET_OF(d, y), XI_PACKET_OF(d, z), XI_PACKET_OF(o, w));
+      hybrid ? xi_occluded_hybrid(nodes, tri_blocks, o, d)
+             : xi_occluded_packet(nodes, tri_blocks, XI_PACKET_OF(o, x), XI_PACKET_OF(o, y), XI_PACKET_OF(o, z),
+                                  XI_PACKET_OF(d, x), XI_PACKET_OF(d, y), XI_PACKET_OF(d, z), XI_PACKET_OF(o, w));
   for (uint k = 0u; k < XI_PACKET_WIDTH; ++k)
     if (!(occluded & (1u << k))) xi_add_unoccluded(radiance, shadow_contrib[first + k]);
 }
@@ -104,8 +106,10 @@ __kernel void shadow(XI_PATH_PARAMS XI_SHADOW_PARAMS __global const uint* restri
                      XI_ALPHA_PARAMS) {
   uint count = counters[XI_COUNTER_SHADOW(bounce)];
 #if XI_BVH_WIDTH == 8
-  if (XI_SHADOW_PACKET(XI_BVH_WIDTH, XI_RAY_PACKETS, XI_PACKET_WIDTH) > 1) {
-    xi_shadow_packet(radiance, shadow_org, shadow_dir, shadow_contrib, count, nodes, tri_blocks, XI_ALPHA_ARGS, XI_PATH_ID_ARGS);
+  // A program's shadow packets are all of one kind (hybrid unless XI_RAY_PACKETS), so it compiles one.
+  if (XI_SHADOW_RAYS(XI_BVH_WIDTH, bounce, XI_RAY_PACKETS, XI_HYBRID_PACKETS) != XI_RAYS_ALONE) {
+    xi_shadow_packet(radiance, shadow_org, shadow_dir, shadow_contrib, count, !XI_RAY_PACKETS, nodes, tri_blocks,
+                     XI_ALPHA_ARGS, XI_PATH_ID_ARGS);
     return;
   }
 #endif

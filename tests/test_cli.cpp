@@ -454,21 +454,32 @@ TEST_F(CliRender, NoSpatialSplitsBuildsOneReferencePerTriangle) {
 
 // `xi render` says which rays go through the tree in packets and how many rays a packet holds, and
 // --ray-packets and --packet-width change it but not the image (ties aside, none in this frame):
-// the Cornell box's tree of 2 nodes takes bounce and shadow packets by default, an 8-wide tree
-// always takes camera packets, and a 4-wide one none.
+// the Cornell box's tree of 2 nodes takes bounce and shadow packets by default (hybrid ones when
+// told), an 8-wide tree always takes camera packets, and a 4-wide one none; a mode it does not know
+// is an error naming the modes.
 TEST_F(CliRender, SaysWhichRaysGoInPackets) {
   const std::vector<std::string> base = {"render", kCornell.string(), "--spp", "2", "--resolution", "32x24"};
   const Outcome automatic = run_xi(concat(base, {"-o", "a.exr", "--bvh-width", "8", "--packet-width", "16"}));
   const Outcome off =
       run_xi(concat(base, {"-o", "b.exr", "--bvh-width", "8", "--ray-packets", "off", "--packet-width", "8"}));
   const Outcome four = run_xi(concat(base, {"-o", "c.exr", "--bvh-width", "4", "--ray-packets", "on"}));
-  for (const Outcome* o : {&automatic, &off, &four}) ASSERT_EQ(o->code, 0) << o->err;
+  const Outcome hybrid =
+      run_xi(concat(base, {"-o", "d.exr", "--bvh-width", "8", "--ray-packets", "hybrid", "--packet-width", "16"}));
+  const Outcome unknown = run_xi(concat(base, {"-o", "e.exr", "--ray-packets", "some"}));
+  for (const Outcome* o : {&automatic, &off, &four, &hybrid}) ASSERT_EQ(o->code, 0) << o->err;
   EXPECT_NE(automatic.out.find("; camera, bounce and shadow rays in packets of 16\n"), std::string::npos) << automatic.out;
   EXPECT_NE(off.out.find("; camera rays in packets of 8\n"), std::string::npos) << off.out;
   EXPECT_EQ(four.out.find("in packets"), std::string::npos) << four.out;
-  const xi::Image a = xi::read_exr(work_ / "a.exr"), b = xi::read_exr(work_ / "b.exr");
-  ASSERT_EQ(a.pixels.size(), b.pixels.size());
-  EXPECT_EQ(std::memcmp(a.pixels.data(), b.pixels.data(), a.pixels.size() * sizeof(glm::vec3)), 0);
+  EXPECT_NE(hybrid.out.find("; camera rays in packets of 16, the first bounce's in hybrid packets\n"),
+            std::string::npos)
+      << hybrid.out;
+  EXPECT_NE(unknown.code, 0);
+  EXPECT_NE(unknown.err.find("expected auto, on, hybrid or off"), std::string::npos) << unknown.err;
+  for (const char* other : {"b.exr", "d.exr"}) {
+    const xi::Image a = xi::read_exr(work_ / "a.exr"), b = xi::read_exr(work_ / other);
+    ASSERT_EQ(a.pixels.size(), b.pixels.size());
+    EXPECT_EQ(std::memcmp(a.pixels.data(), b.pixels.data(), a.pixels.size() * sizeof(glm::vec3)), 0) << other;
+  }
 }
 
 // In a cache of its own: after `xi prebuild`, a scene whose own kernels were never built renders at

@@ -575,12 +575,13 @@ TEST(EndToEndDeterminism, BvhWidthsAgree) {
   }
 }
 
-// Bounce and shadow rays in packets (extend.cl, shadow.cl, packet.h) find each ray's hit (or
-// occluder) as one ray at a time does, bitwise but for ties, so the images agree bit for bit but
-// where two triangles are hit at exactly the same t. The automatic choice takes packets for the
-// Cornell box's tree of 2 nodes and not for mirror.json's hundreds; mirror.json is rendered with
-// them forced on too (per-ray axis permutations and near planes in a deep tree, mirror and glass).
-// Packets of 8 and of 16 rays agree the same way.
+// Bounce and shadow rays in packets (extend.cl, shadow.cl, packet.h), or the first bounce's in
+// hybrid packets, find each ray's hit (or occluder) as one ray at a time does, bitwise but for ties,
+// so the images agree bit for bit but where two triangles are hit at exactly the same t. The
+// automatic choice takes packets for the Cornell box's tree of 2 nodes and hybrid packets for
+// mirror.json's hundreds; each scene is rendered with every choice forced (per-ray axis
+// permutations and near planes in a deep tree, mirror and glass). Packets of 8 and of 16 rays agree
+// the same way.
 TEST(EndToEndDeterminism, RayPacketsAgree) {
   using Packets = xi::RenderOptions::RayPackets;
   for (const char* scene : {"cornell-box.json", "mirror.json"}) {
@@ -591,16 +592,21 @@ TEST(EndToEndDeterminism, RayPacketsAgree) {
     s.height = kDetH;
     xi::RenderOptions o = render_options(4, 11, xi::Strategy::Mis, cornell_depth(), XI_SAMPLER_SOBOL);
     o.bvh_width = 8;
-    EXPECT_EQ(xi::Renderer(device(), s, o).kernels().ray_packets, std::string(scene) == "cornell-box.json");
+    const bool small = std::string(scene) == "cornell-box.json";
+    EXPECT_EQ(xi::Renderer(device(), s, o).kernels().ray_packets, small);
+    EXPECT_EQ(xi::Renderer(device(), s, o).kernels().hybrid_packets, !small);
     o.ray_packets = Packets::Off;
     const Result off = render(kDetW, kDetH, o, file);
-    o.ray_packets = Packets::On;
-    o.packet_width = 8;
-    const Result eight = render(kDetW, kDetH, o, file);
-    expect_same_but_ties(off, eight);
-    o.packet_width = 16;
-    const Result sixteen = render(kDetW, kDetH, o, file);
-    expect_same_but_ties(eight, sixteen);
+    for (Packets packets : {Packets::On, Packets::Hybrid}) {
+      SCOPED_TRACE(packets == Packets::On ? "packets" : "hybrid packets");
+      o.ray_packets = packets;
+      o.packet_width = 8;
+      const Result eight = render(kDetW, kDetH, o, file);
+      expect_same_but_ties(off, eight);
+      o.packet_width = 16;
+      const Result sixteen = render(kDetW, kDetH, o, file);
+      expect_same_but_ties(eight, sixteen);
+    }
   }
 }
 

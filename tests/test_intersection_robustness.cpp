@@ -75,6 +75,7 @@ RayTest shoot_from_inside(const std::vector<xi::Triangle>& tris, dvec3 centre, d
   xi::RenderOptions o;
   o.spp = 1;
   o.paths_in_flight = (size_t)s.width * s.height;
+  o.ray_packets = xi::RenderOptions::RayPackets::Off;  // one ray per work item: random origins make no packets
   xi::Renderer renderer(device(), s, o);
   const size_t batch = renderer.paths_in_flight();
   std::vector<dvec3> verts;
@@ -113,7 +114,7 @@ RayTest shoot_from_inside(const std::vector<xi::Triangle>& tris, dvec3 centre, d
       rays.org[i] = glm::vec4(of, 0.0f);
       rays.dir[i] = glm::vec4(vec3(glm::normalize(target - dvec3(of))), 0.0f);
     }
-    out.seconds += xi::RayProbe(renderer).trace_closest(rays, &hits, 1);  // one ray per work item: random origins make no packets
+    out.seconds += xi::RayProbe(renderer).trace_closest(rays, &hits, 1);
     for (size_t i = 0; i < n; ++i) {
       if (hits[i].x < 0.0f) {
         out.escaped++;

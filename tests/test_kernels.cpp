@@ -73,12 +73,19 @@ class Kernel : public ::testing::Test {
     xi::KernelConfig packets16 = packets8;
     packets16.packet_width = 16;
     ray_packets16_.emplace(xi::build_program(*device_, {"extend.cl", "shadow.cl"}, packets16.defines()));
+    xi::KernelConfig hybrid8 = width8, hybrid16 = width8;
+    hybrid8.hybrid_packets = hybrid16.hybrid_packets = true;
+    hybrid16.packet_width = 16;
+    hybrid8_.emplace(xi::build_program(*device_, {"extend.cl", "shadow.cl"}, hybrid8.defines()));
+    hybrid16_.emplace(xi::build_program(*device_, {"extend.cl", "shadow.cl"}, hybrid16.defines()));
   }
   static void TearDownTestSuite() {  // release OpenCL objects before the driver unloads
     program_.reset();
     program8_.reset();
     ray_packets8_.reset();
     ray_packets16_.reset();
+    hybrid8_.reset();
+    hybrid16_.reset();
     lanes8_.reset();
     device_.reset();
   }
@@ -150,11 +157,12 @@ class Kernel : public ::testing::Test {
   }
 
   static std::optional<xi::Device> device_;
-  static std::optional<xi::Program> program_, program8_, ray_packets8_, ray_packets16_, lanes8_;
+  static std::optional<xi::Program> program_, program8_, ray_packets8_, ray_packets16_, hybrid8_, hybrid16_, lanes8_;
   static uint32_t shading_word_;  // the programs' own (compiled in; the argument is read by generic programs)
 };
 std::optional<xi::Device> Kernel::device_;
 std::optional<xi::Program> Kernel::program_, Kernel::program8_, Kernel::ray_packets8_, Kernel::ray_packets16_,
+    Kernel::hybrid8_, Kernel::hybrid16_,
     Kernel::lanes8_;
 uint32_t Kernel::shading_word_ = 0;
 
@@ -394,48 +402,62 @@ TEST_F(Kernel, PacketsFindTheHitsOfSingleRays) {
     }
     EXPECT_GE(together, (size_t)packets / 2);  // most of the four kinds meant to share
 
-    // Eight rays per work item at bounce 0, and at bounce 3 with ray packets; one at bounce 1 without.
-    auto trace = [&](uint32_t bounce, bool ray_packets) {
+    // w rays per work item at bounce 0, at bounce 3 with ray packets and at bounce 1 with hybrid
+    // packets; one at bounce 1 without.
+    enum Program { kPlain, kPackets, kHybrid };
+    auto trace = [&](uint32_t bounce, Program program) {
       PathBuffers b = upload(state);
       std::vector<uint32_t> counters(XI_COUNTER_COUNT(8), 7u);
       counters[XI_COUNTER_RAYS(bounce)] = n;
       cl::Buffer qb = buffer(q), cb = buffer(counters), nodes = bvh_nodes(cs.bvh), blocks = buffer(cs.bvh.blocks);
       // Packets of 16: bounce 0 from the program with ray packets too.
       const xi::Program& packets = w == 16 ? *ray_packets16_ : *ray_packets8_;
-      cl::Kernel k = ray_packets || (w == 16 && bounce == 0) ? cl::Kernel(packets.program, "extend")
-                                                              : kernel("extend", 8);
+      const xi::Program& hybrid = w == 16 ? *hybrid16_ : *hybrid8_;
+      cl::Kernel k = program == kHybrid                               ? cl::Kernel(hybrid.program, "extend")
+                     : program == kPackets || (w == 16 && bounce == 0) ? cl::Kernel(packets.program, "extend")
+                                                                       : kernel("extend", 8);
       bind(k, b, qb, cb, bounce, nodes, blocks);
-      launch(k, slots / XI_EXTEND_PACKET(8, bounce, ray_packets ? 1 : 0, w) + 1);
+      const int rays = XI_EXTEND_RAYS(8, bounce, program == kPackets ? 1 : 0, program == kHybrid ? 1 : 0);
+      EXPECT_EQ(rays, bounce == 0 || program == kPackets ? XI_RAYS_TOGETHER
+                      : program == kHybrid               ? XI_RAYS_HYBRID
+                                                         : XI_RAYS_ALONE);
+      launch(k, slots / XI_RAYS_PER_ITEM(rays, w) + 1);
       return read<vec4>(b.hit, slots);
     };
-    const std::vector<vec4> packet = trace(0, false), single = trace(1, false), bounce_packet = trace(3, true);
+    const std::vector<vec4> packet = trace(0, kPlain), single = trace(1, kPlain), bounce_packet = trace(3, kPackets),
+                            hybrid = trace(1, kHybrid);
     for (uint32_t i = 0; i < slots; ++i)
       if (!same_bits(packet[i], bounce_packet[i]))
         ADD_FAILURE() << "slot " << i << ": a bounce packet's hit is not the camera packet's";
-    size_t aimed_ties = 0, other_ties = 0, differ = 0, hits = 0, inside = 0;
-    for (uint32_t i = 0; i < n; ++i) {
-      const vec4 a = packet[i], b = single[i];
-      hits += b.x > 0.0f;
-      if (kind[i] == kInside) {
-        inside++;
-        EXPECT_GT(a.x, 0.0f) << "ray " << i << " from inside the sphere escaped its packet";
-        EXPECT_GT(b.x, 0.0f) << "ray " << i << " from inside the sphere escaped";
+    for (const bool is_hybrid : {false, true}) {
+      SCOPED_TRACE(is_hybrid ? "hybrid packets" : "packets");
+      const std::vector<vec4>& together = is_hybrid ? hybrid : packet;
+      size_t aimed_ties = 0, other_ties = 0, differ = 0, hits = 0, inside = 0;
+      for (uint32_t i = 0; i < n; ++i) {
+        const vec4 a = together[i], b = single[i];
+        hits += b.x > 0.0f;
+        if (kind[i] == kInside) {
+          inside++;
+          EXPECT_GT(a.x, 0.0f) << "ray " << i << " from inside the sphere escaped its packet";
+          EXPECT_GT(b.x, 0.0f) << "ray " << i << " from inside the sphere escaped";
+        }
+        if (same_bits(a, b)) continue;
+        const bool tie = a.x > 0.0f && b.x > 0.0f && as_uint(a.w) != as_uint(b.w) &&
+                         std::abs(a.x - b.x) <= 1e-5f * std::max(a.x, b.x);
+        (kind[i] == kInside ? aimed_ties : other_ties) += tie;  // rays aimed at edges tie often
+        differ += !tie;
+        if (!tie && differ <= 10)
+          ADD_FAILURE() << "ray " << i << " (kind " << kind[i] << "): packet hit (" << a.x << ", " << as_uint(a.w)
+                        << "), alone (" << b.x << ", " << as_uint(b.w) << ")";
       }
-      if (same_bits(a, b)) continue;
-      const bool tie = a.x > 0.0f && b.x > 0.0f && as_uint(a.w) != as_uint(b.w) &&
-                       std::abs(a.x - b.x) <= 1e-5f * std::max(a.x, b.x);
-      (kind[i] == kInside ? aimed_ties : other_ties) += tie;  // rays aimed at edges tie often
-      differ += !tie;
-      if (!tie && differ <= 10)
-        ADD_FAILURE() << "ray " << i << " (kind " << kind[i] << "): packet hit (" << a.x << ", " << as_uint(a.w)
-                      << "), alone (" << b.x << ", " << as_uint(b.w) << ")";
+      EXPECT_EQ(differ, 0u);
+      EXPECT_LE(other_ties, (size_t)n / 1000) << "ties at shared edges are rare but where rays are aimed at them";
+      EXPECT_LE(aimed_ties, inside / 4);
+      EXPECT_GT(hits, (size_t)n / 2);  // so that agreeing says something
+      EXPECT_GE(inside, (size_t)n / 7);
+      for (uint32_t i = n; i < slots; ++i)
+        EXPECT_EQ(as_uint(together[i].x), kGarbage) << "slot " << i << " past the count";
     }
-    EXPECT_EQ(differ, 0u);
-    EXPECT_LE(other_ties, (size_t)n / 1000) << "ties at shared edges are rare but where rays are aimed at them";
-    EXPECT_LE(aimed_ties, inside / 4);
-    EXPECT_GT(hits, (size_t)n / 2);  // so that agreeing says something
-    EXPECT_GE(inside, (size_t)n / 7);
-    for (uint32_t i = n; i < slots; ++i) EXPECT_EQ(as_uint(packet[i].x), kGarbage) << "slot " << i << " past the count";
   }
 }
 
@@ -725,18 +747,20 @@ TEST_F(Kernel, ShadeFirstHitsFromTheCamera) {
 
 // Shadow rays between random points of the Cornell box's interior, occlusion known from brute
 // force: only unoccluded rays add their contribution to their path's radiance (4- and 8-wide BVHs,
-// and 8 wide with rays in packets of 8 and of 16, XI_RAY_PACKETS). Every other packet's worth of
+// and 8 wide with rays in packets of 8 and of 16, XI_RAY_PACKETS, and in hybrid packets of 8 and of
+// 16 at bounce 0, XI_HYBRID_PACKETS). Every other packet's worth of
 // rays is a fan between two small neighbourhoods, which share their axis permutation and signs, so
 // packets take both the coherent and the per-ray traversal (packet.h); 500 rays leave a last packet
 // of four, traced one by one.
 TEST_F(Kernel, ShadowAddsOnlyUnoccluded) {
   xi::Scene scene = xi::load_scene(XI_SCENE_DIR "/cornell-box.json");
-  for (int config : {4, 8, 80, 160}) {
+  for (int config : {4, 8, 80, 160, 81, 161}) {
     const int width = config == 4 ? 4 : 8;
-    const bool packets = config >= 80;
-    const uint32_t packet = config == 160 ? 16 : 8;  // rays per packet (and per fan)
+    const bool packets = config == 80 || config == 160, hybrid = config == 81 || config == 161;
+    const uint32_t packet = config >= 160 ? 16 : 8;  // rays per packet (and per fan)
     SCOPED_TRACE(testing::Message() << width << "-wide BVH" << (packets ? ", packets of " : "")
-                                    << (packets ? std::to_string(packet) : ""));
+                                    << (hybrid ? ", hybrid packets of " : "")
+                                    << (packets || hybrid ? std::to_string(packet) : ""));
     xi::CompiledScene cs = xi::compile_scene(scene, width);
     BruteForce brute(scene.triangles);
     const uint32_t n = 500, slots = 1024, extra = 64;
@@ -782,18 +806,21 @@ TEST_F(Kernel, ShadowAddsOnlyUnoccluded) {
     PathBuffers b = upload(state);
     cl::Buffer org_b = buffer(org), dir_b = buffer(dir), contrib_b = buffer(contrib);
     cl::Buffer nodes = bvh_nodes(cs.bvh), blocks = buffer(cs.bvh.blocks);
-    const uint32_t bounce = 2;
+    const uint32_t bounce = hybrid ? 0 : 2;
     std::vector<uint32_t> counters(XI_COUNTER_COUNT(8), 3u);
     counters[XI_COUNTER_SHADOW(bounce)] = n;  // the entries past n must be ignored
     cl::Buffer cb = buffer(counters);
-    cl::Kernel k = packets ? cl::Kernel((packet == 16 ? ray_packets16_ : ray_packets8_)->program, "shadow")
-                           : kernel("shadow", width);
+    cl::Kernel k = packets  ? cl::Kernel((packet == 16 ? ray_packets16_ : ray_packets8_)->program, "shadow")
+                   : hybrid ? cl::Kernel((packet == 16 ? hybrid16_ : hybrid8_)->program, "shadow")
+                            : kernel("shadow", width);
     cl::Buffer materials = buffer(cs.materials), tri_material = buffer(cs.tri_material), tri_uv = buffer(cs.tri_uv),
                refs = buffer(cs.texture_refs), images = buffer(cs.images), texels = buffer(cs.texels);
     bind(k, b, org_b, dir_b, contrib_b, cb, bounce, nodes, blocks, materials, tri_material, tri_uv, refs, images, texels,
          0u);
     // Over an upper bound, as the renderer launches.
-    launch(k, (n + extra) / XI_SHADOW_PACKET(width, packets ? 1 : 0, packet));
+    const int rays = XI_SHADOW_RAYS(width, bounce, packets ? 1 : 0, hybrid ? 1 : 0);
+    EXPECT_EQ(rays, packets ? XI_RAYS_TOGETHER : hybrid ? XI_RAYS_HYBRID : XI_RAYS_ALONE);
+    launch(k, (n + extra) / XI_RAYS_PER_ITEM(rays, packet));
     std::vector<vec4> got = read<vec4>(b.radiance, slots);
 
     std::vector<vec4> want = state.radiance;

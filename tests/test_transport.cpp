@@ -687,6 +687,7 @@ TEST(TransportFeatures, KernelConfigFollowsDeviceSceneAndOptions) {
   EXPECT_EQ(on_cpu.bvh_width, 8);
   EXPECT_TRUE(on_cpu.cpu_device);
   EXPECT_TRUE(on_cpu.ray_packets);  // the Cornell box's tree is one or two nodes
+  EXPECT_FALSE(on_cpu.hybrid_packets);
   EXPECT_EQ(on_cpu.packet_width, cpu_width);
   EXPECT_EQ(on_cpu.features, wide.features);
   const xi::KernelConfig on_gpu = xi::KernelConfig::make(gpu, narrow, opt);
@@ -694,6 +695,7 @@ TEST(TransportFeatures, KernelConfigFollowsDeviceSceneAndOptions) {
   EXPECT_EQ(on_gpu.bvh_width, 4);
   EXPECT_FALSE(on_gpu.cpu_device);
   EXPECT_FALSE(on_gpu.ray_packets);  // packets need an 8-wide tree
+  EXPECT_FALSE(on_gpu.hybrid_packets);
   EXPECT_EQ(on_gpu.packet_width, 8);
 
   opt.lanes = 1;
@@ -706,15 +708,35 @@ TEST(TransportFeatures, KernelConfigFollowsDeviceSceneAndOptions) {
   EXPECT_EQ(chosen.lanes, 1);
   EXPECT_EQ(chosen.bvh_width, 4);
   EXPECT_FALSE(chosen.ray_packets);
+  EXPECT_FALSE(chosen.hybrid_packets);
   EXPECT_EQ(chosen.features, xi::Features::everything());
   EXPECT_EQ(chosen.sampler, XI_SAMPLER_STRATIFIED);
   EXPECT_EQ(chosen.strategy, xi::Strategy::Nee);
 
   const xi::Scene engine = xi::load_scene(fs::path(XI_SCENE_DIR).parent_path() / "bench/scenes/engine.json");
+  // A large tree: the rays leaving the camera rays' hits in hybrid packets, unless told otherwise;
+  // the Cornell box's small one in hybrid packets when told so; none with cut-outs or a 4-wide tree.
+  const xi::CompiledScene engine8 = xi::compile_scene(engine, 8);
+  using RayPackets = xi::RenderOptions::RayPackets;
+  struct Case {
+    const xi::CompiledScene& scene;
+    RayPackets choice;
+    bool packets, hybrid;
+  };
+  for (const Case& c : {Case{engine8, RayPackets::Auto, false, true}, Case{engine8, RayPackets::On, true, false},
+                        Case{engine8, RayPackets::Hybrid, false, true}, Case{engine8, RayPackets::Off, false, false},
+                        Case{wide, RayPackets::Hybrid, false, true}, Case{wide, RayPackets::Off, false, false},
+                        Case{narrow, RayPackets::Hybrid, false, false}}) {
+    opt = xi::RenderOptions{};
+    opt.ray_packets = c.choice;
+    const xi::KernelConfig k = xi::KernelConfig::make(cpu, c.scene, opt);
+    EXPECT_EQ(k.ray_packets, c.packets) << (int)c.choice << ", " << c.scene.bvh.width << "-wide";
+    EXPECT_EQ(k.hybrid_packets, c.hybrid) << (int)c.choice << ", " << c.scene.bvh.width << "-wide";
+  }
+  xi::CompiledScene cutouts = engine8;
+  cutouts.features.alpha = true;
   opt = xi::RenderOptions{};
-  EXPECT_FALSE(xi::KernelConfig::make(cpu, xi::compile_scene(engine, 8), opt).ray_packets);
-  opt.ray_packets = xi::RenderOptions::RayPackets::On;
-  EXPECT_TRUE(xi::KernelConfig::make(cpu, xi::compile_scene(engine, 8), opt).ray_packets);
+  EXPECT_FALSE(xi::KernelConfig::make(cpu, cutouts, opt).hybrid_packets);
 
   for (int width : {8, 16}) {
     opt = xi::RenderOptions{};
@@ -737,7 +759,7 @@ TEST(TransportFeatures, KernelConfigFollowsDeviceSceneAndOptions) {
 // binary (build_program hashes the flags), and describe() names every field's value.
 TEST(TransportFeatures, EveryKernelOptionChangesTheFlags) {
   const xi::KernelConfig base;
-  std::vector<xi::KernelConfig> variants(10, base);
+  std::vector<xi::KernelConfig> variants(11, base);
   variants[0].features.mirror = true;
   variants[1].features.lens = true;
   variants[2].sampler = XI_SAMPLER_RANDOM;
@@ -748,6 +770,7 @@ TEST(TransportFeatures, EveryKernelOptionChangesTheFlags) {
   variants[7].ray_packets = true;
   variants[8].generic = true;
   variants[9].packet_width = 16;
+  variants[10].hybrid_packets = true;
   std::vector<std::vector<std::string>> flags{base.defines()};
   for (const xi::KernelConfig& v : variants) flags.push_back(v.defines());
   for (size_t i = 0; i < flags.size(); ++i)
@@ -759,6 +782,7 @@ TEST(TransportFeatures, EveryKernelOptionChangesTheFlags) {
   EXPECT_EQ(variants[7].describe(), "diffuse; sampler sobol; strategy mis; lanes 1; bvh 4-wide; ray packets on");
   EXPECT_EQ(variants[8].describe(),
             "generic shading; lanes 1; bvh 4-wide; ray packets off");
+  EXPECT_EQ(variants[10].describe(), "diffuse; sampler sobol; strategy mis; lanes 1; bvh 4-wide; ray packets hybrid");
   // The tracing stages' flags do not depend on the scene's materials, sampler or strategy.
   for (int k : {0, 1, 2, 3, 4, 8}) EXPECT_EQ(variants[k].trace_defines(), base.trace_defines()) << k;
   EXPECT_EQ(cpu.describe(), "diffuse; sampler sobol; strategy mis; lanes 1; bvh 4-wide; ray packets off; cpu device");

@@ -253,8 +253,9 @@ void load_job_scene(Job& job, const Args& args, const Team& team) {
 RenderOptions::RayPackets parse_ray_packets(const std::string& packets) {
   if (packets == "auto") return RenderOptions::RayPackets::Auto;
   if (packets == "on") return RenderOptions::RayPackets::On;
+  if (packets == "hybrid") return RenderOptions::RayPackets::Hybrid;
   if (packets == "off") return RenderOptions::RayPackets::Off;
-  throw Error("expected auto, on or off", "--ray-packets " + packets);
+  throw Error("expected auto, on, hybrid or off", "--ray-packets " + packets);
 }
 
 RenderOptions::ShadingProgram parse_shading_program(const std::string& kernels) {
@@ -419,13 +420,14 @@ void print_kernels(const Job& job, const Team& team) {
   const CompiledScene& cs = renderer.compiled();
   std::printf(
       "bvh: %zu %d-wide nodes, %zu leaves, %zu triangle references, depth %d, stack %zu, built in %.2f ms "
-      "on %zu thread%s%s%s\n",
+      "on %zu thread%s%s%s%s\n",
       cs.bvh.stats.nodes, cs.bvh.width, cs.bvh.stats.leaves, cs.bvh.stats.references, cs.bvh.stats.depth,
       cs.bvh.stats.stack, cs.bvh.stats.build_seconds * 1e3, cs.bvh.stats.threads, cs.bvh.stats.threads == 1 ? "" : "s",
       renderer.kernels().ray_packets ? "; camera, bounce and shadow rays in packets of "
       : cs.bvh.width == 8            ? "; camera rays in packets of "
                                      : "",
-      cs.bvh.width == 8 ? std::to_string(renderer.kernels().packet_width).c_str() : "");
+      cs.bvh.width == 8 ? std::to_string(renderer.kernels().packet_width).c_str() : "",
+      renderer.kernels().hybrid_packets ? ", the first bounce's in hybrid packets" : "");
   std::printf("kernels: %s in %.3f s%s\n", renderer.program().from_cache ? "loaded from cache" : "compiled",
               renderer.program().build_seconds,
               !renderer.generic_shading()        ? ""

@@ -97,16 +97,33 @@ typedef struct {
 #if XI_BVH_WIDTH != 4 && XI_BVH_WIDTH != 8
 #error "XI_BVH_WIDTH must be 4 or 8"
 #endif
-// Rays per extend work item (extend.cl): a packet (XI_PACKET_WIDTH rays) through an 8-wide tree for
-// camera rays (bounce 0), and for bounce rays too where the host chose ray packets (XI_RAY_PACKETS:
-// a small tree, RenderOptions::ray_packets); otherwise one. The host launches extend accordingly.
+// How extend and shadow trace a bounce's rays; the host launches XI_RAYS_PER_ITEM of them per work
+// item accordingly. Through an 8-wide tree, camera rays go in packets whose rays go through the tree
+// together (packet.h); so do all rays of a small tree (XI_RAY_PACKETS: each ray visits most of it
+// anyway). In a larger tree (XI_HYBRID_PACKETS) the rays that leave the surfaces camera rays hit
+// (bounce 0's shadow rays, bounce 1's rays), which neighbouring pixels' paths send from nearby
+// points, go in hybrid packets (together while many enter a box, alone below it). Every other ray
+// goes alone (traverse.h). The host sets neither with cut-outs (shadow rays then go alone).
 #ifndef XI_RAY_PACKETS
 #define XI_RAY_PACKETS 0
 #endif
-#define XI_EXTEND_PACKET(bvh_width, bounce, ray_packets, packet_width) \
-  ((bvh_width) == 8 && ((bounce) == 0 || (ray_packets)) ? (packet_width) : 1)
-// Shadow rays per shadow work item (shadow.cl): a packet with ray packets, else one.
-#define XI_SHADOW_PACKET(bvh_width, ray_packets, packet_width) ((bvh_width) == 8 && (ray_packets) ? (packet_width) : 1)
+#ifndef XI_HYBRID_PACKETS
+#define XI_HYBRID_PACKETS 0
+#endif
+#define XI_RAYS_ALONE 0
+#define XI_RAYS_TOGETHER 1
+#define XI_RAYS_HYBRID 2
+#define XI_EXTEND_RAYS(bvh_width, bounce, ray_packets, hybrid_packets)                \
+  ((bvh_width) != 8                          ? XI_RAYS_ALONE                          \
+   : (bounce) == 0 || (ray_packets)          ? XI_RAYS_TOGETHER                       \
+   : (bounce) == 1 && (hybrid_packets)       ? XI_RAYS_HYBRID                         \
+                                             : XI_RAYS_ALONE)
+#define XI_SHADOW_RAYS(bvh_width, bounce, ray_packets, hybrid_packets)                \
+  ((bvh_width) != 8                          ? XI_RAYS_ALONE                          \
+   : (ray_packets)                           ? XI_RAYS_TOGETHER                       \
+   : (bounce) == 0 && (hybrid_packets)       ? XI_RAYS_HYBRID                         \
+                                             : XI_RAYS_ALONE)
+#define XI_RAYS_PER_ITEM(rays, packet_width) ((rays) == XI_RAYS_ALONE ? 1 : (packet_width))
 // Rays in a packet (packet.h), set by the host (KernelConfig::packet_width): 16 on CPUs with 512-bit
 // vectors, else 8.
 #ifndef XI_PACKET_WIDTH

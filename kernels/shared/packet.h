@@ -1,5 +1,6 @@
 // Rays in packets through an 8-wide tree: the extend kernel's camera rays, and in a small tree its
-// bounce rays and the shadow kernel's rays too (layout.h's XI_EXTEND_PACKET and XI_SHADOW_PACKET).
+// bounce rays and the shadow kernel's rays too; in a large tree, the rays that leave the surfaces
+// camera rays hit, in hybrid packets (below; layout.h's XI_EXTEND_RAYS and XI_SHADOW_RAYS).
 // A packet is XI_PACKET_WIDTH rays, one per vector lane: 8 (float8), or 16 (float16) where the CPU
 // has 512-bit vectors, so that one instruction tests a box or a triangle against all of them.
 //
@@ -102,19 +103,28 @@ static inline XI_INLINE void xi_packet_slab(__global const BvhNode8* n, uint k, 
   }
 }
 
-// Whether any ray enters child k of node n before its best hit, each by xi_trace's slab test; if
-// so, *t_enter is the nearest distance at which one does.
-static inline XI_INLINE bool xi_packet_enters(const Packet* p, bool coherent, __global const BvhNode8* n, uint k,
-                                              PacketFloat best, float* t_enter) {
+// The rays that enter child k of node n before their best hit, by xi_trace's slab test; *tn gets
+// the distance at which each enters.
+static inline XI_INLINE PacketInt xi_packet_entering(const Packet* p, bool coherent, __global const BvhNode8* n,
+                                                     uint k, PacketFloat best, PacketFloat* tn) {
   PacketFloat nx, fx, ny, fy, nz, fz;
   xi_packet_slab(n, k, 0, p->back_x, p->near_x, coherent, &nx, &fx);
   xi_packet_slab(n, k, 2, p->back_y, p->near_y, coherent, &ny, &fy);
   xi_packet_slab(n, k, 4, p->back_z, p->near_z, coherent, &nz, &fz);
-  const PacketFloat tn = xi_max(xi_max((nx - p->ox) * p->inv_x, (ny - p->oy) * p->inv_y),
-                                xi_max((nz - p->oz) * p->inv_z, (PacketFloat)0.0f));
+  const PacketFloat t_near = xi_max(xi_max((nx - p->ox) * p->inv_x, (ny - p->oy) * p->inv_y),
+                                    xi_max((nz - p->oz) * p->inv_z, (PacketFloat)0.0f));
   const PacketFloat tf =
       xi_min(xi_min((fx - p->ox) * p->inv_x, (fy - p->oy) * p->inv_y), xi_min((fz - p->oz) * p->inv_z, best));
-  const PacketInt enter = xi_less_equal(tn, tf * XI_BOX_SLACK);
+  *tn = t_near;
+  return xi_less_equal(t_near, tf * XI_BOX_SLACK);
+}
+
+// Whether any ray enters child k of node n before its best hit, each by xi_trace's slab test; if
+// so, *t_enter is the nearest distance at which one does.
+static inline XI_INLINE bool xi_packet_enters(const Packet* p, bool coherent, __global const BvhNode8* n, uint k,
+                                              PacketFloat best, float* t_enter) {
+  PacketFloat tn;
+  const PacketInt enter = xi_packet_entering(p, coherent, n, k, best, &tn);
   if (xi_packet_bits(enter) == 0u) return false;
   *t_enter = xi_packet_min(select((PacketFloat)INFINITY, tn, enter));
   return true;
@@ -203,6 +213,119 @@ static inline uint xi_occluded_packet(__global const BvhNode8* nodes, __global c
   PacketFloat t, u, v;
   PacketUint tri;
   xi_packet_query(nodes, blocks, ox, oy, oz, dx, dy, dz, tmax, true, &t, &u, &v, &tri);
+  return xi_packet_bits(tri != (PacketUint)XI_NO_HIT);
+}
+
+// --- hybrid packets ----------------------------------------------------------------------------
+// Rays that leave the surfaces neighbouring pixels' camera rays hit (bounce 0's shadow rays, bounce
+// 1's rays) enter the same boxes near the top of a large tree, and part ways below it. A hybrid packet goes through
+// the tree together while more than XI_HYBRID_ALONE of its rays enter a box, each stack entry
+// carrying the rays that enter it, and below a box that few enter, each of them goes on alone
+// from there (xi_trace_from), as Embree's hybrid traversal does. Each ray's hit is the one xi_trace
+// finds (the same tests per ray; ties aside, as for packets).
+
+// How few rays entering a box make them go on alone.
+#define XI_HYBRID_ALONE 4
+
+// Lane k holds bit k.
+#if XI_PACKET_WIDTH == 16
+#define XI_PACKET_LANE_BIT (PacketInt)(1, 2, 4, 8, 16, 32, 64, 128, 256, 512, 1024, 2048, 4096, 8192, 16384, 32768)
+#else
+#define XI_PACKET_LANE_BIT (PacketInt)(1, 2, 4, 8, 16, 32, 64, 128)
+#endif
+
+// v where `rays` has a lane's bit, else `other`.
+static inline XI_INLINE PacketFloat xi_packet_where(uint rays, PacketFloat v, float other) {
+  return select((PacketFloat)other, v, (XI_PACKET_LANE_BIT & (PacketInt)(int)rays) != 0);
+}
+
+// The hybrid traversal of rays o[k], d[k] (lane k; the packet p made of them): closest hits before
+// tmax, or with any_hit, for each ray whether there is a hit before its tmax. A ray whose any-hit
+// query is answered leaves the packet (its best becomes -∞: it enters no box, hits nothing). Rays
+// that leave a surface in all directions seldom share their signs, so the callers take the per-ray
+// path (coherent false) alone, one copy of the code.
+static inline XI_INLINE void xi_hybrid_traverse(__global const BvhNode8* nodes, __global const TriBlock* blocks,
+                                                const Packet* p, bool coherent, bool any_hit, const float4* o,
+                                                const float4* d, PacketFloat tmax, PacketFloat* t, PacketFloat* u,
+                                                PacketFloat* v, PacketUint* tri) {
+  uint4 stack[XI_BVH_STACK];  // (entry, the rays that enter it, as bits, the nearest distance one does)
+  uint sp = 0u, entry = 0u, rays = XI_PACKET_ALL;
+  PacketFloat best = tmax, best_u = 0.0f, best_v = 0.0f;
+  PacketUint found = (PacketUint)XI_NO_HIT;
+  for (;;) {
+    if (any_hit) rays &= xi_packet_bits(best != (PacketFloat)(-INFINITY));  // those not answered yet
+    const PacketFloat entering_best = xi_packet_where(rays, best, -INFINITY);  // the others' boxes are missed
+    if (popcount(rays) <= XI_HYBRID_ALONE) {
+      for (uint left = rays; left != 0u; left &= left - 1u) {
+        const uint l = 31 - clz(left & (0u - left));
+        const PacketInt lane = XI_PACKET_LANE_BIT == (PacketInt)(int)(1u << l);
+        float lt, lu, lv;
+        const uint hit = xi_trace_from(nodes, blocks, entry, o[l].xyz, d[l].xyz, XI_PACKET_LANE(float, best, l),
+                                       any_hit, &lt, &lu, &lv);
+        if (hit == XI_NO_HIT) continue;
+        found = select(found, (PacketUint)hit, lane);
+        best = select(best, (PacketFloat)(any_hit ? -INFINITY : lt), lane);
+        best_u = select(best_u, (PacketFloat)lu, lane);
+        best_v = select(best_v, (PacketFloat)lv, lane);
+      }
+    } else if (entry & XI_BVH_LEAF) {
+      PacketFloat limit = entering_best;
+      const uint end = xi_leaf_end(entry);
+      for (uint k = xi_leaf_first(entry); k < end; ++k)
+        for (uint j = 0u; j < 4u && blocks[k].tri[j] != XI_NO_HIT; ++j) {  // unused lanes come last
+          PacketFloat tt, uu, vv;
+          const PacketInt hit = xi_intersect_packet(&p->shear, coherent, blocks + k, j, limit, &tt, &uu, &vv);
+          if (xi_packet_bits(hit) == 0u) continue;
+          found = select(found, (PacketUint)blocks[k].tri[j], hit);
+          if (any_hit) tt = -INFINITY;
+          limit = select(limit, tt, hit);
+          best = select(best, tt, hit);
+          best_u = select(best_u, uu, hit);
+          best_v = select(best_v, vv, hit);
+        }
+    } else {  // each child with the rays that enter it, the nearest on top
+      __global const BvhNode8* n = nodes + entry;
+      const uint base = sp;
+      for (uint k = 0u; k < 8u; ++k) {
+        PacketFloat tn;
+        const PacketInt enter = xi_packet_entering(p, coherent, n, k, entering_best, &tn);
+        const uint bits = xi_packet_bits(enter);
+        if (bits == 0u) continue;
+        const float t_enter = xi_packet_min(select((PacketFloat)INFINITY, tn, enter));
+        uint j = sp++;
+        for (; !any_hit && j > base && as_float(stack[j - 1u].z) < t_enter; --j) stack[j] = stack[j - 1u];
+        stack[j] = (uint4)(n->child[k], bits, as_uint(t_enter), 0u);
+      }
+    }
+    // The nearest entry that one of its rays enters before that ray's best hit so far.
+    do {
+      if (sp == 0u) {
+        *t = best, *u = best_u, *v = best_v, *tri = found;
+        return;
+      }
+      --sp;
+    } while (!(as_float(stack[sp].z) <= xi_packet_max(xi_packet_where(stack[sp].y, best, -INFINITY)) * XI_BOX_SLACK));
+    entry = stack[sp].x, rays = stack[sp].y;
+  }
+}
+
+// Closest hits of the rays o[k], d[k] in (0, ∞), as xi_trace_packet's.
+static inline void xi_trace_hybrid(__global const BvhNode8* nodes, __global const TriBlock* blocks, const float4* o,
+                                   const float4* d, PacketFloat* t, PacketFloat* u, PacketFloat* v, PacketUint* tri) {
+  const Packet p = xi_packet(XI_PACKET_OF(o, x), XI_PACKET_OF(o, y), XI_PACKET_OF(o, z), XI_PACKET_OF(d, x),
+                             XI_PACKET_OF(d, y), XI_PACKET_OF(d, z));
+  xi_hybrid_traverse(nodes, blocks, &p, false, false, o, d, (PacketFloat)INFINITY, t, u, v, tri);
+}
+
+// The rays o[k], d[k] (o[k].w: tmax) that hit something before their tmax, as bits, as
+// xi_occluded_packet's.
+static inline uint xi_occluded_hybrid(__global const BvhNode8* nodes, __global const TriBlock* blocks, const float4* o,
+                                      const float4* d) {
+  const Packet p = xi_packet(XI_PACKET_OF(o, x), XI_PACKET_OF(o, y), XI_PACKET_OF(o, z), XI_PACKET_OF(d, x),
+                             XI_PACKET_OF(d, y), XI_PACKET_OF(d, z));
+  PacketFloat t, u, v;
+  PacketUint tri;
+  xi_hybrid_traverse(nodes, blocks, &p, false, true, o, d, XI_PACKET_OF(o, w), &t, &u, &v, &tri);
   return xi_packet_bits(tri != (PacketUint)XI_NO_HIT);
 }
 

@@ -73,10 +73,11 @@ static inline float3 xi_safe_inverse(float3 d) {
                      d.z != 0.0f ? 1.0f / d.z : big);
 }
 
-// Closest hit (any_hit == false) or any hit before tmax (any_hit == true). Returns the triangle
-// index (its position in BVH order) or XI_NO_HIT; *t, *u, *v describe the hit.
-static inline uint xi_trace(__global const TraceNode* nodes, __global const TriBlock* blocks, float3 o,
-                            float3 d, float tmax, bool any_hit, float* t, float* u, float* v) {
+// Closest hit (any_hit == false) or any hit before tmax (any_hit == true) in the subtree of `entry`
+// (a node or a leaf entry; 0: the root). Returns the triangle index (its position in BVH order) or
+// XI_NO_HIT; *t, *u, *v describe the hit.
+static inline uint xi_trace_from(__global const TraceNode* nodes, __global const TriBlock* blocks, uint entry,
+                                 float3 o, float3 d, float tmax, bool any_hit, float* t, float* u, float* v) {
   RayShear s = xi_ray_shear(o, d);
   float3 inv_d = xi_safe_inverse(d);
   // Which of a node's bounds (lo x, hi x, lo y, ...) is each axis's near plane: an index, so a
@@ -84,7 +85,6 @@ static inline uint xi_trace(__global const TraceNode* nodes, __global const TriB
   int near_x = inv_d.x < 0.0f ? 1 : 0, near_y = inv_d.y < 0.0f ? 3 : 2, near_z = inv_d.z < 0.0f ? 5 : 4;
   uint2 stack[XI_BVH_STACK];
   uint sp = 0u;
-  uint entry = 0u;  // the root, always an interior node
   uint found = XI_NO_HIT;
   float best = tmax;
   for (;;) {
@@ -137,6 +137,12 @@ static inline uint xi_trace(__global const TraceNode* nodes, __global const TriB
     // The nearest entry the ray enters before its best hit so far.
     if (!xi_pop(stack, &sp, best * XI_BOX_SLACK, &entry)) return found;
   }
+}
+
+// The same through the whole tree.
+static inline uint xi_trace(__global const TraceNode* nodes, __global const TriBlock* blocks, float3 o,
+                            float3 d, float tmax, bool any_hit, float* t, float* u, float* v) {
+  return xi_trace_from(nodes, blocks, 0u, o, d, tmax, any_hit, t, u, v);
 }
 
 #ifdef __OPENCL_VERSION__

@@ -35,7 +35,8 @@ struct KernelConfig {
   Strategy strategy = Strategy::Mis;
   int lanes = 1;             // paths per generate and shade work item (kernels/shared/lanes.h): 1, 8 or 16
   int bvh_width = 4;         // children per BVH node (kernels/shared/layout.h): 4 or 8
-  bool ray_packets = false;  // bounce and shadow rays in packets, as camera rays go (8-wide trees)
+  bool ray_packets = false;     // bounce and shadow rays in packets, as camera rays go (8-wide trees)
+  bool hybrid_packets = false;  // else the first bounce's in hybrid packets (8-wide trees)
   int packet_width = 8;      // rays per packet (kernels/shared/packet.h): 8 or 16
   bool cpu_device = false;   // prefetch hints and the triangle test's early exit, for a CPU
   bool generic = false;      // the shading stages read the shading word at run time

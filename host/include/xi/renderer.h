@@ -53,10 +53,12 @@ struct RenderOptions {
   // counted it. Auto: exact on a CPU device, lagged elsewhere (Renderer::run_wave says why).
   enum class LaunchBound { Auto, Exact, Lagged };
   LaunchBound launch_bound = LaunchBound::Auto;
-  // Bounce and shadow rays through an 8-wide tree in packets, as camera rays always go
-  // (kernels/extend.cl, shadow.cl); the image does not depend on it. Auto: where the tree is small
-  // enough that each ray visits most of it anyway (KernelConfig::make decides).
-  enum class RayPackets { Auto, On, Off };
+  // How bounce and shadow rays go through an 8-wide tree (camera rays always go in packets;
+  // kernels/shared/layout.h); the image does not depend on it. On: in packets, all of them. Hybrid:
+  // the first bounce's in hybrid packets (together while many enter a box, alone below), later ones
+  // alone. Off: alone. Auto: On where the tree is small enough that each ray visits most of it
+  // anyway, else Hybrid (KernelConfig::make decides).
+  enum class RayPackets { Auto, On, Hybrid, Off };
   RayPackets ray_packets = RayPackets::Auto;
   // Rays per packet, 8 or 16; 0: the device's default (KernelConfig::make: 16 on a CPU device with
   // 512-bit vectors, else 8). The image does not depend on it.
@@ -80,7 +82,8 @@ size_t path_bytes();
 
 // Builds into the binary cache, and launches once, the programs any render on this device can start
 // with before its scene's own shading program is built: the generic shading program and the
-// tracing program with ray packets on and off, for options.lanes and options.bvh_width (0: the
+// tracing programs that RayPackets::Auto chooses from (on, hybrid), and the one for cut-out
+// surfaces, for options.lanes and options.bvh_width (0: the
 // device's defaults). A scene's first image then waits for no kernel build. Returns what it built,
 // one KernelConfig::describe() line each.
 std::vector<std::string> prebuild_kernels(Device& device, const RenderOptions& options);

@@ -8,7 +8,8 @@ namespace {
 
 // The largest 8-wide tree whose bounce and shadow rays go in packets when RenderOptions::ray_packets
 // is Auto: in a tree this small each ray visits most nodes anyway, so a packet of rays in different
-// directions costs little more than one ray; in a larger tree they part ways.
+// directions costs little more than one ray; in a larger tree they part ways, and only the first
+// bounce's, still neighbours, go in (hybrid) packets.
 constexpr size_t kRayPacketNodes = 8;
 
 bool is_cpu(const DeviceInfo& device) { return device.type == "CPU"; }
@@ -75,9 +76,13 @@ KernelConfig KernelConfig::make(const DeviceInfo& device, const CompiledScene& s
     throw Error("lanes must be 1, 8 or 16, not " + std::to_string(c.lanes), "--lanes");
   c.bvh_width = scene.bvh.width;
   // Shadow rays through cut-out surfaces go one at a time (shadow.cl).
-  c.ray_packets = c.bvh_width == 8 && !c.features.alpha && (options.ray_packets == RenderOptions::RayPackets::Auto
-                                           ? scene.bvh.nodes8.size() <= kRayPacketNodes
-                                           : options.ray_packets == RenderOptions::RayPackets::On);
+  using RayPackets = RenderOptions::RayPackets;
+  const bool packets = c.bvh_width == 8 && !c.features.alpha;
+  const RayPackets choice = options.ray_packets != RayPackets::Auto               ? options.ray_packets
+                            : scene.bvh.nodes8.size() <= kRayPacketNodes ? RayPackets::On
+                                                                         : RayPackets::Hybrid;
+  c.ray_packets = packets && choice == RayPackets::On;
+  c.hybrid_packets = packets && choice == RayPackets::Hybrid;
   // With 512-bit vectors a packet of sixteen rays tests a box or a triangle in one instruction, as
   // eight do with 256-bit ones.
   c.packet_width = options.packet_width ? options.packet_width : (cpu_vector_floats == 16 ? 16 : 8);
@@ -109,6 +114,7 @@ uint32_t KernelConfig::shading_word() const {
 std::vector<std::string> KernelConfig::trace_defines() const {
   std::vector<std::string> d{"XI_BVH_WIDTH=" + std::to_string(bvh_width),
                              std::string("XI_RAY_PACKETS=") + (ray_packets ? "1" : "0"),
+                             std::string("XI_HYBRID_PACKETS=") + (hybrid_packets ? "1" : "0"),
                              "XI_PACKET_WIDTH=" + std::to_string(packet_width)};
   if (cpu_device) d.push_back("XI_CPU_DEVICE");
   if (features.alpha) d.push_back("XI_ALPHA");
@@ -142,7 +148,8 @@ std::string KernelConfig::describe() const {
   // Packets exist on 8-wide trees only (camera rays always, bounce and shadow rays with ray packets).
   const std::string packets = bvh_width == 8 ? "; packets of " + std::to_string(packet_width) + " rays" : "";
   return shading + "; lanes " + std::to_string(lanes) + "; bvh " + std::to_string(bvh_width) + "-wide" + packets +
-         "; ray packets " + (ray_packets ? "on" : "off") + (features.alpha ? "; cut-outs" : "") +
+         "; ray packets " + (ray_packets ? "on" : hybrid_packets ? "hybrid" : "off") +
+         (features.alpha ? "; cut-outs" : "") +
          (cpu_device ? "; cpu device" : "");
 }
 

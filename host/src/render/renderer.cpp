@@ -98,7 +98,7 @@ std::vector<std::string> prebuild_kernels(Device& device, const RenderOptions& o
     const std::string line = r.kernels().as_generic().describe();
     if (std::find(built.begin(), built.end(), line) == built.end()) built.push_back(line);
   };
-  for (auto packets : {RenderOptions::RayPackets::On, RenderOptions::RayPackets::Off}) {
+  for (auto packets : {RenderOptions::RayPackets::On, RenderOptions::RayPackets::Hybrid}) {
     o.ray_packets = packets;
     build();
   }
@@ -318,7 +318,8 @@ void Renderer::extend(const cl::Buffer& queue, int bounce, size_t global) {
   extend_.setArg(arg++, nodes_);
   extend_.setArg(arg++, tri_blocks_);
   launch(extend_, "extend", bounce, global,
-         XI_EXTEND_PACKET(kernels_.bvh_width, bounce, kernels_.ray_packets, kernels_.packet_width));
+         XI_RAYS_PER_ITEM(XI_EXTEND_RAYS(kernels_.bvh_width, bounce, kernels_.ray_packets, kernels_.hybrid_packets),
+                          kernels_.packet_width));
 }
 
 // Texture coordinates, texture records, image headers and texels, in that order (shade, shadow).
@@ -374,7 +375,8 @@ void Renderer::shadow(int bounce, size_t global) {
   arg = bind_textures(shadow_, arg);
   shadow_.setArg(arg++, options_.seed);
   launch(shadow_, "shadow", bounce, global,
-         XI_SHADOW_PACKET(kernels_.bvh_width, kernels_.ray_packets, kernels_.packet_width));
+         XI_RAYS_PER_ITEM(XI_SHADOW_RAYS(kernels_.bvh_width, bounce, kernels_.ray_packets, kernels_.hybrid_packets),
+                          kernels_.packet_width));
 }
 
 void Renderer::bind_accumulate(const WaveParams& wave) {
@@ -422,6 +424,7 @@ void Renderer::run_wave(const WaveParams& wave) {
     static_assert(XI_COUNTER_RAYS(1) == XI_COUNTER_SHADOW(0) + 1, "shade's two counts are adjacent");
     q.enqueueReadBuffer(counters_, CL_FALSE, sizeof(uint32_t) * XI_COUNTER_SHADOW(bounce), 2 * sizeof(uint32_t),
                         &queue_counts_[XI_COUNTER_SHADOW(bounce)], nullptr, &counted[bounce]);
+    if (probe_) probe_->leaving_shade(bounce);
     if (exact_bounds_) {
       counted[bounce].wait();
       shadow(bounce, queue_counts_[XI_COUNTER_SHADOW(bounce)]);
