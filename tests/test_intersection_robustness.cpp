@@ -22,6 +22,7 @@
 #include <glm/glm.hpp>
 
 #include "analytic.h"
+#include "brute_force.h"
 #include "fixtures.h"
 #include "scene_builder.h"
 #include "stats.h"
@@ -274,4 +275,50 @@ TEST(IntersectionRobustness, TenMillionRaysFromInsideClosedMeshesNoneEscapes) {
   const RayTest c = shoot_from_inside(lumpy, dvec3(0.0), inner / 2, inner, 1.5, 10000, 103, &removed);
   std::printf("[ watert ] control, one triangle removed: %zu of 10000 rays aimed into the hole escaped\n", c.escaped);
   EXPECT_GE(c.escaped, 9900u);
+}
+
+// The shadow rays a render queues, recorded by the probe (RayProbe::recorded_shadow) and traced by
+// the shadow stage alone (RayProbe::trace_shadow, as bench/ceiling.cpp does): each is occluded
+// exactly where a brute-force search over the scene's triangles finds a hit before its end.
+// mirror.json (hundreds of 8-wide nodes): bounce 0's shadow rays go in hybrid packets, bounce 1's
+// alone. Rays with a hit within 1e-4 of their end are left out (rounding there may go either way).
+TEST(IntersectionRobustness, RecordedShadowRaysAreOccludedAsBruteForceFinds) {
+  xi::Scene scene = xi::load_scene(fs::path(XI_SCENE_DIR) / "mirror.json");
+  scene.width = scene.height = 48;
+  const BruteForce brute(scene.triangles);
+  for (int bounce : {0, 1}) {
+    SCOPED_TRACE(testing::Message() << "bounce " << bounce);
+    xi::RenderOptions o;
+    o.spp = 1;
+    o.bvh_width = 8;
+    o.paths_in_flight = (size_t)scene.width * scene.height;
+    xi::Renderer renderer(device(), scene, o);
+    ASSERT_TRUE(renderer.kernels().hybrid_packets);
+    xi::RayProbe probe(renderer);
+    probe.record(bounce);
+    renderer.run_pass();
+    const xi::RayBatch& rays = probe.recorded_shadow();
+    ASSERT_GT(rays.org.size(), (size_t)scene.width * scene.height / 4);
+    std::vector<bool> occluded;
+    probe.trace_shadow(rays, &occluded, bounce);
+    ASSERT_EQ(occluded.size(), rays.org.size());
+    size_t blocked = 0, unclear = 0, wrong = 0;
+    for (size_t i = 0; i < rays.org.size(); ++i) {
+      const float tmax = rays.org[i].w;
+      const std::vector<HostHit> hits = brute.hits(vec3(rays.org[i]), vec3(rays.dir[i]), INFINITY);
+      if (!hits.empty() && std::abs(hits[0].t - tmax) < 1e-4f * tmax) {
+        unclear++;
+        continue;
+      }
+      const bool want = !hits.empty() && hits[0].t < tmax;
+      blocked += want;
+      if (occluded[i] != want && ++wrong <= 5)
+        ADD_FAILURE() << "shadow ray " << i << ": traced " << (occluded[i] ? "occluded" : "clear") << ", brute force "
+                      << (want ? "occluded" : "clear");
+    }
+    EXPECT_EQ(wrong, 0u);
+    EXPECT_LT(unclear, rays.org.size() / 100);
+    EXPECT_GT(blocked, 0u);  // both outcomes, so that agreeing says something
+    EXPECT_LT(blocked, rays.org.size() - unclear);
+  }
 }
