@@ -42,6 +42,36 @@ double on_all_cores(const Work& work) {
   return std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
 }
 
+// Ray i of the batch as Embree takes one ray, from 0 to tfar.
+RTCRay embree_ray(const xi::RayBatch& rays, size_t i, float tfar) {
+  RTCRay r{};
+  r.org_x = rays.org[i].x;
+  r.org_y = rays.org[i].y;
+  r.org_z = rays.org[i].z;
+  r.dir_x = rays.dir[i].x;
+  r.dir_y = rays.dir[i].y;
+  r.dir_z = rays.dir[i].z;
+  r.tnear = 0.0f;
+  r.tfar = tfar;
+  r.mask = ~0u;
+  return r;
+}
+
+// The same as lane k of a packet of 16.
+void set_embree_lane(RTCRay16* r, size_t k, const xi::RayBatch& rays, size_t i, float tfar) {
+  r->org_x[k] = rays.org[i].x;
+  r->org_y[k] = rays.org[i].y;
+  r->org_z[k] = rays.org[i].z;
+  r->dir_x[k] = rays.dir[i].x;
+  r->dir_y[k] = rays.dir[i].y;
+  r->dir_z[k] = rays.dir[i].z;
+  r->tnear[k] = 0.0f;
+  r->tfar[k] = tfar;
+  r->mask[k] = ~0u;
+  r->time[k] = 0.0f;
+  r->flags[k] = 0;
+}
+
 struct Embree {
   RTCDevice device = rtcNewDevice(nullptr);
   RTCScene scene = rtcNewScene(device);
@@ -79,15 +109,7 @@ struct Embree {
       rtcInitIntersectContext(&ctx);
       for (size_t i = t; i < n; i += threads) {
         RTCRayHit rh{};
-        rh.ray.org_x = rays.org[i].x;
-        rh.ray.org_y = rays.org[i].y;
-        rh.ray.org_z = rays.org[i].z;
-        rh.ray.dir_x = rays.dir[i].x;
-        rh.ray.dir_y = rays.dir[i].y;
-        rh.ray.dir_z = rays.dir[i].z;
-        rh.ray.tnear = 0.0f;
-        rh.ray.tfar = INFINITY;
-        rh.ray.mask = ~0u;
+        rh.ray = embree_ray(rays, i, INFINITY);
         rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
         rtcIntersect1(scene, &ctx, &rh);
         if (rh.hit.geomID != RTC_INVALID_GEOMETRY_ID) (*prim)[i] = (int)rh.hit.primID;
@@ -103,16 +125,7 @@ struct Embree {
       RTCIntersectContext ctx;
       rtcInitIntersectContext(&ctx);
       for (size_t i = t; i < n; i += threads) {
-        RTCRay r{};
-        r.org_x = rays.org[i].x;
-        r.org_y = rays.org[i].y;
-        r.org_z = rays.org[i].z;
-        r.dir_x = rays.dir[i].x;
-        r.dir_y = rays.dir[i].y;
-        r.dir_z = rays.dir[i].z;
-        r.tnear = 0.0f;
-        r.tfar = rays.org[i].w;
-        r.mask = ~0u;
+        RTCRay r = embree_ray(rays, i, rays.org[i].w);
         rtcOccluded1(scene, &ctx, &r);
         (*occluded)[i] = r.tfar < 0.0f;
       }
@@ -133,17 +146,7 @@ struct Embree {
         for (size_t k = 0; k < 16; ++k) {
           const size_t i = std::min(p * 16 + k, n - 1);
           valid[k] = p * 16 + k < n ? -1 : 0;
-          r.org_x[k] = rays.org[i].x;
-          r.org_y[k] = rays.org[i].y;
-          r.org_z[k] = rays.org[i].z;
-          r.dir_x[k] = rays.dir[i].x;
-          r.dir_y[k] = rays.dir[i].y;
-          r.dir_z[k] = rays.dir[i].z;
-          r.tnear[k] = 0.0f;
-          r.tfar[k] = rays.org[i].w;
-          r.mask[k] = ~0u;
-          r.time[k] = 0.0f;
-          r.flags[k] = 0;
+          set_embree_lane(&r, k, rays, i, rays.org[i].w);
         }
         rtcOccluded16(valid, scene, &ctx, &r);
         for (size_t k = 0; k < 16 && p * 16 + k < n; ++k) (*occluded)[p * 16 + k] = r.tfar[k] < 0.0f;
@@ -166,17 +169,7 @@ struct Embree {
         for (size_t k = 0; k < 16; ++k) {
           const size_t i = std::min(p * 16 + k, n - 1);
           valid[k] = p * 16 + k < n ? -1 : 0;
-          rh.ray.org_x[k] = rays.org[i].x;
-          rh.ray.org_y[k] = rays.org[i].y;
-          rh.ray.org_z[k] = rays.org[i].z;
-          rh.ray.dir_x[k] = rays.dir[i].x;
-          rh.ray.dir_y[k] = rays.dir[i].y;
-          rh.ray.dir_z[k] = rays.dir[i].z;
-          rh.ray.tnear[k] = 0.0f;
-          rh.ray.tfar[k] = INFINITY;
-          rh.ray.mask[k] = ~0u;
-          rh.ray.time[k] = 0.0f;
-          rh.ray.flags[k] = 0;
+          set_embree_lane(&rh.ray, k, rays, i, INFINITY);
           rh.hit.geomID[k] = RTC_INVALID_GEOMETRY_ID;
         }
         rtcIntersect16(valid, scene, &ctx, &rh);
