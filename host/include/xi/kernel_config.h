@@ -33,13 +33,13 @@ struct KernelConfig {
   Features features;
   int sampler = XI_SAMPLER_SOBOL;
   Strategy strategy = Strategy::Mis;
-  int lanes = 1;             // paths per generate and shade work item (kernels/shared/lanes.h): 1, 8 or 16
-  int bvh_width = 4;         // children per BVH node (kernels/shared/layout.h): 4 or 8
+  int lanes = 1;                // paths per generate and shade work item (kernels/shared/lanes.h): 1, 8 or 16
+  int bvh_width = 4;            // children per BVH node (kernels/shared/layout.h): 4 or 8
   bool ray_packets = false;     // bounce and shadow rays in packets, as camera rays go (8-wide trees)
   bool hybrid_packets = false;  // else the first bounce's in hybrid packets (8-wide trees)
-  int packet_width = 8;      // rays per packet (kernels/shared/packet.h): 8 or 16
-  bool cpu_device = false;   // prefetch hints and the triangle test's early exit, for a CPU
-  bool generic = false;      // the shading stages read the shading word at run time
+  int packet_width = 8;         // rays per packet (kernels/shared/packet.h): 8 or 16
+  bool cpu_device = false;      // prefetch hints and the triangle test's early exit, for a CPU
+  bool generic = false;         // the shading stages read the shading word at run time
 
   // The BVH width a render on this device traverses: options.bvh_width, or the device's default
   // (8 on a CPU, whose vector registers test eight boxes as cheaply as four; 4 elsewhere). Needed
