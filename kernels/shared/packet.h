@@ -130,6 +130,27 @@ static inline XI_INLINE bool xi_packet_enters(const Packet* p, bool coherent, __
   return true;
 }
 
+// The triangles of leaf `entry` against a packet's rays, each up to its `limit` (-∞: a ray that takes
+// no part): a lane's hit puts its triangle into *found and its t, u, v into *best, *best_u, *best_v,
+// or -∞ into *best for an any-hit query (the ray is answered: it enters no box, hits nothing again).
+static inline XI_INLINE void xi_packet_leaf(__global const TriBlock* blocks, uint entry, const Packet* p,
+                                            bool coherent, bool any_hit, PacketFloat limit, PacketFloat* best,
+                                            PacketFloat* best_u, PacketFloat* best_v, PacketUint* found) {
+  const uint end = xi_leaf_end(entry);
+  for (uint k = xi_leaf_first(entry); k < end; ++k)
+    for (uint j = 0u; j < 4u && blocks[k].tri[j] != XI_NO_HIT; ++j) {  // unused lanes come last
+      PacketFloat tt, uu, vv;
+      const PacketInt hit = xi_intersect_packet(&p->shear, coherent, blocks + k, j, limit, &tt, &uu, &vv);
+      if (xi_packet_bits(hit) == 0u) continue;
+      *found = select(*found, (PacketUint)blocks[k].tri[j], hit);
+      if (any_hit) tt = -INFINITY;
+      limit = select(limit, tt, hit);
+      *best = select(*best, tt, hit);
+      *best_u = select(*best_u, uu, hit);
+      *best_v = select(*best_v, vv, hit);
+    }
+}
+
 // The traversal of one packet, as xi_trace's of one ray: closest hits, or with any_hit, for each ray
 // whether there is a hit before its tmax. Called with `coherent` and `any_hit` constants
 // (xi_packet_query), so each of the four cases compiles to its own loop, neither tested inside it.
@@ -142,25 +163,10 @@ static inline XI_INLINE void xi_packet_traverse(__global const BvhNode8* nodes, 
   PacketUint found = (PacketUint)XI_NO_HIT;
   for (;;) {
     if (entry & XI_BVH_LEAF) {
-      const uint end = xi_leaf_end(entry);
-      for (uint k = xi_leaf_first(entry); k < end; ++k) {
-        for (uint j = 0u; j < 4u && blocks[k].tri[j] != XI_NO_HIT; ++j) {  // unused lanes come last
-          PacketFloat tt, uu, vv;
-          const PacketInt hit = xi_intersect_packet(&p->shear, coherent, blocks + k, j, best, &tt, &uu, &vv);
-          if (xi_packet_bits(hit) == 0u) continue;
-          found = select(found, (PacketUint)blocks[k].tri[j], hit);
-          if (any_hit) {  // a ray that is done enters no box and hits no triangle again
-            best = select(best, (PacketFloat)(-INFINITY), hit);
-            if (xi_packet_bits(found != (PacketUint)XI_NO_HIT) == XI_PACKET_ALL) {
-              *tri = found;
-              return;
-            }
-          } else {
-            best = select(best, tt, hit);
-            best_u = select(best_u, uu, hit);
-            best_v = select(best_v, vv, hit);
-          }
-        }
+      xi_packet_leaf(blocks, entry, p, coherent, any_hit, best, &best, &best_u, &best_v, &found);
+      if (any_hit && xi_packet_bits(found != (PacketUint)XI_NO_HIT) == XI_PACKET_ALL) {  // all answered
+        *tri = found;
+        return;
       }
     } else {
       __global const BvhNode8* n = nodes + entry;
@@ -269,20 +275,7 @@ static inline XI_INLINE void xi_hybrid_traverse(__global const BvhNode8* nodes, 
         best_v = select(best_v, (PacketFloat)lv, lane);
       }
     } else if (entry & XI_BVH_LEAF) {
-      PacketFloat limit = entering_best;
-      const uint end = xi_leaf_end(entry);
-      for (uint k = xi_leaf_first(entry); k < end; ++k)
-        for (uint j = 0u; j < 4u && blocks[k].tri[j] != XI_NO_HIT; ++j) {  // unused lanes come last
-          PacketFloat tt, uu, vv;
-          const PacketInt hit = xi_intersect_packet(&p->shear, coherent, blocks + k, j, limit, &tt, &uu, &vv);
-          if (xi_packet_bits(hit) == 0u) continue;
-          found = select(found, (PacketUint)blocks[k].tri[j], hit);
-          if (any_hit) tt = -INFINITY;
-          limit = select(limit, tt, hit);
-          best = select(best, tt, hit);
-          best_u = select(best_u, uu, hit);
-          best_v = select(best_v, vv, hit);
-        }
+      xi_packet_leaf(blocks, entry, p, coherent, any_hit, entering_best, &best, &best_u, &best_v, &found);
     } else {  // each child with the rays that enter it, the nearest on top
       __global const BvhNode8* n = nodes + entry;
       const uint base = sp;
