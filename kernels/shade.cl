@@ -113,6 +113,12 @@ static inline XI_INLINE xfloat3 xi_pbr_normal(XI_SCENE_PARAMS, uint shading, xui
   return xi_select3(c < least, xi_normalize3(xi_add3(n, xi_scale3(wo, least - c))), n);
 }
 
+// Whether an escaped ray gathers light: from an environment map or a background that is not black.
+static inline bool xi_lit_from_afar(uint shading, EnvironmentData env, float4 background) {
+  return (xi_uses(shading, XI_USE_ENVIRONMENT) && env.width > 0u) || background.x != 0.0f || background.y != 0.0f ||
+         background.z != 0.0f;
+}
+
 // What shading the paths produced: which go on (their new rays are in the path state) and which
 // queue a shadow ray.
 typedef struct {
@@ -125,8 +131,8 @@ typedef struct {
 } ShadeResult;
 
 static inline XI_INLINE ShadeResult xi_shade_paths(XI_PATH_PARAMS xuint slot, xmask active, uint d, XI_SCENE_PARAMS,
-                                                   SamplerParams sampler, uint shading, xuint pixel,
-                                                   xuint sample_index, uint max_depth, float4 background) {
+                                                   SamplerParams sampler, uint shading, uint max_depth,
+                                                   float4 background) {
   const int sampler_kind = xi_sampler_of(shading);
   ShadeResult r;
   r.next_ray = XI_FALSE;
@@ -136,11 +142,15 @@ static inline XI_INLINE ShadeResult xi_shade_paths(XI_PATH_PARAMS xuint slot, xm
   if (!XI_ANY(active)) return r;
   xfloat tri_bits;
   xfloat3 h = xi_gather_xyz(hit, slot, &tri_bits);  // t (< 0: missed), barycentrics u, v
+  xmask escaped = h.x < 0.0f;
+  if (!xi_lit_from_afar(shading, env, background)) {  // an escaped path gathers nothing more
+    active = active && !escaped;
+    if (!XI_ANY(active)) return r;
+  }
   xfloat prev_pdf;  // 0 after a camera ray or a specular bounce
   xfloat3 beta = xi_gather_xyz(throughput, slot, &prev_pdf);
   xfloat3 L = xi_gather_xyz(radiance, slot, 0);
 
-  xmask escaped = h.x < 0.0f;
   if (xi_uses(shading, XI_USE_ENVIRONMENT) && env.width > 0u) {
     // The environment, MIS-weighted against light sampling where the ray was a BSDF sample.
     xmask seen = active && escaped;
@@ -163,6 +173,7 @@ static inline XI_INLINE ShadeResult xi_shade_paths(XI_PATH_PARAMS xuint slot, xm
     xi_scatter4(radiance, slot, L, (xfloat)0.0f, active);
     return r;
   }
+  const xuint pixel = xi_gather_uint(item_pixel, slot), sample_index = xi_gather_uint(item_sample, slot);
 
   xuint tri = at_surface ? xi_as_uint(tri_bits) : (xuint)0u;  // other lanes read triangle 0, unused
   xfloat3 p0 = xi_gather_xyz(tri_verts, 3u * tri, 0), p1 = xi_gather_xyz(tri_verts, 3u * tri + 1u, 0),
@@ -375,47 +386,47 @@ __kernel void shade(XI_PATH_PARAMS __global const uint* restrict queue_in, __glo
                     __global const float4* restrict env_texels, __global const float* restrict env_cdf,
                     __global const float4* restrict tri_tangents) {
   const uint shading = xi_shading(shading_argument);
-  volatile __local uint group_count[2], group_base[2];  // for the partition and the queue appends below
+  volatile __local uint partition_count[2], append_count[2], group_base[2];
   const uint count = counters[XI_COUNTER_RAYS(bounce)];
   xuint entry = (uint)get_global_id(0) * XI_LANES + XI_LANE_INDEX;
   xmask active = entry < count;  // launched over an upper bound
   xuint slot = xi_gather_uint(queue_in, active ? entry : (xuint)0u);
   slot = active ? slot : (xuint)0u;  // queue_in[0] may be unwritten when the queue is empty
-  // In a scene lit by an environment most rays escape after the first bounce, and a surface costs
-  // far more to shade than an escaped ray. There the group's entries are partitioned, surface hits
-  // first and escaped rays last, so that most work items shade lanes of one kind and one whose rays
-  // all escaped skips the surface code. Each path is shaded the same; only the work item changes.
+  // After the first bounce many rays escape, and a surface costs far more to shade than an escaped
+  // ray. The group's entries are partitioned, surface hits first and escaped rays last, so that most
+  // work items shade lanes of one kind and one whose rays all escaped skips the surface code. Camera
+  // rays escape in runs of neighbouring pixels, so at bounce 0 only an environment's lookups repay
+  // it. Each path is shaded the same; only the work item changes.
   __local uint group_slots[XI_MAX_LOCAL_SIZE * XI_LANES];
-  const bool partitioned = xi_uses(shading, XI_USE_ENVIRONMENT);
+  const bool skip_escaped = !xi_lit_from_afar(shading, env, background);
+  const bool partitioned = bounce > 0u || !skip_escaped;
   const uint group_first = (uint)get_group_id(0) * (uint)get_local_size(0) * XI_LANES;
   const uint group_entries = group_first < count ? min((uint)get_local_size(0) * XI_LANES, count - group_first) : 0u;
   const uint local_first = (uint)get_local_id(0) * XI_LANES;
-  // The barriers are passed whether or not this launch partitions (see xi_may_use).
-  if (xi_may_use(XI_USE_ENVIRONMENT)) {
-    if (get_local_id(0) == 0u) group_count[0] = group_count[1] = 0u;
-    barrier(CLK_LOCAL_MEM_FENCE);
-    if (partitioned) {
-      xmask escaped = active && xi_gather_float((__global const float*)hit, 4u * slot) < 0.0f;
-      xmask surface = active && !escaped;
-      uint surfaces = xi_count(surface), escapes = xi_count(escaped);
-      uint front = surfaces ? atomic_add(&group_count[0], surfaces) : 0u;
-      uint back = escapes ? atomic_add(&group_count[1], escapes) : 0u;
-      xi_local_scatter_uint(group_slots, xi_compact_index(front, surface), slot, surface);
-      xi_local_scatter_uint(group_slots, (xuint)(group_entries - 1u) - xi_compact_index(back, escaped), slot, escaped);
-    }
-    barrier(CLK_LOCAL_MEM_FENCE);
-    if (partitioned) {
-      xuint local_entry = local_first + XI_LANE_INDEX;
-      active = local_entry < group_entries;
-      slot = xi_local_gather_uint(group_slots, active ? local_entry : (xuint)0u);
-      slot = active ? slot : (xuint)0u;
-    }
+  if (get_local_id(0) == 0u) partition_count[0] = partition_count[1] = append_count[0] = append_count[1] = 0u;
+  barrier(CLK_LOCAL_MEM_FENCE);
+  if (partitioned) {
+    xmask escaped = active && xi_gather_float((__global const float*)hit, 4u * slot) < 0.0f;
+    xmask surface = active && !escaped;
+    uint surfaces = xi_count(surface), escapes = xi_count(escaped);
+    uint front = surfaces ? atomic_add(&partition_count[0], surfaces) : 0u;
+    uint back = escapes ? atomic_add(&partition_count[1], escapes) : 0u;
+    xi_local_scatter_uint(group_slots, xi_compact_index(front, surface), slot, surface);
+    xi_local_scatter_uint(group_slots, (xuint)(group_entries - 1u) - xi_compact_index(back, escaped), slot, escaped);
+  }
+  barrier(CLK_LOCAL_MEM_FENCE);
+  if (partitioned) {
+    xuint local_entry = local_first + XI_LANE_INDEX;
+    active = local_entry < group_entries;
+    slot = xi_local_gather_uint(group_slots, active ? local_entry : (xuint)0u);
+    slot = active ? slot : (xuint)0u;
   }
 #if XI_HAS_PREFETCH
   // The next work item's paths, fetched while this one shades (as extend does), so their loads no
-  // longer wait on memory.
+  // longer wait on memory; escaped paths that need nothing more are not fetched.
   const uint ahead_first = (partitioned ? local_first : (uint)get_global_id(0) * XI_LANES) + XI_LANES;
-  const uint ahead_end = min(ahead_first + XI_LANES, partitioned ? group_entries : count);
+  const uint ahead_end = min(ahead_first + XI_LANES,
+                             partitioned ? (skip_escaped ? partition_count[0] : group_entries) : count);
   for (uint at = ahead_first; at < ahead_end; ++at) {
     uint ahead = partitioned ? group_slots[at] : queue_in[at];
     XI_PREFETCH(&hit[ahead], 0);
@@ -424,20 +435,17 @@ __kernel void shade(XI_PATH_PARAMS __global const uint* restrict queue_in, __glo
     XI_PREFETCH(&ray_dir[ahead], 1);
   }
 #endif
-  ShadeResult r = xi_shade_paths(XI_PATH_ARGS slot, active, bounce, XI_SCENE_ARGS, sampler, shading,
-                                 xi_gather_uint(item_pixel, slot), xi_gather_uint(item_sample, slot), max_depth,
+  ShadeResult r = xi_shade_paths(XI_PATH_ARGS slot, active, bounce, XI_SCENE_ARGS, sampler, shading, max_depth,
                                  background);
   // Append to the ray and shadow queues: entries are counted in local memory and reserved with one
   // global atomic per work group, since a global atomic per item serialises the cores on one line.
   uint rays = xi_count(r.next_ray), shadows = xi_count(r.shadow);
-  if (get_local_id(0) == 0u) group_count[0] = group_count[1] = 0u;
-  barrier(CLK_LOCAL_MEM_FENCE);
-  uint ray_index = rays ? atomic_add(&group_count[0], rays) : 0u;
-  uint shadow_index = shadows ? atomic_add(&group_count[1], shadows) : 0u;
+  uint ray_index = rays ? atomic_add(&append_count[0], rays) : 0u;
+  uint shadow_index = shadows ? atomic_add(&append_count[1], shadows) : 0u;
   barrier(CLK_LOCAL_MEM_FENCE);
   if (get_local_id(0) == 0u) {
-    group_base[0] = atomic_add(&counters[XI_COUNTER_RAYS(bounce + 1u)], group_count[0]);
-    group_base[1] = atomic_add(&counters[XI_COUNTER_SHADOW(bounce)], group_count[1]);
+    group_base[0] = atomic_add(&counters[XI_COUNTER_RAYS(bounce + 1u)], append_count[0]);
+    group_base[1] = atomic_add(&counters[XI_COUNTER_SHADOW(bounce)], append_count[1]);
   }
   barrier(CLK_LOCAL_MEM_FENCE);
   xuint ray_at = xi_compact_index(group_base[0] + ray_index, r.next_ray);

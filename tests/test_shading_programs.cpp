@@ -57,7 +57,7 @@ xi::RenderOptions options(int spp, uint32_t seed) {
 
 // Every bundled scene (each uses other features: glass, mirrors, normals, a lens), and the bench's
 // material scene (textures, the metallic-roughness material, an environment, under which shade
-// partitions its work groups), in 16 lanes, 8 and 1.
+// partitions its work groups at every bounce), in 16 lanes, 8 and 1.
 TEST(ShadingPrograms, GenericRendersEveryBundledSceneBitwise) {
   for (const char* name : {"cornell-box.json", "caustics.json", "mirror.json", "depth-of-field.json",
                            "soft-shadows.json", "../bench/scenes/material.json"}) {

@@ -37,20 +37,6 @@ static inline uint xi_shading(uint argument) {
 
 static inline bool xi_uses(uint shading, uint feature) { return (shading & feature) != 0u; }
 
-#if defined(XI_DEVICE) && (defined(XI_GENERIC) || defined(XI_SHADING))
-// Whether a feature can be on at all in this program, as a compile-time constant: in a scene's own
-// program whether its word has it, in the generic program always. For code whose shape must not
-// depend on the run-time word: PoCL compiles a work-group barrier that a branch may skip by
-// copying the rest of the kernel for each way.
-static inline bool xi_may_use(uint feature) {
-#ifdef XI_GENERIC
-  (void)feature;
-  return true;
-#else
-  return xi_uses(XI_SHADING, feature);
-#endif
-}
-#endif
 static inline int xi_sampler_of(uint shading) { return (int)(shading >> XI_SAMPLER_SHIFT); }
 
 #endif
