@@ -15,7 +15,7 @@ __kernel void accumulate(XI_PATH_PARAMS __global float4* restrict film_sum,
   float4 sum = film_sum[pixel], sum_sq = film_sum_sq[pixel];
   float4 albedo = film_albedo[pixel], normal = film_normal[pixel];
   for (uint s = 0u; s < wave.samples; ++s) {
-    uint slot = s * wave.pixels + p;
+    uint slot = XI_WAVE_SLOT(wave, p, s);
     float4 l = (float4)(radiance[slot].xyz, 1.0f);
     if (!all(isfinite(l))) {
       atomic_inc(&counters[XI_COUNTER_NONFINITE]);

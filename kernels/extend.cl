@@ -20,8 +20,8 @@ static inline void xi_extend_one(__global const float4* ray_org, __global const 
 
 #if XI_BVH_WIDTH == 8
 // Queue entries wi to wi + w - 1 (w = XI_PACKET_WIDTH): at bounce 0 the queue is the wave's slots
-// in order, so these are neighbouring pixels of one sample; later, paths that survived in slot
-// order. A last packet of fewer than w is traced one ray at a time.
+// in order, so these are the samples of a few neighbouring pixels (layout.h); later, paths that
+// survived in slot order. A last packet of fewer than w is traced one ray at a time.
 static inline void xi_extend_packet(__global const float4* ray_org, __global const float4* ray_dir, __global float4* hit,
                                     __global const uint* queue, uint count, bool hybrid,
                                     __global const TraceNode* nodes, __global const TriBlock* tri_blocks) {

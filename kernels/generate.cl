@@ -19,9 +19,9 @@ __kernel void generate(XI_PATH_PARAMS __global uint* restrict queue, __global ui
   xmask active = slot < count;
   if (!XI_ANY(active)) return;
   // The slot's frame pixel (WaveParams): column x of film row film_pixel / width.
-  xuint film_pixel = wave.first_pixel + slot % wave.pixels;
+  xuint film_pixel = XI_WAVE_PIXEL(wave, slot);
   xuint x = film_pixel % wave.width, y = wave.first_row + film_pixel / wave.width * wave.row_stride;
-  xuint pixel = y * wave.width + x, sample_index = wave.first_sample + slot / wave.pixels;
+  xuint pixel = y * wave.width + x, sample_index = XI_WAVE_SAMPLE(wave, slot);
   xfloat2 u = xi_sample_2d(sampler_kind, sampler, pixel, sample_index, XI_PAIR_PIXEL);
   // Film coordinates in [-1, 1]², x to the right, y up; pixel (0, 0) is the top-left corner.
   xfloat sx = 2.0f * (xi_to_float(x) + u.x) / (float)cam.width - 1.0f;

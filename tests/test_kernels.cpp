@@ -522,12 +522,13 @@ TEST_F(Kernel, GenerateCameraRays) {
 
     for (uint32_t slot = 0; slot < count; ++slot) {
       SCOPED_TRACE(testing::Message() << "slot " << slot << " of the wave at " << wave.first_pixel);
-      const uint32_t film_pixel = wave.first_pixel + slot % wave.pixels, s = wave.first_sample + slot / wave.pixels;
+      const uint32_t film_pixel = XI_WAVE_PIXEL(wave, slot), s = XI_WAVE_SAMPLE(wave, slot);
       const uint32_t pixel = (wave.first_row + film_pixel / W * wave.row_stride) * W + film_pixel % W;  // in the frame
       EXPECT_EQ(out.item_pixel[slot], pixel);  // what shade draws its samples for
       EXPECT_EQ(out.item_sample[slot], s);
       if (s != sample) {  // the second sample: a different jitter of the same pixel
-        EXPECT_GT(glm::length(vec3(out.ray_dir[slot]) - vec3(out.ray_dir[slot % wave.pixels])), 0.0f);
+        const uint32_t first = XI_WAVE_SLOT(wave, film_pixel - wave.first_pixel, 0u);
+        EXPECT_GT(glm::length(vec3(out.ray_dir[slot]) - vec3(out.ray_dir[first])), 0.0f);
         continue;
       }
       // generate.cl's formula, evaluated on the host with the same sampler call.
@@ -625,13 +626,13 @@ TEST_F(Kernel, AccumulateSumsAndDropsNonFinite) {
     bind(k, b, sum_b, sum_sq_b, albedo_b, normal_b, counters_b, wave);
     launch(k, wave.pixels);
 
-    for (uint32_t i = 0; i < count; ++i) {  // slot i: sample i / pixels of pixel i % pixels
+    for (uint32_t i = 0; i < count; ++i) {  // in slot order, so each pixel's samples in sample order
       const vec4 l(vec3(state.radiance[i]), 1.0f);
       if (!std::isfinite(l.x) || !std::isfinite(l.y) || !std::isfinite(l.z)) {
         nonfinite++;  // dropped whole: its AOVs too, so they stay averages over sum.w samples
         continue;
       }
-      const uint32_t p = wave.first_pixel + i % wave.pixels;
+      const uint32_t p = XI_WAVE_PIXEL(wave, i);
       want_sum[p] += l;
       want_sq[p] += l * l;
       for (int c = 0; c < 4; ++c) want_sq_fma[p][c] = std::fma(l[c], l[c], want_sq_fma[p][c]);

@@ -189,9 +189,10 @@ typedef struct {
 #define XI_SHADOW_PARAMS XI_SHADOW_STATE(XI_PARAM)
 
 // Which (pixel, sample) items a wave holds: `pixels` consecutive pixels of the film from
-// first_pixel, each with `samples` consecutive sample indices from first_sample. Item (path slot) k
-// is film pixel first_pixel + k % pixels, sample first_sample + k / pixels, so neighbouring slots
-// are neighbouring pixels. A small frame puts several samples of each pixel in one wave.
+// first_pixel, each with `samples` consecutive sample indices from first_sample (several where the
+// film is small next to the paths in flight). Item (path slot) k is sample k % samples of the
+// wave's pixel k / samples (XI_WAVE_*): a pixel's samples are neighbours, so the rays that one work
+// item or one ray packet holds leave a few neighbouring pixels and stay close together.
 // The film holds rows first_row, first_row + row_stride, ... of a frame `width` pixels wide (all
 // rows: 0 and 1; one process of a distributed render: its share). Sample values depend on the frame
 // pixel only, so films of different rows put together make the frame's image bitwise.
@@ -205,6 +206,11 @@ typedef struct {
   uint row_stride;
   uint pad;
 } WaveParams;
+
+#define XI_WAVE_PIXEL(wave, slot) ((wave).first_pixel + (slot) / (wave).samples)    // film pixel
+#define XI_WAVE_SAMPLE(wave, slot) ((wave).first_sample + (slot) % (wave).samples)  // sample index
+// The slot of the wave's pixel p (from first_pixel) and sample s (from first_sample).
+#define XI_WAVE_SLOT(wave, p, s) ((p) * (wave).samples + (s))
 
 // The largest work group the host launches (shade keeps a group's queue entries in local memory).
 #define XI_MAX_LOCAL_SIZE 1024
