@@ -1,6 +1,8 @@
 // The ceiling: xi's extend and shadow kernels against Embree on the same rays, same scene, same
 // run. Rays: camera rays, first-bounce rays and the shadow rays of both bounces, recorded from a
-// real render of the scene (1 spp), traced as the renderer traces them at that bounce (in packets,
+// wave of a real render of the scene holding --spp samples of every pixel (4 by default, as a
+// 512×512 render's waves do, each pixel's samples side by side), traced as the renderer traces them
+// at that bounce (in packets,
 // hybrid packets or alone: layout.h's XI_EXTEND_RAYS, XI_SHADOW_RAYS). Embree traces them one at a
 // time (rtcIntersect1, rtcOccluded1) and in packets of 16 consecutive rays (rtcIntersect16,
 // rtcOccluded16), which is how Mitsuba 3's LLVM variant calls the same Embree (its wheel links
@@ -217,8 +219,14 @@ int main(int argc, char** argv) {
     if (at + 1 == args.end()) args.clear();
     else rays_out = *(at + 1), args.erase(at, at + 2);
   }
+  int spp = 4;
+  if (auto at = std::find(args.begin(), args.end(), "--spp"); at != args.end()) {
+    if (at + 1 == args.end() || (spp = std::atoi((at + 1)->c_str())) < 1) args.clear();
+    else args.erase(at, at + 2);
+  }
   if (args.empty()) {
-    std::fprintf(stderr, "usage: xi_ceiling SCENE.json [RUNS] [WIDTHxHEIGHT] [high|medium|low] [--rays-out DIR]\n");
+    std::fprintf(stderr,
+                 "usage: xi_ceiling SCENE.json [RUNS] [WIDTHxHEIGHT] [high|medium|low] [--spp N] [--rays-out DIR]\n");
     return 2;
   }
   try {
@@ -230,13 +238,14 @@ int main(int argc, char** argv) {
     const RTCBuildQuality embree_quality = parse_quality(quality);
     if (!rays_out.empty()) std::filesystem::create_directories(rays_out);
     xi::Device device = xi::Device::open("");
-    std::printf("scene %s: %zu triangles, %dx%d; device %s; %u host threads for Embree, build quality %s\n",
-                args[0].c_str(), scene.triangles.size(), scene.width, scene.height, device.info().name.c_str(),
+    std::printf("scene %s: %zu triangles, %dx%d, %d spp in one wave; device %s; %u host threads for Embree, build "
+                "quality %s\n",
+                args[0].c_str(), scene.triangles.size(), scene.width, scene.height, spp, device.info().name.c_str(),
                 std::thread::hardware_concurrency(), quality.c_str());
     for (int bounce : {0, 1}) {
       xi::RenderOptions opt;
-      opt.spp = 1;
-      opt.paths_in_flight = (size_t)scene.width * scene.height;  // one wave: trace_closest takes them all
+      opt.spp = spp;
+      opt.paths_in_flight = (size_t)scene.width * scene.height * spp;  // one wave: trace_closest takes them all
       xi::Renderer recorder(device, scene, opt);
       xi::RayProbe probe(recorder);
       probe.record(bounce);

@@ -303,7 +303,7 @@ def ceiling(a, xi, mitsuba, scenes, resolution, out_dir, tmp):
                          mi_rate, xi_rate / mi_rate if mi_rate else None, float(m[7])])
     headers = ["scene", "resolution", "rays", "count", "xi traces them", "xi Mrays/s", "Embree Mrays/s", "xi / Embree",
                "Embree x16 Mrays/s", "xi / x16", "Mitsuba Mrays/s", "xi / Mitsuba", "same %"]
-    print(f"\nThe ceiling: xi's extend and shadow kernels on rays recorded from a 1-spp render, against Embree's "
+    print(f"\nThe ceiling: xi's extend and shadow kernels on rays recorded from one wave of a render (4 samples of every pixel), against Embree's "
           f"rtcIntersect1/rtcOccluded1, its 16-ray packets (as Mitsuba's LLVM variant calls it) and Mitsuba's own "
           f"ray_intersect_preliminary/ray_test on the same rays ({tool.name}, medians of {a.runs}; ratio > 1: xi is "
           f"faster; same: xi's and Embree's answers agree)")
