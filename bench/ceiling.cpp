@@ -2,11 +2,11 @@
 // run. Rays: camera rays, first-bounce rays and the shadow rays of both bounces, recorded from a
 // wave of a real render of the scene holding --spp samples of every pixel (4 by default, as a
 // 512×512 render's waves do, each pixel's samples side by side), traced as the renderer traces them
-// at that bounce (in packets,
-// hybrid packets or alone: layout.h's XI_EXTEND_RAYS, XI_SHADOW_RAYS). Embree traces them one at a
-// time (rtcIntersect1, rtcOccluded1) and in packets of 16 consecutive rays (rtcIntersect16,
-// rtcOccluded16), which is how Mitsuba 3's LLVM variant calls the same Embree (its wheel links
-// Embree 3.13.4). Prints Mrays/s (medians of several timed runs) and how often the answers agree.
+// at that bounce (in packets, hybrid packets or alone: layout.h's XI_EXTEND_RAYS, XI_SHADOW_RAYS).
+// Embree traces them one at a time (rtcIntersect1, rtcOccluded1) and in packets of 16 consecutive
+// rays (rtcIntersect16, rtcOccluded16), which is how Mitsuba 3's LLVM variant calls the same Embree
+// (its wheel links Embree 3.13.4). Prints Mrays/s (medians of several timed runs) and how often the
+// answers agree.
 // --rays-out DIR also writes the rays (float32 origin xyz, tmax, direction xyz, 0) for bench/peers.py
 // to time Mitsuba's own ray queries on them.
 #include <embree3/rtcore.h>
