@@ -277,6 +277,8 @@ CEILING = re.compile(r"^(camera rays|bounce rays|shadow rays 0|shadow rays 1)\s+
 # The files `xi_ceiling --rays-out` writes, by row.
 CEILING_RAYS = {"camera rays": "camera.f32", "bounce rays": "bounce.f32", "shadow rays 0": "shadow0.f32",
                 "shadow rays 1": "shadow1.f32"}
+# Samples of every pixel in the one wave the ceiling records: as many as a 512x512 render's waves hold.
+CEILING_SPP = 4
 
 
 def ceiling(a, xi, mitsuba, scenes, resolution, out_dir, tmp):
@@ -290,7 +292,7 @@ def ceiling(a, xi, mitsuba, scenes, resolution, out_dir, tmp):
     rows = []
     for scene in scenes:
         rays_dir = Path(tmp) / f"rays-{scene.stem}"
-        text = c.run([tool, scene, a.runs, resolution, "--rays-out", rays_dir])
+        text = c.run([tool, scene, a.runs, resolution, "--spp", CEILING_SPP, "--rays-out", rays_dir])
         loaded = load(a, xi, mitsuba, scene, resolution, scene_depth(scene), tmp)
         for m in CEILING.finditer(text):
             mi_rate = None
@@ -303,7 +305,7 @@ def ceiling(a, xi, mitsuba, scenes, resolution, out_dir, tmp):
                          mi_rate, xi_rate / mi_rate if mi_rate else None, float(m[7])])
     headers = ["scene", "resolution", "rays", "count", "xi traces them", "xi Mrays/s", "Embree Mrays/s", "xi / Embree",
                "Embree x16 Mrays/s", "xi / x16", "Mitsuba Mrays/s", "xi / Mitsuba", "same %"]
-    print(f"\nThe ceiling: xi's extend and shadow kernels on rays recorded from one wave of a render (4 samples of every pixel), against Embree's "
+    print(f"\nThe ceiling: xi's extend and shadow kernels on rays recorded from one wave of a render ({CEILING_SPP} samples of every pixel), against Embree's "
           f"rtcIntersect1/rtcOccluded1, its 16-ray packets (as Mitsuba's LLVM variant calls it) and Mitsuba's own "
           f"ray_intersect_preliminary/ray_test on the same rays ({tool.name}, medians of {a.runs}; ratio > 1: xi is "
           f"faster; same: xi's and Embree's answers agree)")
