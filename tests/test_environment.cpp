@@ -74,36 +74,79 @@ const xi::EnvironmentMap& the_sun_map() {
   return m;
 }
 
+// A 256 × 128 sky (the gradient above, dimmed) with a small sun: the 13 texels within 2 texels of
+// (200, 40), radiance 900, most of the map's power in a source a few texels wide.
+xi::EnvironmentMap small_sun_map() {
+  const int w = 256, h = 128, cx = 200, cy = 40;
+  std::vector<glm::vec4> t((size_t)w * h);
+  for (int y = 0; y < h; ++y)
+    for (int x = 0; x < w; ++x) {
+      double u = (x + 0.5) / w, v = (y + 0.5) / h, g = 0.2 + 0.8 * (1.0 - v) + 0.1 * std::sin(2.0 * M_PI * u);
+      t[(size_t)y * w + x] = glm::vec4(0.3 * g, 0.4 * g, 0.5 * g, 0.0);
+      if ((x - cx) * (x - cx) + (y - cy) * (y - cy) <= 4) t[(size_t)y * w + x] = glm::vec4(900.0f, 900.0f, 900.0f, 0.0f);
+    }
+  return xi::make_environment(w, h, std::move(t), "small sun");
+}
+
 glm::dvec3 uv_direction(double u, double v) {  // Mitsuba 3's uv_to_direction, in double
   double phi = 2.0 * M_PI * u, theta = M_PI * v;
   return {std::sin(phi) * std::sin(theta), std::cos(theta), -std::cos(phi) * std::sin(theta)};
 }
 float3 to_float3(glm::dvec3 d) { return float3((float)d.x, (float)d.y, (float)d.z); }
 
-// The probability of each texel cell, read from the CDF as xi_env_pdf reads it, in double.
-std::vector<double> cell_probabilities(const xi::EnvironmentMap& m) {
-  const int w = m.width, h = m.height;
-  std::vector<double> p((size_t)w * h);
-  for (int y = 0; y < h; ++y) {
-    double py = (double)m.cdf[y] - (y ? (double)m.cdf[y - 1] : 0.0);
-    const float* row = m.cdf.data() + h + (size_t)y * w;
-    for (int x = 0; x < w; ++x) p[(size_t)y * w + x] = py * ((double)row[x] - (x ? (double)row[x - 1] : 0.0));
+// The probability of each bilinear patch (x, k), k ≤ H, read from the CDF as
+// xi_env_patch_probability reads it, in double.
+std::vector<double> patch_probabilities(const xi::EnvironmentMap& m) {
+  const int w = m.width, rows = m.height + 1;
+  std::vector<double> p((size_t)w * rows);
+  for (int k = 0; k < rows; ++k) {
+    double pk = (double)m.cdf[k] - (k ? (double)m.cdf[k - 1] : 0.0);
+    const float* row = m.cdf.data() + rows + (size_t)k * w;
+    for (int x = 0; x < w; ++x) p[(size_t)k * w + x] = pk * ((double)row[x] - (x ? (double)row[x - 1] : 0.0));
   }
   return p;
 }
 
-// The exact probability of the (u, v) rectangle [u0, u1] × [v0, v1] (u0, u1 on texel edges) under
-// the piecewise-constant density p_cell·W·H.
-double rect_probability(const xi::EnvironmentMap& m, const std::vector<double>& cells, int x0, int x1, double v0,
-                        double v1) {
+// The corner weights of patch (x, k) as the kernels read them: upper (a, b), lower (c, d).
+std::array<double, 4> patch_corners(const xi::EnvironmentMap& m, int x, int k) {
+  const float* v = m.cdf.data() + XI_ENV_WEIGHT_OFFSET((size_t)m.width, (size_t)m.height);
+  const int x1 = (x + 1) % m.width;
+  const float* upper = v + (size_t)k * m.width;
+  const float* lower = upper + m.width;
+  return {upper[x], upper[x1], lower[x], lower[x1]};
+}
+
+// ∫ of (1 − s) and of s over [s0, s1].
+std::array<double, 2> linear_integrals(double s0, double s1) {
+  const double half_sq = 0.5 * (s1 * s1 - s0 * s0);
+  return {(s1 - s0) - half_sq, half_sq};
+}
+
+// The exact probability of the (u, v) rectangle [u0, u1] × [v0, v1] ⊂ [0, 1]² under the density
+// (environment.h): each patch's probability times the share of its bilinear density inside.
+double rect_probability(const xi::EnvironmentMap& m, const std::vector<double>& patches, double u0, double u1,
+                        double v0, double v1) {
+  const int w = m.width, h = m.height;
   double total = 0.0;
-  int y0 = std::max(0, (int)std::floor(v0 * m.height)), y1 = std::min(m.height - 1, (int)std::floor(v1 * m.height));
-  for (int y = y0; y <= y1; ++y) {
-    double lo = std::max(v0, (double)y / m.height), hi = std::min(v1, (y + 1.0) / m.height);
-    if (hi <= lo) continue;
-    double share = (hi - lo) * m.height, row = 0.0;
-    for (int x = x0; x < x1; ++x) row += cells[(size_t)y * m.width + x];
-    total += row * share;
+  for (int k = 0; k <= h; ++k) {
+    const double top = std::max(0.0, (k - 0.5) / h), bottom = std::min(1.0, (k + 0.5) / h);
+    const double t0 = std::clamp((v0 - top) / (bottom - top), 0.0, 1.0), t1 = std::clamp((v1 - top) / (bottom - top), 0.0, 1.0);
+    if (t1 <= t0) continue;
+    const std::array<double, 2> bt = linear_integrals(t0, t1);
+    for (int x = 0; x < w; ++x) {
+      const double p = patches[(size_t)k * w + x];
+      if (p <= 0.0) continue;
+      const std::array<double, 4> c = patch_corners(m, x, k);
+      const double mean = 0.25 * (c[0] + c[1] + c[2] + c[3]);
+      for (double shift : {0.0, -1.0}) {  // the last column's patch wraps around to u = 0
+        const double left = (x + 0.5) / w + shift;
+        const double s0 = std::clamp((u0 - left) * w, 0.0, 1.0), s1 = std::clamp((u1 - left) * w, 0.0, 1.0);
+        if (s1 <= s0) continue;
+        const std::array<double, 2> bs = linear_integrals(s0, s1);
+        const double inside = bt[0] * (bs[0] * c[0] + bs[1] * c[1]) + bt[1] * (bs[0] * c[2] + bs[1] * c[3]);
+        total += p * inside / mean;
+      }
+    }
   }
   return total;
 }
@@ -132,20 +175,21 @@ Samples draw(const xi::EnvironmentMap& texels_of, const std::vector<float>& cdf,
   return s;
 }
 
-// χ² charts, both with exact expectations (the density is constant over each texel cell in (u, v)):
+// χ² charts, both with exact expectations (rect_probability integrates the bilinear patches):
 // (u, v) blocks of 16 × 16 texels, and the sphere in (cos θ, φ), whose cells are (u, v) rectangles
-// with v = acos(cos θ)/π (φ edges on texel edges). Family: the 2 charts of the correct sampler at
-// 1% family-wise, Šidák-corrected; the wrong samplers must be rejected at the same per-test level.
-constexpr int kUvA = 32, kUvB = 16;      // chart A: 32 × 16 blocks of (512/32) × (256/16) texels
+// with v = acos(cos θ)/π. Family: the charts of the correct sampler, on two maps, at 1%
+// family-wise, Šidák-corrected; the wrong samplers must be rejected at the same per-test level.
+constexpr int kUvA = 32, kUvB = 16;      // chart A: 32 × 16 blocks
 constexpr int kSphZ = 16, kSphPhi = 32;  // chart B: cos θ × φ
 constexpr int kChi2Samples = 1 << 20;
-double chi2_alpha() { return sidak_alpha(0.01, 2); }
+double chi2_alpha() { return sidak_alpha(0.01, 4); }
 
 Chi2Result chi2_uv(const xi::EnvironmentMap& m, const Samples& s) {
-  std::vector<double> cells = cell_probabilities(m), expected(kUvA * kUvB, 0.0), observed(kUvA * kUvB, 0.0);
-  const int bx = m.width / kUvA, by = m.height / kUvB;
-  for (int y = 0; y < m.height; ++y)
-    for (int x = 0; x < m.width; ++x) expected[(y / by) * kUvA + x / bx] += cells[(size_t)y * m.width + x] * s.dirs.size();
+  std::vector<double> patches = patch_probabilities(m), expected(kUvA * kUvB, 0.0), observed(kUvA * kUvB, 0.0);
+  for (int j = 0; j < kUvB; ++j)
+    for (int i = 0; i < kUvA; ++i)
+      expected[j * kUvA + i] = rect_probability(m, patches, (double)i / kUvA, (i + 1.0) / kUvA, (double)j / kUvB,
+                                                (j + 1.0) / kUvB) * s.dirs.size();
   for (glm::vec3 d : s.dirs) {
     float2 uv = xi_env_direction_to_uv(d);
     int i = std::min((int)(uv.x * kUvA), kUvA - 1), j = std::min((int)(uv.y * kUvB), kUvB - 1);
@@ -155,13 +199,13 @@ Chi2Result chi2_uv(const xi::EnvironmentMap& m, const Samples& s) {
 }
 
 Chi2Result chi2_sphere(const xi::EnvironmentMap& m, const Samples& s) {
-  std::vector<double> cells = cell_probabilities(m), expected(kSphZ * kSphPhi), observed(kSphZ * kSphPhi, 0.0);
-  const int bx = m.width / kSphPhi;
+  std::vector<double> patches = patch_probabilities(m), expected(kSphZ * kSphPhi), observed(kSphZ * kSphPhi, 0.0);
   for (int i = 0; i < kSphZ; ++i) {
     double z0 = -1.0 + 2.0 * i / kSphZ, z1 = -1.0 + 2.0 * (i + 1) / kSphZ;
     double v0 = std::acos(z1) / M_PI, v1 = std::acos(z0) / M_PI;
     for (int j = 0; j < kSphPhi; ++j)
-      expected[i * kSphPhi + j] = rect_probability(m, cells, j * bx, (j + 1) * bx, v0, v1) * s.dirs.size();
+      expected[i * kSphPhi + j] =
+          rect_probability(m, patches, (double)j / kSphPhi, (j + 1.0) / kSphPhi, v0, v1) * s.dirs.size();
   }
   for (glm::vec3 d : s.dirs) {
     float2 uv = xi_env_direction_to_uv(d);  // rotation 0: world = map frame
@@ -178,17 +222,19 @@ void print(const char* what, const Chi2Result& r) {
 }
 
 TEST(EnvironmentSampling, Chi2MatchesPdf) {
-  const xi::EnvironmentMap& m = the_sun_map();
-  ASSERT_TRUE(m.has_distribution());
-  EnvironmentData env = xi::make_environment_data(m, 1.0f, 0.0f, 1.0f);
-  Samples s = draw(m, m.cdf, env, kChi2Samples, 1);
-  Chi2Result a = chi2_uv(m, s), b = chi2_sphere(m, s);
-  print("sun map, (u, v) blocks", a);
-  print("sun map, sphere (cos theta, phi)", b);
-  EXPECT_GT(a.dof, 300);
-  EXPECT_GT(b.dof, 300);
-  EXPECT_GE(a.p_value, chi2_alpha());
-  EXPECT_GE(b.p_value, chi2_alpha());
+  const xi::EnvironmentMap small = small_sun_map();
+  for (const xi::EnvironmentMap* m : {&the_sun_map(), &small}) {
+    ASSERT_TRUE(m->has_distribution());
+    EnvironmentData env = xi::make_environment_data(*m, 1.0f, 0.0f, 1.0f);
+    Samples s = draw(*m, m->cdf, env, kChi2Samples, 1);
+    Chi2Result a = chi2_uv(*m, s), b = chi2_sphere(*m, s);
+    print((m->source + ", (u, v) blocks").c_str(), a);
+    print((m->source + ", sphere (cos theta, phi)").c_str(), b);
+    EXPECT_GT(a.dof, 200);
+    EXPECT_GT(b.dof, 200);
+    EXPECT_GE(a.p_value, chi2_alpha());
+    EXPECT_GE(b.p_value, chi2_alpha());
+  }
 }
 
 // The test has power: samples from another map's distribution (the sun at half its radiance), and
@@ -211,22 +257,24 @@ TEST(EnvironmentSampling, Chi2RejectsWrongSamplers) {
   EXPECT_LT(r.p_value, chi2_alpha());
 }
 
-// ∫ xi_env_pdf dω = 1: per texel cell, 2 × 2 Gauss–Legendre nodes in (u, v) with dω = 2π² sin θ du dv,
-// at a rotation of 30° (directions go through to_world and back). The density is constant in (u, v)
-// over a cell and the nodes lie inside the cells, so the sum is exact but for float rounding of the
-// pdf (~1e-6 relative): tolerance 1e-4.
+// ∫ xi_env_pdf dω = 1 at a rotation of 30° (directions go through to_world and back): 2 × 2
+// Gauss–Legendre nodes in (u, v), dω = 2π² sin θ du dv, on each quarter of a texel cell (whose
+// edges, at texel centres and edges, hold the patches' kinks). The density is bilinear in (u, v)
+// on each quarter, which the nodes integrate exactly, so the sum is 1 but for float rounding of
+// the pdf (~1e-6 relative): tolerance 1e-4.
 TEST(EnvironmentSampling, PdfIntegratesToOne) {
   const xi::EnvironmentMap& m = the_sun_map();
   EnvironmentData env = xi::make_environment_data(m, 1.0f, 30.0f, 1.0f);
   const double g[2] = {0.5 - 0.5 / std::sqrt(3.0), 0.5 + 0.5 / std::sqrt(3.0)};
+  const int nu = 2 * m.width, nv = 2 * m.height;
   double total = 0.0;
-  for (int y = 0; y < m.height; ++y)
-    for (int x = 0; x < m.width; ++x)
+  for (int y = 0; y < nv; ++y)
+    for (int x = 0; x < nu; ++x)
       for (double gy : g)
         for (double gx : g) {
-          double u = (x + gx) / m.width, v = (y + gy) / m.height;
+          double u = (x + gx) / nu, v = (y + gy) / nv;
           float3 d = xi_env_to_world(env, to_float3(uv_direction(u, v)));
-          total += xi_env_pdf(m.cdf.data(), env, d) * kTwoPi2 * std::sin(M_PI * v) * 0.25 / ((double)m.width * m.height);
+          total += xi_env_pdf(m.cdf.data(), env, d) * kTwoPi2 * std::sin(M_PI * v) * 0.25 / ((double)nu * nv);
         }
   std::printf("[ pdf      ] integral over the sphere: %.8f\n", total);
   EXPECT_NEAR(total, 1.0, 1e-4);
@@ -237,8 +285,10 @@ TEST(EnvironmentSampling, PdfIntegratesToOne) {
 // 2e-4 of the brightest texel, since the round trip moves (u, v) by ~1e-7 and the bilinear
 // lookup's slope beside the sun is up to W = 512 times the sun's radiance per unit of u. Pdfs agree to 1e-3 relative (the
 // direction's sin θ from two routes; near the poles a few ulps of x and z are more of sin θ, hence
-// the 1e-6/sin θ term); a sample that rounds onto the neighbouring cell across a texel edge is let
-// off if it lies within 1e-5 of that edge (counted and printed, at most 1 in 10^4).
+// the 1e-6/sin θ term) plus 2e-4 of the largest, since the density is bilinear like the radiance and
+// as steep beside the sun; a sample that rounds onto the neighbouring cell across a texel edge is let
+// off if it lies within 1e-5 of that edge (counted and printed, at most 1 in 10^4); patch edges lie
+// on texel centres.
 TEST(EnvironmentSampling, PdfOfSampleAndRoundTrips) {
   const xi::EnvironmentMap& m = the_sun_map();
   EnvironmentData env = xi::make_environment_data(m, 2.0f, 30.0f, 1.0f);
@@ -246,6 +296,7 @@ TEST(EnvironmentSampling, PdfOfSampleAndRoundTrips) {
   Samples s = draw(m, m.cdf, env, n, 4);
   float max_texel = 0.0f;
   for (glm::vec4 t : m.texels) max_texel = std::max(max_texel, 2.0f * glm::length(glm::vec3(t)));  // strength 2
+  const float max_pdf = *std::max_element(s.pdfs.begin(), s.pdfs.end());
   int on_edge = 0, bad_pdf = 0, bad_trip = 0, bad_rad = 0;
   for (int i = 0; i < n; ++i) {
     float3 d = s.dirs[i];
@@ -259,8 +310,8 @@ TEST(EnvironmentSampling, PdfOfSampleAndRoundTrips) {
     bad_trip += glm::length(back - l) > 2e-5f;
     float3 rad = xi_env_radiance(m.texels.data(), env, d);
     bad_rad += glm::length(rad - s.radiance[i]) > 1e-3f * glm::length(s.radiance[i]) + 2e-4f * max_texel;
-    if (std::fabs(pdf - s.pdfs[i]) > (1e-3 + 1e-6 / std::max(sin_theta, 1e-6f)) * s.pdfs[i]) {
-      double fu = uv.x * m.width, fv = uv.y * m.height;
+    if (std::fabs(pdf - s.pdfs[i]) > (1e-3 + 1e-6 / std::max(sin_theta, 1e-6f)) * s.pdfs[i] + 2e-4 * max_pdf) {
+      double fu = uv.x * m.width - 0.5, fv = uv.y * m.height - 0.5;
       if (std::fabs(fu - std::round(fu)) < 1e-5 * m.width || std::fabs(fv - std::round(fv)) < 1e-5 * m.height)
         ++on_edge;
       else
@@ -390,29 +441,29 @@ TEST(EnvironmentSampling, BlackMapHasNoDistribution) {
   EXPECT_EQ(xi::make_environment_data(the_sun_map(), 1.0f, 0.0f, 0.5f).scale.w, 0.5f);
 }
 
-// Distribution rules: CDFs end at exactly 1, and every cell where the bilinear radiance can be
-// nonzero (a 3 × 3 neighbourhood of a nonzero texel) has a positive probability, even a texel 1e-30
-// as bright as the sun.
-TEST(EnvironmentSampling, DistributionCoversEveryLitCell) {
-  const int w = 32, h = 16;
+// Distribution rules: CDFs end at exactly 1, and a patch has a positive probability exactly where
+// the bilinear radiance inside it can be nonzero (one of the texels at its corners is), even for a
+// texel 1e-30 as bright as the sun.
+TEST(EnvironmentSampling, DistributionCoversEveryLitPatch) {
+  const int w = 32, h = 16, rows = h + 1;
   std::vector<glm::vec4> t((size_t)w * h, glm::vec4(0.0f));
   t[3 * w + 0] = glm::vec4(1e6f);       // on the wrap-around column
   t[15 * w + 20] = glm::vec4(1e-24f);   // the last row, very dim
+  t[0 * w + 9] = glm::vec4(1.0f);       // the first row, beside the zenith's patch row
   xi::EnvironmentMap m = xi::make_environment(w, h, std::move(t), "sparse");
   ASSERT_TRUE(m.has_distribution());
-  EXPECT_EQ(m.cdf[h - 1], 1.0f);
-  for (int y = 0; y < h; ++y) EXPECT_EQ(m.cdf[h + (size_t)y * w + w - 1], 1.0f);
-  std::vector<double> p = cell_probabilities(m);
-  auto lit = [&](int x, int y) {
-    for (int dy = -1; dy <= 1; ++dy)
-      for (int dx = -1; dx <= 1; ++dx) {
-        int yy = y + dy, xx = ((x + dx) % w + w) % w;
-        if (yy >= 0 && yy < h && m.texels[(size_t)yy * w + xx].x > 0.0f) return true;
-      }
-    return false;
-  };
-  for (int y = 0; y < h; ++y)
-    for (int x = 0; x < w; ++x) EXPECT_EQ(p[(size_t)y * w + x] > 0.0, lit(x, y)) << x << ", " << y;
+  EXPECT_EQ(m.cdf[rows - 1], 1.0f);
+  for (int k = 0; k < rows; ++k) EXPECT_EQ(m.cdf[rows + (size_t)k * w + w - 1], 1.0f);
+  std::vector<double> p = patch_probabilities(m);
+  auto texel_lit = [&](int x, int y) { return y >= 0 && y < h && m.texels[(size_t)y * w + (x % w)].x > 0.0f; };
+  int lit_patches = 0;
+  for (int k = 0; k < rows; ++k)
+    for (int x = 0; x < w; ++x) {
+      const bool lit = texel_lit(x, k - 1) || texel_lit(x + 1, k - 1) || texel_lit(x, k) || texel_lit(x + 1, k);
+      lit_patches += lit;
+      EXPECT_EQ(p[(size_t)k * w + x] > 0.0, lit) << x << ", " << k;
+    }
+  EXPECT_EQ(lit_patches, 3 * 4);
 }
 
 // The guided search finds exactly the entry a binary search finds (the first CDF value above u),
@@ -433,7 +484,7 @@ TEST(EnvironmentSampling, GuidedSearchMatchesBinarySearch) {
     ASSERT_TRUE(m.has_distribution());
     const uint guides = XI_ENV_GUIDE_OFFSET((uint)w, (uint)h) / 4u;
     std::vector<float> us;
-    for (int n : {w, h})
+    for (int n : {w, h + 1})
       for (int k = 0; k <= n; ++k) {
         float at = (float)k / (float)n;
         for (float u : {std::nextafter(at, 0.0f), at, std::nextafter(at, 1.0f)})
@@ -441,8 +492,8 @@ TEST(EnvironmentSampling, GuidedSearchMatchesBinarySearch) {
       }
     for (int i = 0; i < 20000; ++i) us.push_back(rng.next());
     size_t checked = 0;
-    for (int row = -1; row < h; row += 7) {  // -1: the marginal
-      const uint base = row < 0 ? 0u : (uint)(h + row * w), n = row < 0 ? (uint)h : (uint)w;
+    for (int row = -1; row <= h; row += 7) {  // -1: the marginal over the h + 1 patch rows
+      const uint base = row < 0 ? 0u : (uint)(h + 1 + row * w), n = row < 0 ? (uint)h + 1u : (uint)w;
       const float* cdf = m.cdf.data() + base;
       for (float u : us) {
         const uint expect = (uint)std::min<ptrdiff_t>(std::upper_bound(cdf, cdf + n, u) - cdf, n - 1);

@@ -1,6 +1,6 @@
 // The environment light: an equirectangular (latitude-longitude) image of radiance at infinity,
-// looked up bilinearly and importance-sampled by a piecewise-constant 2D distribution over its
-// texel cells. Written on lane types (lanes.h): the same code runs on the host (its tests) and in
+// looked up bilinearly and importance-sampled with a density proportional to the bilinear
+// interpolation of its luminance × sin θ. Written on lane types (lanes.h): the same code runs on the host (its tests) and in
 // the kernels, 1 or 8 paths at a time.
 //
 // Orientation: Mitsuba 3's envmap emitter (src/emitters/envmap.cpp, uv_to_direction and
@@ -18,28 +18,40 @@
 // user's angle, the same as Mitsuba's `to_world` rotate(y, angle): positive angles turn +z toward
 // +x (the map's centre column, +z, is seen along +x after +90°).
 //
-// Sampling distribution (host: build_environment_distribution in environment.cpp), one float
-// buffer `cdf`:
-//   cdf[y]                  for y < H: the marginal CDF over rows, P(row ≤ y);
-//   cdf[H + y·W + x]        for x < W: row y's conditional CDF over columns, P(column ≤ x | row y);
-//   then, from G = XI_ENV_GUIDE_OFFSET(W, H) on, guide tables of float4 entries, one per CDF entry
+// Sampling density. The lookup is bilinear between texel centres, so the density follows it: in
+// (u, v) it is the bilinear interpolation of the vertex weights Y·sin θ (Y the texel's luminance,
+// Rec. 709: 0.2126, 0.7152, 0.0722; θ at the texel's centre) over the grid of texel centres, with a
+// row of zero weights added at each pole (v = 0 and 1, where sin θ = 0). Its patches: W columns,
+// patch x between the centres of texels x and x + 1 (wrapping in u), and H + 1 rows, row k between
+// the centres of texel rows k − 1 and k (row 0 from the zenith to row 0's centres, row H from the last
+// row's centres to the nadir: half as tall). Within a patch the lookup mixes exactly the texels of its
+// corners (at the pole rows: of one row, constant in v), so the density is non-zero wherever the
+// radiance is, and the estimator is unbiased; it follows the radiance as closely as a bilinear
+// function of luminance can, where a piecewise-constant density over texel cells leaves the edges of
+// a small bright source undersampled. (Mitsuba 3 warps such bilinear patches hierarchically; here a
+// patch is chosen from a discrete distribution and the bilinear density inverted inside it.)
+//
+// The distribution's buffer `cdf` (host: build_environment_distribution in environment.cpp), with
+// R = H + 1 patch rows:
+//   cdf[k]                  for k < R: the marginal CDF over patch rows, P(row ≤ k);
+//   cdf[R + k·W + x]        for x < W: patch row k's conditional CDF over columns, P(column ≤ x | k);
+//   from G = XI_ENV_GUIDE_OFFSET(W, H) on, guide tables of float4 entries, one per CDF entry
 //   in the same order (the CDF starting at cdf[b] has its guide table at float4 G/4 + b): for a
 //   CDF of n entries, guide entry k = (cdf[i − 1], cdf[i], cdf[i + 1], i) for the first i whose
 //   CDF value exceeds k / n (cdf[−1] read as 0, cdf[n] as cdf[n − 1]). A search for u reads entry
 //   ⌊u n⌋ and is then done but where more than two CDF entries fall in one step of k / n: one
 //   load where a binary search took log2 n dependent loads, and a plain guide table (the index
-//   alone) three or more.
-// Each CDF ends at exactly 1. A cell's probability is the product of the differences of
-// consecutive entries (the entry before the first counts as 0), so sampling and pdf read the very
-// same numbers and agree whatever the rounding. The density is constant in (u, v) over a cell:
-// p_cell·W·H, and in solid angle (dω = 2π² sin θ du dv) p_cell·W·H / (2π² sin θ).
-// A cell's weight is the luminance (Rec. 709: 0.2126, 0.7152, 0.0722) of the brightest of its
-// texel and the texel's 8 neighbours, times sin θ at the cell's centre. The bilinear lookup
-// anywhere in a cell mixes only texels of that 3×3 neighbourhood, so wherever the radiance is not
-// zero the pdf is not zero either, and the estimator is unbiased. The host also keeps every
-// nonzero weight at no less than 2^-20 of its CDF's total, so that no such cell rounds to a zero
-// probability in float. A map that is black everywhere has no distribution (empty cdf) and the
-// host gives it pick probability 0: then neither xi_env_sample nor xi_env_pdf may be called.
+//   alone) three or more;
+//   from XI_ENV_WEIGHT_OFFSET(W, H) on, the (H + 2) × W vertex weights, row r = 0 the zenith's zeros,
+//   rows 1..H the texel rows, row H + 1 the nadir's zeros.
+// Each CDF ends at exactly 1. A patch's probability is the product of the differences of
+// consecutive entries (the entry before the first counts as 0), proportional to the integral of
+// its bilinear weights; the host keeps every nonzero one at no less than 2^-20 of its CDF's total,
+// so that no lit patch rounds to a zero probability in float. Within the patch the density is its
+// bilinear weight over the mean of its four corners, and sampling and pdf read the very same numbers
+// (xi_env_patch_pdf), so they agree whatever the rounding. In solid angle dω = 2π² sin θ du dv.
+// A map that is black everywhere has no distribution (empty cdf) and the host gives it pick
+// probability 0: then neither xi_env_sample nor xi_env_pdf may be called.
 #ifndef XI_ENVIRONMENT_H
 #define XI_ENVIRONMENT_H
 #include "lanes.h"
@@ -153,34 +165,87 @@ static inline xuint xi_env_search(__global const float* cdf, xuint base, xuint g
   return at;
 }
 
-// The probability of cell (x, y) from the CDF differences.
-static inline xfloat xi_env_cell_probability(__global const float* cdf, EnvironmentData env, xuint x, xuint y) {
-  xuint row = env.height + y * env.width;
-  xmask y0 = y == 0u, x0 = x == 0u;
-  xfloat py = xi_gather_float(cdf, y) - (y0 ? (xfloat)0.0f : xi_gather_float(cdf, y0 ? y : y - 1u));
+// The probability of patch (x, k) from the CDF differences.
+static inline xfloat xi_env_patch_probability(__global const float* cdf, EnvironmentData env, xuint x, xuint k) {
+  xuint row = env.height + 1u + k * env.width;
+  xmask k0 = k == 0u, x0 = x == 0u;
+  xfloat pk = xi_gather_float(cdf, k) - (k0 ? (xfloat)0.0f : xi_gather_float(cdf, k0 ? k : k - 1u));
   xfloat px = xi_gather_float(cdf, row + x) - (x0 ? (xfloat)0.0f : xi_gather_float(cdf, x0 ? row : row + x - 1u));
-  return py * px;
+  return pk * px;
 }
 
-// Samples a world direction from the map's distribution with u ∈ [0, 1)² (u.y picks the row, u.x
-// the column, each then placed uniformly in (u, v) within the cell). *pdf: its solid-angle density
-// under this distribution alone (0 at the poles, which have measure zero); the caller multiplies
-// by the pick probability env.scale.w. *radiance: xi_env_radiance of the direction (strength
-// included).
+// The four corner weights of patch (x, k): *w00 and *w01 on its upper edge (columns x and x + 1),
+// *w10 and *w11 on its lower one.
+static inline void xi_env_patch_corners(__global const float* cdf, EnvironmentData env, xuint x, xuint k, xfloat* w00,
+                                        xfloat* w01, xfloat* w10, xfloat* w11) {
+  const uint weights = XI_ENV_WEIGHT_OFFSET(env.width, env.height);
+  xuint x1 = x + 1u == env.width ? (xuint)0u : x + 1u;
+  xuint upper = weights + k * env.width, lower = upper + env.width;
+  *w00 = xi_gather_float(cdf, upper + x);
+  *w01 = xi_gather_float(cdf, upper + x1);
+  *w10 = xi_gather_float(cdf, lower + x);
+  *w11 = xi_gather_float(cdf, lower + x1);
+}
+
+// Patch row k's extent in v: [*v0, *v0 + *dv] (the pole rows are half as tall).
+static inline void xi_env_patch_rows(EnvironmentData env, xuint k, xfloat* v0, xfloat* dv) {
+  float hf = (float)env.height;
+  xfloat top = fmax((xi_to_float(k) - 0.5f) / hf, (xfloat)0.0f);
+  xfloat bottom = fmin((xi_to_float(k) + 0.5f) / hf, (xfloat)1.0f);
+  *v0 = top;
+  *dv = bottom - top;
+}
+
+// x ∈ [0, 1) with density ∝ (1 − x)·a + x·b (a, b ≥ 0) from u ∈ [0, 1), the inverse of its CDF in
+// the form that stays accurate when a and b are close; uniform where both are 0.
+static inline xfloat xi_env_sample_linear(xfloat u, xfloat a, xfloat b) {
+  xfloat root = a + sqrt((1.0f - u) * a * a + u * b * b);
+  xfloat x = root > 0.0f ? u * (a + b) / root : u;
+  return fmin(x, (xfloat)XI_ONE_MINUS_EPSILON);
+}
+
+// The solid-angle density at local coordinates (s, t) ∈ [0, 1)² of patch (x, k) whose direction
+// has sin θ = sin_theta: the patch's probability times its bilinear density, over the (u, v) area
+// and the Jacobian 2π² sin θ. 0 at the poles (measure zero) and in unlit patches.
+static inline xfloat xi_env_patch_pdf(__global const float* cdf, EnvironmentData env, xuint x, xuint k, xfloat s,
+                                      xfloat t, xfloat sin_theta) {
+  xfloat w00, w01, w10, w11, v0, dv;
+  xi_env_patch_corners(cdf, env, x, k, &w00, &w01, &w10, &w11);
+  xi_env_patch_rows(env, k, &v0, &dv);
+  xfloat corners = w00 + w01 + w10 + w11;
+  xfloat bilinear = (1.0f - t) * ((1.0f - s) * w00 + s * w01) + t * ((1.0f - s) * w10 + s * w11);
+  xfloat p = xi_env_patch_probability(cdf, env, x, k);
+  xfloat area = dv / (float)env.width;
+  xmask lit = corners > 0.0f && sin_theta > 0.0f;
+  return lit ? p * (4.0f * bilinear / corners) / (area * (2.0f * XI_PI * XI_PI) * sin_theta) : (xfloat)0.0f;
+}
+
+// Samples a world direction from the map's distribution with u ∈ [0, 1)² (u.y picks the patch row,
+// u.x the column, each then reused to invert the bilinear density within the patch: first in v, then
+// in u given v). *pdf: its solid-angle density under this distribution alone; the caller
+// multiplies by the pick probability env.scale.w. *radiance: xi_env_radiance of the direction
+// (strength included).
 static inline xfloat3 xi_env_sample(__global const float4* texels, __global const float* cdf, EnvironmentData env,
                                     xfloat2 u, xfloat* pdf, xfloat3* radiance) {
-  xfloat uy = u.y, ux = u.x, py, px;
+  xfloat uy = u.y, ux = u.x, pk, px;
+  const uint rows = env.height + 1u;
   const uint guides = XI_ENV_GUIDE_OFFSET(env.width, env.height) / 4u;
-  xuint y = xi_env_search(cdf, (xuint)0u, (xuint)guides, env.height, &uy, &py);
-  xuint row = env.height + y * env.width;
+  xuint k = xi_env_search(cdf, (xuint)0u, (xuint)guides, rows, &uy, &pk);
+  xuint row = rows + k * env.width;
   xuint x = xi_env_search(cdf, row, guides + row, env.width, &ux, &px);
-  float wf = (float)env.width, hf = (float)env.height;
-  xfloat mu = (xi_to_float(x) + ux) / wf, mv = (xi_to_float(y) + uy) / hf;
+  xfloat w00, w01, w10, w11, v0, dv;
+  xi_env_patch_corners(cdf, env, x, k, &w00, &w01, &w10, &w11);
+  xi_env_patch_rows(env, k, &v0, &dv);
+  xfloat t = xi_env_sample_linear(uy, w00 + w01, w10 + w11);
+  xfloat s = xi_env_sample_linear(ux, (1.0f - t) * w00 + t * w10, (1.0f - t) * w01 + t * w11);
+  float wf = (float)env.width;
+  xfloat mu = (xi_to_float(x) + 0.5f + s) / wf;
+  mu = mu >= 1.0f ? mu - 1.0f : mu;  // the last column's patch wraps around to u = 0
   mu = fmin(mu, (xfloat)XI_ONE_MINUS_EPSILON);
-  mv = fmin(mv, (xfloat)XI_ONE_MINUS_EPSILON);
+  xfloat mv = fmin(v0 + t * dv, (xfloat)XI_ONE_MINUS_EPSILON);
   xfloat sin_theta;
   xfloat3 dl = xi_env_uv_to_direction(make_xfloat2(mu, mv), &sin_theta);
-  *pdf = sin_theta > 0.0f ? py * px * (wf * hf * XI_ENV_INV_2PI2) / sin_theta : (xfloat)0.0f;
+  *pdf = xi_env_patch_pdf(cdf, env, x, k, s, t, sin_theta);
   *radiance = xi_env_lookup(texels, env, mu, mv);
   return xi_env_to_world(env, dl);
 }
@@ -190,11 +255,17 @@ static inline xfloat xi_env_pdf(__global const float* cdf, EnvironmentData env, 
   xfloat3 l = xi_env_to_local(env, d);
   xfloat2 uv = xi_env_direction_to_uv(l);
   float wf = (float)env.width, hf = (float)env.height;
-  xuint x = xi_env_to_uint(fmin(floor(uv.x * wf), (xfloat)(wf - 1.0f)));
-  xuint y = xi_env_to_uint(fmin(floor(uv.y * hf), (xfloat)(hf - 1.0f)));
-  xfloat sin_theta = sqrt(l.x * l.x + l.z * l.z);
-  xfloat p = xi_env_cell_probability(cdf, env, x, y);
-  return sin_theta > 0.0f ? p * (wf * hf * XI_ENV_INV_2PI2) / sin_theta : (xfloat)0.0f;
+  // The patch column: texel centres at s = 0, 1, ..., with u = 0 half a texel before the first.
+  xfloat sx = uv.x * wf - 0.5f;
+  sx = sx < 0.0f ? sx + wf : sx;
+  xfloat fx = fmin(floor(sx), (xfloat)(wf - 1.0f));
+  xuint x = xi_env_to_uint(fx);
+  // The patch row: row k spans texel-row coordinates [k − ½, k + ½], clamped to the poles.
+  xuint k = xi_env_to_uint(fmin(floor(uv.y * hf + 0.5f), (xfloat)hf));
+  xfloat v0, dv;
+  xi_env_patch_rows(env, k, &v0, &dv);
+  xfloat s = clamp(sx - fx, 0.0f, 1.0f), t = clamp((uv.y - v0) / dv, 0.0f, 1.0f);
+  return xi_env_patch_pdf(cdf, env, x, k, s, t, sqrt(l.x * l.x + l.z * l.z));
 }
 
 #endif

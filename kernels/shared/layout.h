@@ -64,8 +64,12 @@ typedef struct {
   uint pad0, pad1;
 } EnvironmentData;
 // Where the guide tables start in the sampling distribution's buffer (environment.h), in floats:
-// after the H + H·W CDF entries, at a multiple of four, so that they read as float4.
-#define XI_ENV_GUIDE_OFFSET(w, h) ((((h) + (h) * (w)) + 3u) & ~3u)
+// after the CDFs' (H + 1)·(W + 1) entries (a marginal over H + 1 patch rows and a conditional of W
+// per row), at a multiple of four, so that they read as float4; and where the vertex weights start,
+// after the guide tables' four floats per CDF entry.
+#define XI_ENV_CDF_ENTRIES(w, h) (((h) + 1u) * ((w) + 1u))
+#define XI_ENV_GUIDE_OFFSET(w, h) ((XI_ENV_CDF_ENTRIES(w, h) + 3u) & ~3u)
+#define XI_ENV_WEIGHT_OFFSET(w, h) (XI_ENV_GUIDE_OFFSET(w, h) + 4u * XI_ENV_CDF_ENTRIES(w, h))
 
 // Punctual lights (KHR_lights_punctual and JSON): reached by light sampling only.
 #define XI_LIGHT_POINT 0u

@@ -22,8 +22,9 @@ struct EnvironmentMap {
   int width = 0;
   int height = 0;
   std::vector<glm::vec4> texels;  // linear RGB radiance (w = 0), row-major, top row (+y) first
-  // The sampling distribution (environment.h): H marginal entries, H conditionals of W each, then
-  // their guide tables; empty when the map is black everywhere (it then cannot be sampled: pick probability 0).
+  // The sampling distribution (environment.h): the CDFs over H + 1 rows of bilinear patches (a
+  // marginal and a conditional of W per row), their guide tables, then the patches' vertex weights;
+  // empty when the map is black everywhere (it then cannot be sampled: pick probability 0).
   std::vector<float> cdf;
   // The mean luminance over the sphere, (1/4π) ∫ Y dω with each texel's luminance over its cell's
   // solid angle: the radiance of a uniform environment of the same power.

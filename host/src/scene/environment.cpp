@@ -204,36 +204,45 @@ void build_environment_distribution(EnvironmentMap& map) {
   }
   map.mean_luminance = power / (4.0 * M_PI);
 
-  // Cell weights: the brightest of the 3×3 texels around (wrapping in x, clamped in y) × sin θ.
-  std::vector<double> weight((size_t)w * h), row_sum(h, 0.0);
+  // Vertex weights (environment.h): Y·sin θ at the texel centres, a row of zeros at each pole.
+  const size_t rows = (size_t)h + 1;  // patch rows
+  const size_t guides = XI_ENV_GUIDE_OFFSET((size_t)w, (size_t)h);
+  const size_t weights = XI_ENV_WEIGHT_OFFSET((size_t)w, (size_t)h);
+  map.cdf.assign(weights + ((size_t)h + 2) * w, 0.0f);
+  float* vertex = map.cdf.data() + weights;
   for (int y = 0; y < h; ++y) {
-    double sin_theta = std::sin(M_PI * (y + 0.5) / h);
+    const double sin_theta = std::sin(M_PI * (y + 0.5) / h);
+    for (int x = 0; x < w; ++x) vertex[(size_t)(y + 1) * w + x] = (float)(lum[(size_t)y * w + x] * sin_theta);
+  }
+
+  // Patch weights: the integral of the bilinear vertex weights over each patch, (mean of the four
+  // corners) × its height in v (a half row at the poles); the width 1/W is common to all.
+  std::vector<double> patch(rows * w), row_sum(rows, 0.0);
+  for (size_t k = 0; k < rows; ++k) {
+    const double height = (k == 0 || k == (size_t)h) ? 0.5 : 1.0;
+    const float* upper = vertex + k * w;
+    const float* lower = upper + w;
     for (int x = 0; x < w; ++x) {
-      double m = 0.0;
-      for (int dy = -1; dy <= 1; ++dy) {
-        int yy = y + dy;
-        if (yy < 0 || yy >= h) continue;
-        for (int dx = -1; dx <= 1; ++dx) {
-          int xx = ((x + dx) % w + w) % w;
-          m = std::max(m, lum[(size_t)yy * w + xx]);
-        }
-      }
-      weight[(size_t)y * w + x] = m * sin_theta;
-      row_sum[y] += m * sin_theta;
+      const int x1 = x + 1 == w ? 0 : x + 1;
+      const double v = 0.25 * ((double)upper[x] + upper[x1] + lower[x] + lower[x1]) * height;
+      patch[k * w + x] = v;
+      row_sum[k] += v;
     }
   }
   double total = 0.0;
-  for (double s : row_sum) total += s;
-  if (!(total > 0.0)) return;  // black: no distribution
+  for (double r : row_sum) total += r;
+  if (!(total > 0.0)) {  // black: no distribution
+    map.cdf.clear();
+    return;
+  }
 
-  map.cdf.assign((size_t)h + (size_t)h * w, 0.0f);
   std::vector<double> row(w);
-  for (int y = 0; y < h; ++y) {
-    float* out = map.cdf.data() + h + (size_t)y * w;
-    if (row_sum[y] > 0.0) {
-      double least = row_sum[y] * kMinShare, sum = 0.0;
+  for (size_t k = 0; k < rows; ++k) {
+    float* out = map.cdf.data() + rows + k * w;
+    if (row_sum[k] > 0.0) {
+      double least = row_sum[k] * kMinShare, sum = 0.0;
       for (int x = 0; x < w; ++x) {
-        double v = weight[(size_t)y * w + x];
+        double v = patch[k * w + x];
         row[x] = v > 0.0 ? std::max(v, least) : 0.0;
         sum += row[x];
       }
@@ -242,21 +251,18 @@ void build_environment_distribution(EnvironmentMap& map) {
       for (int x = 0; x < w; ++x) out[x] = x + 1 == w ? 1.0f : (float)((x + 1.0) / w);
     }
   }
-  std::vector<double> marginal(h);
+  std::vector<double> marginal(rows);
   double least = total * kMinShare, sum = 0.0;
-  for (int y = 0; y < h; ++y) {
-    marginal[y] = row_sum[y] > 0.0 ? std::max(row_sum[y], least) : 0.0;
-    sum += marginal[y];
+  for (size_t k = 0; k < rows; ++k) {
+    marginal[k] = row_sum[k] > 0.0 ? std::max(row_sum[k], least) : 0.0;
+    sum += marginal[k];
   }
   write_cdf(marginal, sum, map.cdf.data());
 
-  // Guide tables (environment.h), four floats per CDF entry, from the first multiple of four after
-  // the CDFs.
-  const size_t cdfs = (size_t)h + (size_t)h * w, guides = XI_ENV_GUIDE_OFFSET((size_t)w, (size_t)h);
-  map.cdf.resize(guides + 4 * cdfs);
-  write_guide(map.cdf.data(), h, map.cdf.data() + guides);
-  for (int y = 0; y < h; ++y)
-    write_guide(map.cdf.data() + h + (size_t)y * w, w, map.cdf.data() + guides + 4 * (h + (size_t)y * w));
+  // Guide tables (environment.h), four floats per CDF entry.
+  write_guide(map.cdf.data(), (int)rows, map.cdf.data() + guides);
+  for (size_t k = 0; k < rows; ++k)
+    write_guide(map.cdf.data() + rows + k * w, w, map.cdf.data() + guides + 4 * (rows + k * w));
 }
 
 EnvironmentMap make_environment(int width, int height, std::vector<glm::vec4> texels, const std::string& source) {
