@@ -156,12 +156,12 @@ def reference(xi, scene, resolution, spp, log=print, max_depth=None):
         x0, y0, x1, y1 = a["dataWindow"]
         if a.get("spp") != spp or (x1 - x0 + 1, y1 - y0 + 1) != (w, h):
             sys.exit(f"bench: {ref} holds {a.get('spp')} spp at {x1 - x0 + 1}x{y1 - y0 + 1}, not its name; delete it")
-        log(f"reference: {ref.relative_to(ROOT)} (cached, {spp} spp, seed {a.get('seed')})")
+        log(f"reference: {shown(ref)} (cached, {spp} spp, seed {a.get('seed')})")
         if not ref.with_suffix(".png").exists():  # previews are not committed: made again after a fresh clone
             run([xi, "tonemap", ref, ref.with_suffix(".png")])
         return ref
     REFS.mkdir(parents=True, exist_ok=True)
-    log(f"reference: rendering {ref.relative_to(ROOT)} ({spp} spp, {REF_SAMPLER} sampler, {REF_STRATEGY}, "
+    log(f"reference: rendering {shown(ref)} ({spp} spp, {REF_SAMPLER} sampler, {REF_STRATEGY}, "
         f"seed {REF_SEED}); this is done once")
     t0 = time.monotonic()
     with tempfile.TemporaryDirectory(prefix="xi-bench-", dir=REFS) as tmp:  # same file system: rename is atomic
@@ -172,6 +172,12 @@ def reference(xi, scene, resolution, spp, log=print, max_depth=None):
         os.replace(out, ref)
     log(f"reference: done in {time.monotonic() - t0:.0f} s")
     return ref
+
+
+def shown(path):
+    """PATH relative to the repository where it lies inside it (a --refs or --out folder may not)."""
+    path = Path(path).resolve()
+    return path.relative_to(ROOT) if path.is_relative_to(ROOT) else path
 
 
 def exr_attributes(path):
@@ -231,7 +237,7 @@ def print_table(headers, rows, file=None):
     """A plain-text table: columns as wide as their widest cell, text left-aligned, numbers right-aligned."""
     cells = [[str(c) for c in headers]] + [[str(c) for c in row] for row in rows]
     widths = [max(len(r[i]) for r in cells) for i in range(len(headers))]
-    numeric = [all(re.fullmatch(r"[-+]?[\d.e+-]+[*!<]*|-", r[i]) for r in cells[1:]) for i in range(len(headers))]
+    numeric = [all(re.fullmatch(r"[-+]?[\d.e+-]+[*!<]*|-|—", r[i]) for r in cells[1:]) for i in range(len(headers))]
     for k, row in enumerate(cells):
         line = "  ".join(c.rjust(w) if num else c.ljust(w) for c, w, num in zip(row, widths, numeric))
         print(line.rstrip(), file=file or sys.stdout)

@@ -216,7 +216,8 @@ def sensor(cam, width, height, sampler):
          "near_clip": 1e-3 * dist, "far_clip": 1e3 * dist,
          "film": {"type": "hdrfilm", "width": width, "height": height, "rfilter": {"type": "box"},
                   "pixel_format": "rgb", "component_format": "float32"},
-         "sampler": {"type": sampler, "sample_count": 1}}  # (mi.render sets the spp)
+         # mi.render sets the spp; ldsampler rounds any count below 4 up to 4 (with a warning)
+         "sampler": {"type": sampler, "sample_count": 4 if sampler == "ldsampler" else 1}}
     if cam.get("aperture_radius", 0) > 0:
         s.update(type="thinlens", aperture_radius=cam["aperture_radius"], focus_distance=cam.get("focus_distance", dist))
     return s

@@ -5,7 +5,10 @@ Speed: `xi render` and Mitsuba 3's `path` integrator render each scene at the sa
 length, alternately, after one untimed warm-up each (kernel compilation excluded on both sides); medians of
 --runs. The ratio is xi's time per sample over Mitsuba's (<= 1: xi is faster). --error adds each one's
 relMSE against a high-spp xi reference and the efficiency 1/(relMSE x seconds). --check renders both at
-64x64 with many spp and compares their mean radiance, to show that the scene conversion is right.
+64x64 with many spp and compares their mean radiance, to show that the scene conversion is right. --env is
+--error on two environment-lit scenes (bench/make_env_scenes.py: a diffuse sphere and floor under the bundled
+sky and under a map with a small bright sun) at 64x64, 256 spp, against a 32768-spp reference: the mean
+relMSE of the seeds and xi's over Mitsuba's, per map, which is how well each samples the environment.
 
 Mitsuba runs in bench/.venv (made by bench/setup-mitsuba.sh) in a worker process: this file, run by the
 venv's python with --worker. It loads each scene through bench/mitsuba_scene.py: xi's camera and materials
@@ -30,15 +33,20 @@ import mitsuba_scene as ms  # noqa: E402
 DEFAULT_SCENES = ["cornell-box", "bench/scenes/engine.json"]
 # Short names for the bench's own scenes (--scenes material): textured floor, GGX metals, rough dielectric,
 # the sky as environment (bench/make_material_scene.py writes it).
-BENCH_SCENES = {"engine": "bench/scenes/engine.json", "material": "bench/scenes/material.json"}
+BENCH_SCENES = {"engine": "bench/scenes/engine.json", "material": "bench/scenes/material.json",
+                "env-sky": "bench/scenes/env-sky.json", "env-sun": "bench/scenes/env-sun.json"}
+ENV_SCENES = ["env-sky", "env-sun"]  # --env's (bench/make_env_scenes.py writes them)
+# --env's defaults: the resolution, spp, reference spp and seeds its numbers are quoted at.
+ENV_DEFAULTS = dict(resolution="64x64", spp=256, ref_spp=32768, runs=3)
 VENV = c.ROOT / "bench" / ".venv"
-# Mitsuba 3.9.1's samplers and the spp each takes without rounding it (to a square, a power of two).
+# Mitsuba 3.9.1's samplers and the spp each takes without rounding it (to a square; ldsampler to a power of
+# four, at least 4).
 MITSUBA_SAMPLERS = {"independent": lambda n: n > 0,
                     "stratified": lambda n: n > 0 and math.isqrt(n) ** 2 == n,
                     "multijitter": lambda n: n > 0 and math.isqrt(n) ** 2 == n,
-                    "ldsampler": lambda n: n > 0 and n & (n - 1) == 0}
+                    "ldsampler": lambda n: n > 0 and n & (n - 1) == 0 and n.bit_length() % 2 == 1 and n >= 4}
 MITSUBA_SAMPLER_SPP = {"independent": "any spp", "stratified": "a square spp", "multijitter": "a square spp",
-                       "ldsampler": "a power-of-two spp"}
+                       "ldsampler": "a power-of-four spp (4, 16, 64, ...)"}
 
 
 # ---------------------------------------------------------------------------------------------------------
@@ -106,7 +114,10 @@ def worker(variant):
                 img = mi.render(scene, spp=req["spp"], seed=req["seed"])
                 pixels = np.array(img)  # forces the evaluation: Dr.Jit is lazy
                 seconds = time.perf_counter() - t0
-                if req.get("out"):  # (write_async=True, the default, deadlocks here)
+                if (req.get("out") or "").endswith(".npy"):  # the pixels alone: Mitsuba's EXR is PIZ, which
+                    # bench/exr.py does not read
+                    np.save(req["out"], pixels.astype(np.float32))
+                elif req.get("out"):  # (write_async=True, the default, deadlocks here)
                     mi.util.write_bitmap(req["out"], pixels, write_async=False)
                     mi.util.write_bitmap(str(Path(req["out"]).with_suffix(".png")), pixels, write_async=False)
                 res = dict(seconds=seconds, mean=pixels.mean(axis=(0, 1)).tolist())
@@ -234,6 +245,7 @@ def measure(a, xi, mitsuba, scene, resolution, tmp):
     for who, rs in runs.items():
         sec = c.median([r[0] for r in rs]) if rs else math.nan
         err = c.median([r[1] for r in rs]) if rs else math.nan
+        row[f"{who}_relmse_mean"] = sum(r[1] for r in rs) / len(rs) if rs else math.nan
         row.update({f"{who}_s": sec, f"{who}_msamples": samples / sec * 1e-6 if rs else math.nan,
                     f"{who}_relmse": err, f"{who}_eff": 1 / (err * sec) if rs and ref else math.nan})
     row["time_ratio"] = row["xi_s"] / row["mitsuba_s"]  # same samples on both: time per sample
@@ -323,9 +335,14 @@ def main():
     p.add_argument("--resolution", help="default 512x512; 256x256 with --error; 64x64 with --check")
     p.add_argument("--spp", type=int, help="default 64; 1024 with --check")
     p.add_argument("--max-depth", type=int, help="xi's bounces (Mitsuba gets one more); default: the scene's")
-    p.add_argument("--runs", type=int, default=3, help="timed runs of each renderer, interleaved; medians")
+    p.add_argument("--runs", type=int, help="timed runs of each renderer, interleaved; medians (default 3)")
     p.add_argument("--error", action="store_true", help="also relMSE against an xi reference, and efficiency")
-    p.add_argument("--ref-spp", type=int, default=4096, help="spp of the --error reference (cached in bench/refs)")
+    p.add_argument("--ref-spp", type=int, help="spp of the --error reference (cached in bench/refs; default 4096, "
+                                              "32768 with --env)")
+    p.add_argument("--refs", default=str(c.REFS), help="folder of the cached references")
+    p.add_argument("--env", action="store_true",
+                   help="--error on the environment-lit scenes env-sky and env-sun (written if missing), by default "
+                        "at 64x64, 256 spp, a 32768-spp reference, 3 seeds; prints the mean relMSE xi/Mitsuba per map")
     p.add_argument("--check", action="store_true", help="only compare mean radiance (is the conversion right?)")
     p.add_argument("--xi-device", help="xi's --device")
     p.add_argument("--xi-sampler", default="random",
@@ -343,6 +360,18 @@ def main():
     a = p.parse_args()
     if a.worker:
         return worker(a.mitsuba_variant)
+    if a.env:
+        a.error = True
+        for key, value in ENV_DEFAULTS.items():
+            if getattr(a, key) is None:
+                setattr(a, key, value)
+        if a.scenes == DEFAULT_SCENES:
+            a.scenes = ENV_SCENES
+        if any(not (c.ROOT / BENCH_SCENES[s]).exists() for s in ENV_SCENES if s in a.scenes):
+            import make_env_scenes
+            make_env_scenes.write()
+    a.runs, a.ref_spp = a.runs or 3, a.ref_spp or 4096
+    c.REFS = Path(a.refs).resolve()
     a.spp = a.spp or (1024 if a.check else 64)
     if not MITSUBA_SAMPLERS[a.mitsuba_sampler](a.spp):  # Mitsuba would round the spp and time other work
         p.error(f"--mitsuba-sampler {a.mitsuba_sampler} takes {MITSUBA_SAMPLER_SPP[a.mitsuba_sampler]}, "
@@ -369,6 +398,8 @@ def main():
             return
         rows = [measure(a, xi, mitsuba, scene, resolution, tmp) for scene in scenes]
         print_rows(a, info, xi, rows, out_dir)
+        if a.env:
+            print_env(a, info, rows, out_dir)
         if a.embree:
             ceiling(a, xi, mitsuba, scenes, resolution, out_dir, tmp)
     mitsuba.close()
@@ -391,13 +422,27 @@ def print_rows(a, info, xi, rows, out_dir):
     print("depth: xi's max bounces (Mitsuba max_depth = depth + 1). xi/Mitsuba: xi's time per sample over "
           "Mitsuba's (< 1: xi is faster).")
     if a.error:
-        print(f"relMSE against an xi reference of {a.ref_spp} spp (bench/refs); eff = 1 / (relMSE x seconds); "
+        print(f"relMSE against an xi reference of {a.ref_spp} spp ({c.shown(c.REFS)}); eff = 1 / (relMSE x seconds); "
               f"eff xi/Mitsuba > 1: xi reaches a given error sooner.")
     keys = ["scene", "resolution", "spp", "max_depth", "runs", "xi_s", "xi_msamples", "mitsuba_s",
             "mitsuba_msamples", "time_ratio", "xi_relmse", "mitsuba_relmse", "xi_eff", "mitsuba_eff", "eff_ratio"]
     c.write_csv(out_dir / "peers.csv", keys + ["xi_device", "xi_sampler", "mitsuba_variant", "mitsuba_sampler"],
                 [[r[k] for k in keys] + [a.xi_device or "default", a.xi_sampler, info["variant"], a.mitsuba_sampler]
                  for r in rows])
+
+
+def print_env(a, info, rows, out_dir):
+    """--env: per map the mean relMSE of the seeds and xi's over Mitsuba's, printed and in peers-env.csv."""
+    table = [[r["scene"], r["resolution"], r["spp"], r["runs"], r["xi_relmse_mean"], r["mitsuba_relmse_mean"],
+              r["xi_relmse_mean"] / r["mitsuba_relmse_mean"] if r["mitsuba_relmse_mean"] > 0 else math.nan]
+             for r in rows]
+    print(f"\nEnvironment light: mean relMSE of {a.runs} seeds against a {a.ref_spp}-spp xi reference; xi "
+          f"{a.xi_sampler} sampler, Mitsuba {info['version']} {a.mitsuba_sampler} sampler, the same spp")
+    c.print_table(["scene", "resolution", "spp", "seeds", "xi relMSE", "Mitsuba relMSE", "xi/Mitsuba"],
+                  [[s, r, n, k, c.fmt(x, ".3e"), c.fmt(m, ".3e"), c.fmt(q, ".3f")] for s, r, n, k, x, m, q in table])
+    print("xi/Mitsuba < 1: xi's image is closer to the reference at equal spp (its environment sampling does better).")
+    c.write_csv(out_dir / "peers-env.csv", ["scene", "resolution", "spp", "seeds", "xi_relmse_mean",
+                                            "mitsuba_relmse_mean", "relmse_ratio_xi_mitsuba"], table)
 
 
 if __name__ == "__main__":
