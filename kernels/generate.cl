@@ -10,7 +10,8 @@
 #include "warps.h"
 
 __kernel void generate(XI_PATH_PARAMS __global uint* restrict queue, __global uint* restrict counters,
-                       CameraData cam, SamplerParams sampler, uint shading_argument, WaveParams wave) {
+                       __global const uint* restrict pixel_list, CameraData cam, SamplerParams sampler,
+                       uint shading_argument, WaveParams wave) {
   const uint shading = xi_shading(shading_argument);
   const int sampler_kind = xi_sampler_of(shading);
   uint count = wave.pixels * wave.samples;
@@ -18,8 +19,10 @@ __kernel void generate(XI_PATH_PARAMS __global uint* restrict queue, __global ui
   xuint slot = (uint)get_global_id(0) * XI_LANES + XI_LANE_INDEX;
   xmask active = slot < count;
   if (!XI_ANY(active)) return;
-  // The slot's frame pixel (WaveParams): column x of film row film_pixel / width.
-  xuint film_pixel = XI_WAVE_PIXEL(wave, slot);
+  // The slot's frame pixel (WaveParams): column x of film row film_pixel / width. (Slots past the
+  // wave read the list at its last entry.)
+  xuint at = XI_WAVE_PIXEL(wave, slot >= count ? (xuint)(count - 1u) : slot);
+  xuint film_pixel = wave.pixel_list ? xi_gather_uint(pixel_list, at) : at;
   xuint x = film_pixel % wave.width, y = wave.first_row + film_pixel / wave.width * wave.row_stride;
   xuint pixel = y * wave.width + x, sample_index = XI_WAVE_SAMPLE(wave, slot);
   xfloat2 u = xi_sample_2d(sampler_kind, sampler, pixel, sample_index, XI_PAIR_PIXEL);

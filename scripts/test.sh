@@ -4,6 +4,7 @@
 # sanitizers (build-asan/).
 set -euo pipefail
 cd "$(dirname "$0")/.."
+bash scripts/install-deps.sh --denoise  # OIDN into build/oidn/lib, for the denoising tests
 bash scripts/build.sh
 cd build
 ctest --output-on-failure -j"$(nproc)" --timeout 900

@@ -502,11 +502,17 @@ TEST_F(Kernel, GenerateCameraRays) {
   // Two waves of one sample, the second starting mid-row, as the renderer splits large films; then
   // one wave of two samples of every pixel, as it fills a device with a small film; then a film of
   // every third row from row 2 (one process's share of a distributed render), two samples.
+  // Last, a wave through a list of film pixels (adaptive sampling: the pixels still sampling), from
+  // its entry 3 on.
   // Each with one path per work item and with 8 (counts that are not multiples of 8 leave lanes off).
   const uint32_t share_pixels = W * 7;  // rows 2, 5, ..., 20 of 23
+  std::vector<uint32_t> list(pixels);
+  for (uint32_t i = 0; i < pixels; ++i) list[i] = (i * 7u) % pixels;  // every pixel once (7 and 851 are coprime)
+  cl::Buffer list_b = buffer(list);
   for (int lanes : {1, 8})
   for (WaveParams wave : {WaveParams{0, 500, sample, 1, W, 0, 1, 0}, WaveParams{500, pixels - 500, sample, 1, W, 0, 1, 0},
-                          WaveParams{0, pixels, sample, 2, W, 0, 1, 0}, WaveParams{0, share_pixels, sample, 2, W, 2, 3, 0}}) {
+                          WaveParams{0, pixels, sample, 2, W, 0, 1, 0}, WaveParams{0, share_pixels, sample, 2, W, 2, 3, 0},
+                          WaveParams{3, 301, sample, 3, W, 0, 1, 1}}) {
     SCOPED_TRACE(testing::Message() << lanes << " lanes");
     const uint32_t count = wave.pixels * wave.samples;
     PathState state(slots);
@@ -514,7 +520,7 @@ TEST_F(Kernel, GenerateCameraRays) {
     cl::Buffer qb = buffer(garbage<uint32_t>(slots));
     cl::Buffer cb = buffer(std::vector<uint32_t>(XI_COUNTER_COUNT(8), 7u));
     cl::Kernel k((lanes == 8 ? lanes8_ : program_)->program, "generate");
-    bind(k, b, qb, cb, cam, sp, shading_word_, wave);
+    bind(k, b, qb, cb, list_b, cam, sp, shading_word_, wave);
     launch(k, (count + lanes - 1) / lanes);
     PathState out = download(b, slots);
     std::vector<uint32_t> q = read<uint32_t>(qb, slots);
@@ -522,12 +528,13 @@ TEST_F(Kernel, GenerateCameraRays) {
 
     for (uint32_t slot = 0; slot < count; ++slot) {
       SCOPED_TRACE(testing::Message() << "slot " << slot << " of the wave at " << wave.first_pixel);
-      const uint32_t film_pixel = XI_WAVE_PIXEL(wave, slot), s = XI_WAVE_SAMPLE(wave, slot);
+      const uint32_t at = XI_WAVE_PIXEL(wave, slot), s = XI_WAVE_SAMPLE(wave, slot);
+      const uint32_t film_pixel = wave.pixel_list ? list[at] : at;
       const uint32_t pixel = (wave.first_row + film_pixel / W * wave.row_stride) * W + film_pixel % W;  // in the frame
       EXPECT_EQ(out.item_pixel[slot], pixel);  // what shade draws its samples for
       EXPECT_EQ(out.item_sample[slot], s);
       if (s != sample) {  // the second sample: a different jitter of the same pixel
-        const uint32_t first = XI_WAVE_SLOT(wave, film_pixel - wave.first_pixel, 0u);
+        const uint32_t first = XI_WAVE_SLOT(wave, at - wave.first_pixel, 0u);
         EXPECT_GT(glm::length(vec3(out.ray_dir[slot]) - vec3(out.ray_dir[first])), 0.0f);
         continue;
       }
@@ -584,8 +591,9 @@ TEST_F(Kernel, GenerateCameraRays) {
 // --- accumulate ----------------------------------------------------------------------------------
 
 // Three waves over overlapping pixel ranges of a film with random starting sums, the last with two
-// samples per pixel. Every film sum is one float add per sample in sample order, so the host's sums
-// in the same order must be bitwise equal.
+// samples per pixel, then one through a list of film pixels. Every film sum is one float add per
+// sample in sample order, so the host's sums in the same order must be bitwise equal; the albedo's
+// w counts every sample, the dropped ones too.
 TEST_F(Kernel, AccumulateSumsAndDropsNonFinite) {
   const uint32_t film = 1000, slots = 1024;
   std::mt19937 rng(21);
@@ -609,8 +617,11 @@ TEST_F(Kernel, AccumulateSumsAndDropsNonFinite) {
   uint32_t nonfinite = 0;
   const float kNonFinite[] = {NAN, INFINITY, -INFINITY};
   // (accumulate adds to film pixels: the frame's width and rows do not enter)
+  std::vector<uint32_t> list(film);
+  for (uint32_t i = 0; i < film; ++i) list[i] = film - 1 - (i * 3u) % film;  // every pixel once
+  cl::Buffer list_b = buffer(list);
   for (WaveParams wave : {WaveParams{100, 700, 0, 1, 40, 0, 1, 0}, WaveParams{450, 550, 1, 1, 40, 0, 1, 0},
-                          WaveParams{300, 400, 2, 2, 40, 0, 1, 0}}) {
+                          WaveParams{300, 400, 2, 2, 40, 0, 1, 0}, WaveParams{10, 333, 4, 3, 40, 0, 1, 1}}) {
     const uint32_t count = wave.pixels * wave.samples;
     PathState state(slots);  // garbage in the fields accumulate does not read
     for (uint32_t i = 0; i < count; ++i) {
@@ -623,16 +634,17 @@ TEST_F(Kernel, AccumulateSumsAndDropsNonFinite) {
     }
     PathBuffers b = upload(state);
     cl::Kernel k = kernel("accumulate");
-    bind(k, b, sum_b, sum_sq_b, albedo_b, normal_b, counters_b, wave);
+    bind(k, b, sum_b, sum_sq_b, albedo_b, normal_b, counters_b, list_b, wave);
     launch(k, wave.pixels);
 
     for (uint32_t i = 0; i < count; ++i) {  // in slot order, so each pixel's samples in sample order
       const vec4 l(vec3(state.radiance[i]), 1.0f);
+      const uint32_t at = XI_WAVE_PIXEL(wave, i), p = wave.pixel_list ? list[at] : at;
+      want_albedo[p].w += 1.0f;
       if (!std::isfinite(l.x) || !std::isfinite(l.y) || !std::isfinite(l.z)) {
         nonfinite++;  // dropped whole: its AOVs too, so they stay averages over sum.w samples
         continue;
       }
-      const uint32_t p = XI_WAVE_PIXEL(wave, i);
       want_sum[p] += l;
       want_sq[p] += l * l;
       for (int c = 0; c < 4; ++c) want_sq_fma[p][c] = std::fma(l[c], l[c], want_sq_fma[p][c]);

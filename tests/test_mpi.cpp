@@ -110,6 +110,22 @@ TEST_F(MpiRender, AnyNumberOfProcessesGivesTheOneProcessImage) {
   }
 }
 
+// Adaptive sampling across ranks: each rank stops its own pixels by their own sums, so the job's
+// image and its spp layer are the one process's bit for bit, though one rank's pixels may all stop
+// before the other's (its passes then do nothing until the job is done); snapshots and the error
+// against a reference, which every rank takes part in, go on until all are done.
+TEST_F(MpiRender, AdaptiveSamplingIsTheOneProcessImage) {
+  const std::vector<std::string> base = {"render", "--resolution", "24x16", "--spp", "64", "--noise-threshold",
+                                         "0.15", "--min-spp", "8", "--seed", "4", "--quiet", "--samples-per-pass", "4"};
+  ASSERT_EQ(run_xi(concat(base, {"-o", "one.exr"})).code, 0);
+  const Outcome r = run_mpi(3, concat(base, {"-o", "three.exr", "--snapshot-every", "2", "--reference", "one.exr",
+                                             "--convergence", "three.csv"}));
+  ASSERT_EQ(r.code, 0) << r.out << r.err;
+  expect_same_image("three.exr", "one.exr");
+  const xi::Image a = xi::read_exr(work_ / "three.exr", "spp"), b = xi::read_exr(work_ / "one.exr", "spp");
+  EXPECT_EQ(std::memcmp(a.pixels.data(), b.pixels.data(), a.pixels.size() * sizeof(glm::vec3)), 0);
+}
+
 // Ranks on one host share its cores: each rank's PoCL gets cores / ranks threads, and so does its
 // BVH build (forking to about four subtrees per core: fewer than 8 × share threads; one for one core).
 TEST_F(MpiRender, RanksShareTheCoresOfTheBvhBuild) {

@@ -4,6 +4,8 @@
 #include <string>
 #include <vector>
 
+#include "xi/denoise.h"
+
 namespace xi::cli {
 
 // Reads `--flag value` pairs and positionals; every flag must be known to the command.
@@ -32,5 +34,8 @@ int diff(const std::vector<std::string>& args);
 int tonemap(const std::vector<std::string>& args);
 int prebuild(const std::vector<std::string>& args);
 int export_scene(const std::vector<std::string>& args);  // `xi export`
+int denoise(const std::vector<std::string>& args);       // `xi denoise`
+// --denoise-quality and --denoise-prefilter (render and denoise), for a render on `device`.
+DenoiseOptions read_denoise_options(const Args& args, Device* device);
 
 }  // namespace xi::cli

@@ -119,6 +119,10 @@ static const char* kUsage =
     "                            render is a render; grid and stratified patterns need every spp,\n"
     "                            so --time and --snapshot-every refuse them\n"
     "      --strategy NAME       mis | nee | bsdf (light transport)\n"
+    "      --noise-threshold T   adaptive sampling: a pixel stops once the relative standard error\n"
+    "                            of its mean is below T (e.g. 0.02), --spp being the most it takes;\n"
+    "                            random and sobol samplers only\n"
+    "      --min-spp N           samples every pixel takes before it may stop (default 16)\n"
     "      --device D            OpenCL device: index or name substring (see `xi devices`); under\n"
     "                            mpirun a list D0,D1,... gives local rank i item i mod its length\n"
     "      --threads N           CPU threads PoCL renders on (default: one per core)\n"
@@ -150,6 +154,11 @@ static const char* kUsage =
     "      --quiet               no progress bar and no summary\n"
     "      --time SECONDS        stop after the pass that crosses this much render time\n"
     "      --snapshot-every N    write the image so far every N passes\n"
+    "      --denoise             denoise the image (and snapshots) with Intel Open Image Denoise,\n"
+    "                            as `xi denoise` does: R,G,B denoised, the raw mean in layer noisy\n"
+    "      --denoise-quality Q   high (default), balanced or fast: OIDN's filter quality\n"
+    "      --denoise-prefilter P accurate (default: albedo and normal denoised first), fast\n"
+    "                            (denoised at fast quality) or none (used as rendered)\n"
     "      --checkpoint FILE     save the render's state to FILE every --checkpoint-every\n"
     "                            seconds (default 60) and when stopped early; removed once\n"
     "                            the render completes\n"
@@ -174,7 +183,16 @@ static const char* kUsage =
     "      --layer NAME          compare an EXR layer (e.g. variance) instead of RGB\n"
     "  tonemap IMAGE.exr OUT.png   the 8-bit sRGB PNG that `xi render` writes beside its EXR\n"
     "      --exposure E          scale the linear values by E first (default 1)\n"
-    "      --layer NAME          an EXR layer (e.g. albedo) instead of RGB\n"
+    "      --layer NAME          an EXR layer (e.g. albedo) instead of RGB; spp: samples per\n"
+    "                            pixel of an adaptive render, the most-sampled pixel white\n"
+    "  denoise IN.exr OUT.exr   denoise a render with Intel Open Image Denoise 2 (OIDN), guided\n"
+    "                        by its albedo and normal layers (each denoised first); OUT keeps\n"
+    "                        every layer and attribute, the colour read going to layer noisy.\n"
+    "                        OIDN is loaded at run time: `bash scripts/install-deps.sh --denoise`\n"
+    "                        installs it, or XI_OIDN_PATH names its folder\n"
+    "      --device D            denoise on OIDN's GPU device that is this OpenCL device, if\n"
+    "                            it has one (default: $XI_DEVICE; else OIDN's CPU device)\n"
+    "      --denoise-quality Q, --denoise-prefilter P   as for render\n"
     "  prebuild              build the kernels any scene's first image can start with (the\n"
     "                        generic shading program), so that a new scene waits for no build\n"
     "      --device D            OpenCL device (as for render)\n"
@@ -238,6 +256,7 @@ int main(int argc, char** argv) {
     if (command == "tonemap") return xi::cli::tonemap(args);
     if (command == "prebuild") return xi::cli::prebuild(args);
     if (command == "export") return xi::cli::export_scene(args);
+    if (command == "denoise") return xi::cli::denoise(args);
     throw xi::Error("unknown command '" + command + "'", "xi help lists the commands");
   } catch (const xi::cli::Team::QuietExit&) {
     // a rank of an MPI job whose setup error rank 0 reports

@@ -17,6 +17,7 @@
 #include "cli.h"
 #include "xi/asset.h"
 #include "xi/checkpoint.h"
+#include "xi/denoise.h"
 #include "xi/error.h"
 #include "xi/image.h"
 #include "xi/metrics.h"
@@ -124,14 +125,17 @@ std::string format_seconds(double s) {
 }
 
 // One line, redrawn in place: [#####.....] 12/64 spp  1.23 Msamples/s  elapsed 3.0s  ETA 10.1s
-void draw_progress(int done, int total, double msps, double elapsed) {
+// (with adaptive sampling, `sampling` is the share of pixels still sampling; else negative).
+void draw_progress(int done, int total, double msps, double elapsed, double sampling) {
   const int width = 30;
   int filled = (int)std::lround(width * (double)done / total);
   std::string bar(filled, '#');
   bar += std::string(width - filled, '.');
   double eta = done > 0 ? elapsed * (total - done) / done : 0.0;
-  std::fprintf(stderr, "\r[%s] %d/%d spp  %.2f Msamples/s  elapsed %s  ETA %s   ", bar.c_str(), done, total,
-               msps, format_seconds(elapsed).c_str(), format_seconds(eta).c_str());
+  char share[48] = "";
+  if (sampling >= 0.0) std::snprintf(share, sizeof share, "  %.1f%% of pixels sampling", 100.0 * sampling);
+  std::fprintf(stderr, "\r[%s] %d/%d spp%s  %.2f Msamples/s  elapsed %s  ETA %s   ", bar.c_str(), done, total,
+               share, msps, format_seconds(elapsed).c_str(), format_seconds(eta).c_str());
   std::fflush(stderr);
 }
 
@@ -180,6 +184,7 @@ struct Job {
   bool quiet = false, progress = false, profile = false, resolution_given = false;
   std::optional<Device> device;
   std::optional<Renderer> renderer;
+  std::optional<Denoiser> denoiser;  // --denoise (rank 0, which writes the image)
   CheckpointKey key;
   RenderState resumed;  // rank 0: the whole frame's state read from --resume
   double first_pass_seconds = 0.0;  // since the process started: the wait for a first image
@@ -221,8 +226,9 @@ Args parse_render_args(const std::vector<std::string>& argv) {
                "--local-size", "--lanes", "--bvh-width", "--ray-packets", "--packet-width", "--kernels", "--reference",
                "--convergence", "--trace", "--paths-in-flight", "--samples-per-pass",
                "--time", "--snapshot-every", "--checkpoint", "--checkpoint-every", "--resume", "--camera", "--env",
-               "--env-strength", "--env-rotate", "--background", "--threads"},
-              {"--profile", "--quiet", "--all-features", "--no-spatial-splits"});
+               "--env-strength", "--env-rotate", "--background", "--threads", "--noise-threshold", "--min-spp",
+               "--denoise-quality", "--denoise-prefilter"},
+              {"--profile", "--quiet", "--all-features", "--no-spatial-splits", "--denoise"});
 }
 
 // The scene file, with --camera and --resolution applied; every rank must get whole rows.
@@ -286,6 +292,10 @@ void read_render_options(Job& job, const Args& args, const Team& team) {
   opt.paths_in_flight = (size_t)args.get_int("--paths-in-flight", 0, 1, 1 << 30);
   // A convergence log has one row per pass: one spp per pass unless asked otherwise.
   opt.samples_per_pass = args.get_int("--samples-per-pass", args.has("--convergence") ? 1 : 0, 1, 1 << 20);
+  opt.noise_threshold = (float)args.get_positive("--noise-threshold", 0.0, "a relative error > 0, such as 0.02");
+  opt.min_spp = std::min(args.get_int("--min-spp", opt.min_spp, 1, 1 << 20), opt.spp);
+  if (args.has("--min-spp") && !args.has("--noise-threshold"))
+    throw Error("--min-spp is the least spp of adaptive sampling: it needs --noise-threshold", "--min-spp");
   job.profile = args.has("--profile");
   opt.profile = job.profile || args.has("--trace");
   opt.rows = team.rows();
@@ -327,6 +337,11 @@ void read_long_render_options(Job& job, const Args& args) {
 // are checked.
 void read_leader_inputs(Job& job, const Args& args, const Team& team) {
   if (!team.leader()) return;
+  for (const char* flag : {"--denoise-quality", "--denoise-prefilter"})
+    if (args.has(flag) && !args.has("--denoise"))
+      throw Error(std::string(flag) + " chooses how --denoise denoises: it needs --denoise", flag);
+  read_denoise_options(args, nullptr);  // their values, checked now
+  if (args.has("--denoise")) load_denoiser();  // a missing OIDN fails now, not after the slow setup
   if (args.has("--reference")) {
     job.reference = read_exr(args.get("--reference"));
     if (job.reference->width != job.scene.width || job.reference->height != job.scene.height)
@@ -362,6 +377,7 @@ std::vector<std::filesystem::path> check_outputs(const Job& job, const Team& tea
 void open_renderer(Job& job, const Args& args, const Team& team) {
   job.device.emplace(Device::open(device_selector(args, team)));
   job.renderer.emplace(*job.device, job.scene, job.opt);
+  if (args.has("--denoise") && team.leader()) job.denoiser.emplace(read_denoise_options(args, &*job.device));
   if (!job.checkpoint.empty()) job.key = checkpoint_key(*job.renderer, job.scene_path, job.device->info().name);
   if (!job.resume.empty() && team.leader()) job.resumed = read_checkpoint(job.resume, job.key);
 }
@@ -463,18 +479,19 @@ class RenderRun {
     start();
     render_passes();
     if (job_.progress) std::fputs("\n", stderr);
-    const bool stopped = !renderer_.done();
+    const bool stopped = team_.max({!renderer_.done()})[0] != 0;  // (ranks agree: what follows is collective)
     const int exit_code = stopped && stop_signal_ ? 128 + stop_signal_ : 0;
     if (stopped) report_stop();
     if (stopped && !image_is_valid()) return exit_code;
     // The image from every rank's rows and the counters summed (collective), then rank 0's files.
-    const size_t overflowed = write_image(renderer_.spp_done());
+    const size_t overflowed = write_image(frame_spp());
     const uint64_t rays = team_.sum(renderer_.extend_rays() + renderer_.shadow_rays());
+    const uint64_t samples = team_.sum(renderer_.samples_taken());
     const uint64_t nonfinite = team_.sum(renderer_.nonfinite_samples());
     if (!team_.leader()) return exit_code;
     write_logs(stopped);
     warn_about_samples(nonfinite, overflowed);
-    if (!job_.quiet) print_summary(rays);
+    if (!job_.quiet) print_summary(rays, samples);
     return exit_code;
   }
 
@@ -523,7 +540,7 @@ class RenderRun {
     for (;;) {
       const std::vector<int> agreed = agree_before_pass();
       stop_signal_ = agreed[0];
-      if (renderer_.done() || agreed[0] || agreed[1]) return;
+      if (!agreed[3] || agreed[0] || agreed[1]) return;
       if (agreed[2]) {
         save_checkpoint();
         last_checkpoint_ = std::chrono::steady_clock::now();
@@ -533,13 +550,15 @@ class RenderRun {
   }
 
   // Before each pass the ranks agree: a signal to any of them, or rank 0's clock, stops them all;
-  // rank 0's clock says when to checkpoint. Returns {signal, time is up, checkpoint is due}.
+  // rank 0's clock says when to checkpoint; the render goes on while any rank has pixels left (with
+  // adaptive sampling one rank's pixels may all stop before another's; its passes then do nothing).
+  // Returns {signal, time is up, checkpoint is due, some rank is not done}.
   std::vector<int> agree_before_pass() {
     const bool time_up = seconds_ - resumed_seconds_ >= job_.time_budget;
     const double since_checkpoint =
         std::chrono::duration<double>(std::chrono::steady_clock::now() - last_checkpoint_).count();
     const bool checkpoint_due = !job_.checkpoint.empty() && since_checkpoint >= job_.checkpoint_every;
-    return team_.max({(int)g_signal, team_.leader() && time_up, team_.leader() && checkpoint_due});
+    return team_.max({(int)g_signal, team_.leader() && time_up, team_.leader() && checkpoint_due, !renderer_.done()});
   }
 
   // One pass, timed, then what follows it: the error, the progress bar, a snapshot.
@@ -549,11 +568,17 @@ class RenderRun {
     const auto t1 = std::chrono::steady_clock::now();
     seconds_ += std::chrono::duration<double>(t1 - t0).count();
     if (job_.first_pass_seconds == 0.0) job_.first_pass_seconds = std::chrono::duration<double>(t1 - g_started).count();
-    if (job_.measured && (!job_.convergence.empty() || renderer_.done())) measure_error();
+    // What follows is collective, so the ranks agree on it first: with adaptive sampling one rank
+    // may be done (its passes adding nothing) before another.
+    const std::vector<int> agreed = team_.max({!renderer_.done(), renderer_.passes_done()});
+    const bool done = !agreed[0];
+    if (job_.measured && (!job_.convergence.empty() || done)) measure_error();
     if (job_.progress)
-      draw_progress(renderer_.spp_done(), job_.opt.spp, pixels() * renderer_.spp_done() / seconds_ * 1e-6, seconds_);
-    if (!renderer_.done() && job_.snapshot_every && renderer_.passes_done() % job_.snapshot_every == 0)
-      write_image(renderer_.spp_done());
+      draw_progress(renderer_.spp_done(), job_.opt.spp, (double)renderer_.samples_taken() / seconds_ * 1e-6, seconds_,
+                    renderer_.adaptive() ? (double)renderer_.sampling_pixels() / renderer_.film_width() /
+                                               renderer_.film_height()
+                                         : -1.0);
+    if (!done && job_.snapshot_every && agreed[1] % job_.snapshot_every == 0) write_image(frame_spp());
   }
 
   // The error against the reference after this pass: a row of the convergence log (the time spent
@@ -596,6 +621,9 @@ class RenderRun {
     }
   }
 
+  // The most spp any rank's pixels have (collective): with adaptive sampling ranks may differ.
+  int frame_spp() { return team_.max({renderer_.spp_done()})[0]; }
+
   // The whole frame's state, put together on rank 0 from every rank's rows (timed: the reduction).
   RenderState frame_state() {
     auto t0 = std::chrono::steady_clock::now();
@@ -608,6 +636,22 @@ class RenderRun {
   void save_checkpoint() {
     const RenderState st = frame_state();
     if (team_.leader()) write_checkpoint(job_.checkpoint, job_.key, st);
+  }
+
+  // --denoise: the mean denoised, for the image's R, G, B and its PNG; the time and the denoiser go
+  // to `attrs`. A failure does not lose the render: one warning, and the image is not denoised.
+  std::optional<Image> denoise(const Film& film, ExrAttributes& attrs) {
+    if (!job_.denoiser) return std::nullopt;
+    try {
+      Image out = job_.denoiser->run(film.mean, &film.albedo, &film.normal);
+      attrs["denoiseSeconds"] = job_.denoiser->last_seconds();
+      attrs["denoiser"] = job_.denoiser->description();
+      return out;
+    } catch (const Error& e) {
+      std::fprintf(stderr, "xi: warning: %s; the image is written without denoising\n", e.what());
+      job_.denoiser.reset();
+      return std::nullopt;
+    }
   }
 
   // The image so far, written atomically: spp is what it holds (sppTarget: what was asked for).
@@ -628,10 +672,21 @@ class RenderRun {
     if (team_.size() > 1) attrs["processes"] = team_.size();
     if (spp < opt.spp) attrs["sppTarget"] = opt.spp;
     for (auto& [name, value] : last_error_) attrs["error." + name] = value;
-    write_exr(job_.out,
-              {{"", &film.mean}, {"variance", &film.variance}, {"albedo", &film.albedo}, {"normal", &film.normal}},
-              attrs);
-    write_png(job_.png, film.mean);
+    const std::optional<Image> denoised = denoise(film, attrs);
+    const Image& color = denoised ? *denoised : film.mean;
+    std::vector<ExrLayer> layers = {
+        {"", &color}, {"variance", &film.variance}, {"albedo", &film.albedo}, {"normal", &film.normal}};
+    if (denoised) layers.push_back({"noisy", &film.mean});
+    if (opt.noise_threshold > 0.0f) {  // adaptive: how many samples each pixel took
+      layers.push_back({"spp", &film.spp});
+      double taken = 0.0;
+      for (const glm::vec3& n : film.spp.pixels) taken += n.x;
+      attrs["noiseThreshold"] = (double)opt.noise_threshold;
+      attrs["minSpp"] = opt.min_spp;
+      attrs["sppMean"] = taken / (double)film.spp.pixels.size();
+    }
+    write_exr(job_.out, layers, attrs);
+    write_png(job_.png, color);
     return (size_t)std::count_if(film.variance.pixels.begin(), film.variance.pixels.end(),
                                  [](const glm::vec3& v) { return !std::isfinite(v.x + v.y + v.z); });
   }
@@ -662,14 +717,20 @@ class RenderRun {
                    overflowed);
   }
 
-  void print_summary(uint64_t rays) {
+  void print_summary(uint64_t rays, uint64_t samples) {
     const int spp = renderer_.spp_done();
     std::printf("%dx%d, %d spp, %.2f s, %.2f Msamples/s, %.2f Mrays/s%s\n", scene().width, scene().height, spp,
-                seconds_, pixels() * spp / seconds_ * 1e-6, (double)rays / seconds_ * 1e-6,
+                seconds_, (double)samples / seconds_ * 1e-6, (double)rays / seconds_ * 1e-6,
                 team_.size() > 1 ? (", " + std::to_string(team_.size()) + " processes").c_str() : "");
+    if (renderer_.adaptive())
+      std::printf("adaptive sampling to %g: %.2f spp on average (%llu samples), %d to %d per pixel\n",
+                  (double)job_.opt.noise_threshold, (double)samples / pixels(), (unsigned long long)samples,
+                  std::min(job_.opt.min_spp, spp), spp);
     if (team_.size() > 1)
       std::printf("film state gathered from %d processes: %.1f MB in %.3f s\n", team_.size(),
                   4.0 * sizeof(glm::vec4) * pixels() * 1e-6, gather_seconds_);
+    if (job_.denoiser)
+      std::printf("denoised with %s in %.2f s\n", job_.denoiser->description().c_str(), job_.denoiser->last_seconds());
     std::printf("wrote %s and %s\n", job_.out.string().c_str(), job_.png.string().c_str());
     if (job_.reference)
       std::printf("error vs reference: rmse %.6g, relmse %.6g\n", last_error_["rmse"], last_error_["relmse"]);

@@ -1,5 +1,7 @@
 // `xi tonemap`: an EXR as the PNG `xi render` writes beside it (a preview of a reference whose PNG
 // was not kept, or of one layer).
+#include <algorithm>
+
 #include "cli.h"
 #include "xi/error.h"
 #include "xi/image.h"
@@ -16,6 +18,14 @@ int tonemap(const std::vector<std::string>& argv) {
   const std::string in = args.positional()[0];
   Image image = read_exr(in, args.get("--layer"));
   check_finite(image, "image " + in);  // a PNG would show them as black, hiding them
+  // Samples per pixel (adaptive sampling) are counts, not radiance: shown as grey, the most-sampled
+  // pixel white.
+  if (args.get("--layer") == "spp") {
+    float most = 0.0f;
+    for (const glm::vec3& n : image.pixels) most = std::max(most, n.x);
+    if (most > 0.0f)
+      for (glm::vec3& n : image.pixels) n /= most;
+  }
   write_png(out, image, exposure);
   return 0;
 }

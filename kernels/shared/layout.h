@@ -194,7 +194,8 @@ typedef struct {
 
 // Which (pixel, sample) items a wave holds: `pixels` consecutive pixels of the film from
 // first_pixel, each with `samples` consecutive sample indices from first_sample (several where the
-// film is small next to the paths in flight). Item (path slot) k is sample k % samples of the
+// film is small next to the paths in flight). With pixel_list (adaptive sampling) they are instead
+// the entries from first_pixel on of the list of film pixels still sampling (XI_WAVE_FILM_PIXEL). Item (path slot) k is sample k % samples of the
 // wave's pixel k / samples (XI_WAVE_*): a pixel's samples are neighbours, so the rays that one work
 // item or one ray packet holds leave a few neighbouring pixels and stay close together.
 // The film holds rows first_row, first_row + row_stride, ... of a frame `width` pixels wide (all
@@ -208,13 +209,16 @@ typedef struct {
   uint width;
   uint first_row;
   uint row_stride;
-  uint pad;
+  uint pixel_list;  // 1: the wave's pixels are entries of the list of pixels still sampling
 } WaveParams;
 
-#define XI_WAVE_PIXEL(wave, slot) ((wave).first_pixel + (slot) / (wave).samples)    // film pixel
+// The wave's pixel of a slot: a film pixel, or with pixel_list an index into the list.
+#define XI_WAVE_PIXEL(wave, slot) ((wave).first_pixel + (slot) / (wave).samples)
 #define XI_WAVE_SAMPLE(wave, slot) ((wave).first_sample + (slot) % (wave).samples)  // sample index
 // The slot of the wave's pixel p (from first_pixel) and sample s (from first_sample).
 #define XI_WAVE_SLOT(wave, p, s) ((p) * (wave).samples + (s))
+// The film pixel of the wave's pixel `at` (XI_WAVE_PIXEL), read from `list` with pixel_list.
+#define XI_WAVE_FILM_PIXEL(wave, list, at) ((wave).pixel_list ? (list)[at] : (at))
 
 // The largest work group the host launches (shade keeps a group's queue entries in local memory).
 #define XI_MAX_LOCAL_SIZE 1024

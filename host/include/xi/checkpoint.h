@@ -15,6 +15,8 @@ struct CheckpointKey {
   int spp = 0, max_depth = 0;
   uint32_t seed = 0;
   std::string sampler, strategy;
+  double noise_threshold = 0.0;  // adaptive sampling (0: off)
+  int min_spp = 0;
   std::string kernels;  // Program::key: kernel sources, build options, device and driver
   std::string device;
   bool operator==(const CheckpointKey&) const = default;
@@ -28,7 +30,7 @@ void write_checkpoint(const std::filesystem::path& path, const CheckpointKey& ke
 
 // Reads a checkpoint and checks it against the render about to resume it: a file that is not a
 // checkpoint, is damaged, or was made for another scene, spp, seed, sampler, strategy, depth,
-// kernel build or device is refused with an xi::Error naming the first difference.
+// adaptive sampling, kernel build or device is refused with an xi::Error naming the first difference.
 RenderState read_checkpoint(const std::filesystem::path& path, const CheckpointKey& expected);
 
 }  // namespace xi

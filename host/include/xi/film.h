@@ -43,7 +43,7 @@ struct RenderState {
   double seconds = 0.0;  // render time so far: kept by the caller, carried through checkpoints
   uint64_t extend_rays = 0, shadow_rays = 0;
   uint32_t nonfinite = 0;
-  std::vector<glm::vec4> sum, sum_sq, albedo, normal;  // the film buffers, one vec4 per pixel
+  std::vector<glm::vec4> sum, sum_sq, albedo, normal;  // the film buffers, one vec4 per pixel (albedo w: samples taken)
 };
 
 // The rows `rows` of a whole frame's state (film buffers of width × height pixels), and back: the
@@ -55,9 +55,10 @@ void insert_rows(RenderState* frame, const RenderState& share, FilmRows rows, in
 void check_film_pixels(const RenderState& state, size_t pixels, const char* what);
 
 // The film resolved to images: per pixel, the mean radiance, the variance of that mean (sample
-// variance / sample count), and the mean first-hit albedo and normal.
+// variance / sample count), the mean first-hit albedo and normal, and the samples taken (in all
+// three channels; the albedo sum's w, which counts dropped non-finite samples too).
 struct Film {
-  Image mean, variance, albedo, normal;
+  Image mean, variance, albedo, normal, spp;
 };
 // The film buffers of a state (width × height pixels) resolved to images.
 Film resolve_film(const RenderState& state, int width, int height);

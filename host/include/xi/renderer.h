@@ -72,7 +72,26 @@ struct RenderOptions {
   enum class ShadingProgram { Auto, Scene, Generic };
   ShadingProgram shading_program = ShadingProgram::Auto;
   bool profile = false;         // time every launch with OpenCL events (launches())
+  // Adaptive sampling: with a threshold T > 0, a pixel stops taking samples once the relative
+  // standard error of its mean (pixel_relative_error) is below T, judged after min_spp samples and
+  // then at the fixed counts adaptive_check_after gives, so that the image does not depend on how
+  // passes fall; spp is then the most any pixel takes. 0: every pixel takes spp samples.
+  float noise_threshold = 0.0f;
+  int min_spp = 16;
 };
+
+// Adaptive sampling's error of one pixel from its film sums (RGB sums and sums of squares, w: the
+// finite samples n): the largest channel's standard error of the mean, sqrt(s²/n) with s² the
+// unbiased sample variance, over sqrt(I² + kAdaptiveDarkFloor²), I the mean intensity (the
+// channels' average): the error relative to the pixel's brightness as relMSE weighs it, so that
+// pixels much darker than the floor are judged by an absolute error rather than never stopping.
+// A pixel with fewer than 2 samples: infinity. (Renderer::check_pixels: a pixel stops once this
+// is below the threshold for it and for its neighbours in the row.)
+constexpr float kAdaptiveDarkFloor = 0.1f;
+float pixel_relative_error(const glm::vec4& sum, const glm::vec4& sum_sq);
+// The sample count of the adaptive check that follows one at `count` samples: about a quarter
+// more, so that a pixel overshoots its stopping point by at most that, and checks stay few.
+int adaptive_check_after(int count);
 
 // The paths-in-flight budget for a device when RenderOptions::paths_in_flight is 0: enough to
 // fill it, and within a quarter of its memory.
@@ -108,15 +127,22 @@ class Renderer {
 
   // Renders samples_per_pass() more samples of every pixel (fewer in the last pass).
   void run_pass();
-  // Runs passes until the film holds options().spp samples per pixel.
+  // Runs passes until the film holds options().spp samples per pixel (adaptive sampling: until
+  // every pixel has stopped or taken spp).
   void render();
-  bool done() const { return spp_done_ >= options_.spp; }
+  bool done() const { return spp_done_ >= options_.spp || (adaptive() && sampling_pixels() == 0); }
+  bool adaptive() const { return options_.noise_threshold > 0.0f; }
+  // The pixels still taking samples (all of them without adaptive sampling), and the samples the
+  // film holds in all, dropped non-finite ones included.
+  size_t sampling_pixels() const { return adaptive() ? active_.size() : pixels_; }
+  uint64_t samples_taken() const { return samples_taken_; }
   int passes_done() const { return passes_; }
   int spp_done() const { return spp_done_; }
   int samples_per_pass() const { return samples_per_pass_; }
   size_t paths_in_flight() const { return paths_; }
 
-  // The film (options().rows of the frame) resolved to images.
+  // The film (options().rows of the frame) resolved to images; with adaptive sampling its spp
+  // image holds each pixel's sample count.
   Film film() const;
   Image mean() const;  // the first of the above, for cheap per-pass error tracking
   int film_width() const { return (int)scene_.camera.width; }
@@ -163,7 +189,12 @@ class Renderer {
   void accumulate(const WaveParams& wave);
   void bind_accumulate(const WaveParams& wave);
   void run_wave(const WaveParams& wave);
-  WaveParams wave(size_t first_pixel, size_t pixels, int first_sample, uint32_t samples) const;
+  WaveParams wave(size_t first_pixel, size_t pixels, int first_sample, uint32_t samples, bool listed = false) const;
+  // Adaptive sampling: at a check, drops the pixels whose error is below the threshold from the
+  // list of pixels still sampling (after a restore, rebuilds the list from the film's counts first).
+  void check_pixels();
+  void list_sampling_pixels(const std::vector<glm::vec4>& albedo);
+  uint32_t pass_samples() const;
   void warm_up();
   // The constructor's steps, in order.
   void build_kernels();
@@ -200,6 +231,9 @@ class Renderer {
   size_t paths_ = 0;           // path state slots: the most (pixel, sample) items of one wave
   int samples_per_pass_ = 1;
   int passes_ = 0, spp_done_ = 0;
+  uint64_t samples_taken_ = 0;
+  std::vector<uint32_t> active_;  // adaptive sampling: the film pixels still sampling, in order
+  int next_check_ = 0;            // the sample count of the next adaptive check
   uint64_t extend_rays_ = 0, shadow_rays_ = 0;
   std::vector<Launch> launches_;
   std::vector<cl::Event> launch_events_;  // with profiling: the events of launches_ not yet read
@@ -223,6 +257,7 @@ class Renderer {
   cl::Buffer light_cdf_, light_tri_, tri_light_pdf_;
   cl::Buffer tri_uv_, tri_tangents_, texture_refs_, images_, texels_, punctual_, environment_texels_, environment_cdf_;
   cl::Buffer film_sum_, film_sum_sq_, film_albedo_, film_normal_;
+  cl::Buffer pixel_list_;  // active_ on the device
 };
 
 }  // namespace xi

@@ -23,9 +23,10 @@ void check_film_pixels(const RenderState& st, size_t pixels, const char* what) {
 Film resolve_film(const RenderState& st, int w, int h) {
   const size_t pixels = (size_t)w * h;
   check_film_pixels(st, pixels, "the render state");
-  Film f{Image(w, h), Image(w, h), Image(w, h), Image(w, h)};
+  Film f{Image(w, h), Image(w, h), Image(w, h), Image(w, h), Image(w, h)};
   for (size_t i = 0; i < pixels; ++i) {
-    float n = st.sum[i].w;  // w: the sample count
+    f.spp.pixels[i] = glm::vec3(st.albedo[i].w);
+    float n = st.sum[i].w;  // w: the finite samples
     if (n <= 0.0f) continue;
     glm::vec3 m = glm::vec3(st.sum[i]) / n;
     f.mean.pixels[i] = m;

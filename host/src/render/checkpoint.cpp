@@ -42,9 +42,19 @@ CheckpointKey checkpoint_key(const Renderer& renderer, const std::filesystem::pa
                              const std::string& device_name) {
   const RenderOptions& o = renderer.options();
   const CompiledScene& s = renderer.compiled();
-  return CheckpointKey{std::filesystem::absolute(scene_file).string(), scene_hash(s), (int)s.camera.width,
-                       (int)s.camera.height, o.spp, o.max_depth, o.seed, sampler_name(o.sampler),
-                       strategy_name(o.strategy), renderer.program().key, device_name};
+  return CheckpointKey{std::filesystem::absolute(scene_file).string(),
+                       scene_hash(s),
+                       (int)s.camera.width,
+                       (int)s.camera.height,
+                       o.spp,
+                       o.max_depth,
+                       o.seed,
+                       sampler_name(o.sampler),
+                       strategy_name(o.strategy),
+                       (double)o.noise_threshold,
+                       renderer.adaptive() ? o.min_spp : 0,
+                       renderer.program().key,
+                       device_name};
 }
 
 void write_checkpoint(const std::filesystem::path& path, const CheckpointKey& key, const RenderState& st) {
@@ -52,6 +62,7 @@ void write_checkpoint(const std::filesystem::path& path, const CheckpointKey& ke
       {"scene", key.scene},       {"scene_hash", key.scene_hash}, {"width", key.width},
       {"height", key.height},     {"spp", key.spp},               {"max_depth", key.max_depth},
       {"seed", key.seed},         {"sampler", key.sampler},       {"strategy", key.strategy},
+      {"noise_threshold", key.noise_threshold}, {"min_spp", key.min_spp},
       {"kernels", key.kernels},   {"device", key.device},         {"spp_done", st.spp_done},
       {"passes", st.passes},      {"seconds", st.seconds},        {"extend_rays", st.extend_rays},
       {"shadow_rays", st.shadow_rays}, {"nonfinite", st.nonfinite}};
@@ -104,9 +115,10 @@ RenderState read_checkpoint(const std::filesystem::path& path, const CheckpointK
   RenderState st;
   try {
     j = nlohmann::json::parse(text);
-    key = CheckpointKey{j.at("scene"), j.at("scene_hash"), j.at("width"),  j.at("height"),
-                        j.at("spp"),   j.at("max_depth"),  j.at("seed"),   j.at("sampler"),
-                        j.at("strategy"), j.at("kernels"), j.at("device")};
+    key = CheckpointKey{j.at("scene"),           j.at("scene_hash"), j.at("width"),   j.at("height"),
+                        j.at("spp"),             j.at("max_depth"),  j.at("seed"),    j.at("sampler"),
+                        j.at("strategy"),        j.at("noise_threshold"), j.at("min_spp"), j.at("kernels"),
+                        j.at("device")};
     st.spp_done = j.at("spp_done");
     st.passes = j.at("passes");
     st.seconds = j.at("seconds");
@@ -131,6 +143,14 @@ RenderState read_checkpoint(const std::filesystem::path& path, const CheckpointK
   if (key.seed != expected.seed) refuse("--seed", std::to_string(key.seed), std::to_string(expected.seed));
   if (key.sampler != expected.sampler) refuse("--sampler", key.sampler, expected.sampler);
   if (key.strategy != expected.strategy) refuse("--strategy", key.strategy, expected.strategy);
+  if (key.noise_threshold != expected.noise_threshold || key.min_spp != expected.min_spp) {
+    auto adaptive = [](const CheckpointKey& k) {
+      return k.noise_threshold > 0.0 ? "--noise-threshold " + nlohmann::json(k.noise_threshold).dump() + " --min-spp " +
+                                           std::to_string(k.min_spp)
+                                     : std::string("no adaptive sampling");
+    };
+    throw Error("checkpoint was made with " + adaptive(key) + ", this render has " + adaptive(expected), where);
+  }
   if (key.max_depth != expected.max_depth)
     refuse("--max-depth", std::to_string(key.max_depth), std::to_string(expected.max_depth));
   if (key.device != expected.device) refuse("device", key.device, expected.device);

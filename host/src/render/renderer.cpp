@@ -6,6 +6,7 @@
 
 #include <algorithm>
 #include <chrono>
+#include <cmath>
 #include <string>
 
 #include "memory.h"
@@ -108,6 +109,18 @@ std::vector<std::string> prebuild_kernels(Device& device, const RenderOptions& o
   return built;
 }
 
+float pixel_relative_error(const glm::vec4& sum, const glm::vec4& sum_sq) {
+  const float n = sum.w;
+  if (!(n >= 2.0f)) return INFINITY;
+  const glm::vec3 mean = glm::vec3(sum) / n;
+  const glm::vec3 variance = glm::max((glm::vec3(sum_sq) - n * mean * mean) / (n - 1.0f), glm::vec3(0.0f));
+  const glm::vec3 standard_error = glm::sqrt(variance / n);
+  const float intensity = (mean.x + mean.y + mean.z) / 3.0f;
+  return std::max({standard_error.x, standard_error.y, standard_error.z}) / std::sqrt(intensity * intensity + kAdaptiveDarkFloor * kAdaptiveDarkFloor);
+}
+
+int adaptive_check_after(int count) { return count + std::max(1, count / 4); }
+
 Renderer::Renderer(Device& device, const Scene& scene, const RenderOptions& options)
     : device_(device),
       options_(options),
@@ -117,6 +130,15 @@ Renderer::Renderer(Device& device, const Scene& scene, const RenderOptions& opti
   if (options.spp < 1) throw Error("spp must be at least 1", "--spp");
   if (options.max_depth < 1 || options.max_depth > 64) throw Error("max depth must be in 1..64", "--max-depth");
   if (options.samples_per_pass < 0) throw Error("samples per pass must be at least 1 (0: automatic)");
+  if (!(options.noise_threshold >= 0.0f) || !std::isfinite(options.noise_threshold))
+    throw Error("the noise threshold must be a finite number >= 0 (0: off)", "--noise-threshold");
+  if (options.min_spp < 1) throw Error("the least spp of adaptive sampling must be at least 1", "--min-spp");
+  // Grid and stratified patterns are complete only at their spp: a pixel stopped early would hold
+  // part of a pattern, which is no estimate of the pixel.
+  if (adaptive() && !sampler_is_progressive(options.sampler))
+    throw Error(std::string("the ") + sampler_name(options.sampler) + " sampler's pattern is only complete at " +
+                    std::to_string(options.spp) + " spp, so a pixel cannot stop early",
+                "--noise-threshold; use --sampler sobol or random");
   exact_bounds_ = options.launch_bound == RenderOptions::LaunchBound::Auto
                       ? device.info().type == "CPU"
                       : options.launch_bound == RenderOptions::LaunchBound::Exact;
@@ -124,6 +146,11 @@ Renderer::Renderer(Device& device, const Scene& scene, const RenderOptions& opti
   size_waves();
   check_memory();
   allocate();
+  if (adaptive()) {
+    active_.resize(pixels_);
+    for (size_t i = 0; i < pixels_; ++i) active_[i] = (uint32_t)i;
+    next_check_ = std::min(options_.min_spp, options_.spp);
+  }
   auto start = std::chrono::steady_clock::now();
   warm_up();
   kernel_times_.first_launches = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
@@ -231,6 +258,7 @@ void Renderer::check_memory() const {
   add(sizeof(BvhNode) * bvh.nodes.size() + sizeof(BvhNode8) * bvh.nodes8.size());
   add(sizeof(TriBlock) * bvh.blocks.size());
   add(sizeof(glm::vec4) * tri_uv_entries());
+  if (adaptive()) add(sizeof(uint32_t) * pixels_);  // the list of pixels still sampling
 #define XI_COUNT_BUFFER(name) add(sizeof(scene_.name[0]) * scene_.name.size());
   XI_SCENE_BUFFERS(XI_COUNT_BUFFER)
 #undef XI_COUNT_BUFFER
@@ -260,6 +288,7 @@ void Renderer::allocate() {
   film_sum_sq_ = cl::Buffer(ctx, CL_MEM_READ_WRITE, sizeof(glm::vec4) * pixels_);
   film_albedo_ = cl::Buffer(ctx, CL_MEM_READ_WRITE, sizeof(glm::vec4) * pixels_);
   film_normal_ = cl::Buffer(ctx, CL_MEM_READ_WRITE, sizeof(glm::vec4) * pixels_);
+  pixel_list_ = cl::Buffer(ctx, CL_MEM_READ_WRITE, sizeof(uint32_t) * (adaptive() ? pixels_ : 1));
   cl::CommandQueue& q = device_.queue();
   for (cl::Buffer* b : {&film_sum_, &film_sum_sq_, &film_albedo_, &film_normal_})
     q.enqueueFillBuffer(*b, 0.0f, 0, sizeof(glm::vec4) * pixels_);
@@ -299,6 +328,7 @@ void Renderer::bind_generate(cl::Kernel& kernel, const WaveParams& wave, const c
   int arg = bind_path_state(kernel);
   kernel.setArg(arg++, queue_a_);
   kernel.setArg(arg++, counters);
+  kernel.setArg(arg++, pixel_list_);
   kernel.setArg(arg++, scene_.camera);
   kernel.setArg(arg++, sampler_params());
   kernel.setArg(arg++, kernels_.shading_word());
@@ -386,6 +416,7 @@ void Renderer::bind_accumulate(const WaveParams& wave) {
   accumulate_.setArg(arg++, film_albedo_);
   accumulate_.setArg(arg++, film_normal_);
   accumulate_.setArg(arg++, counters_);
+  accumulate_.setArg(arg++, pixel_list_);
   accumulate_.setArg(arg++, wave);
 }
 
@@ -448,21 +479,76 @@ void Renderer::limit_samples_per_pass(int n) {
   samples_per_pass_ = std::min(samples_per_pass_, n);  // the path state holds fewer at once
 }
 
-WaveParams Renderer::wave(size_t first_pixel, size_t pixels, int first_sample, uint32_t samples) const {
+WaveParams Renderer::wave(size_t first_pixel, size_t pixels, int first_sample, uint32_t samples, bool listed) const {
   return WaveParams{(uint32_t)first_pixel, (uint32_t)pixels, (uint32_t)first_sample, samples, scene_.camera.width,
-                    (uint32_t)options_.rows.first, (uint32_t)options_.rows.stride, 0u};
+                    (uint32_t)options_.rows.first, (uint32_t)options_.rows.stride, listed ? 1u : 0u};
+}
+
+// The spp of the next pass: samples_per_pass(), but no further than spp, and with adaptive sampling
+// no further than the next check; as pixels stop, the paths in flight hold more samples of those
+// left (unless --samples-per-pass fixed the pass).
+uint32_t Renderer::pass_samples() const {
+  int samples = samples_per_pass_;
+  if (adaptive()) {
+    if (options_.samples_per_pass == 0)
+      samples = (int)std::clamp<size_t>(paths_ / active_.size(), (size_t)samples, (size_t)options_.spp);
+    samples = std::min(samples, next_check_ - spp_done_);
+  }
+  return (uint32_t)std::min(samples, options_.spp - spp_done_);
 }
 
 void Renderer::run_pass() {
   if (done()) return;
   take_scene_shading(false);
-  const uint32_t samples = (uint32_t)std::min(samples_per_pass_, options_.spp - spp_done_);
+  const uint32_t samples = pass_samples();
+  const size_t pixels = sampling_pixels();
+  const bool listed = pixels < pixels_;  // some have stopped: the waves go through the list
   const size_t pixels_per_wave = paths_ / samples;  // all pixels when samples > 1
-  for (size_t first = 0; first < pixels_; first += pixels_per_wave)
-    run_wave(wave(first, std::min(pixels_per_wave, pixels_ - first), spp_done_, samples));
+  for (size_t first = 0; first < pixels; first += pixels_per_wave)
+    run_wave(wave(first, std::min(pixels_per_wave, pixels - first), spp_done_, samples, listed));
   finish_pass();
   spp_done_ += (int)samples;
+  samples_taken_ += (uint64_t)pixels * samples;
   passes_++;
+  if (adaptive() && spp_done_ >= next_check_) check_pixels();
+}
+
+// Every pixel still sampling has taken spp_done_ samples: those whose error is below the threshold
+// stop here, unless a neighbour in the same row is still above it. A few samples can miss what
+// makes a pixel noisy (a rare bright path), and its neighbours, which see much the same, are a
+// second opinion; rows, not columns, since the processes of a distributed render hold interleaved
+// rows. The decision reads only the row's own sums, so the image does not depend on waves,
+// passes or processes.
+void Renderer::check_pixels() {
+  const std::vector<glm::vec4> sum = read(film_sum_), sum_sq = read(film_sum_sq_);
+  std::vector<uint8_t> noisy(pixels_, 0);
+  for (uint32_t p : active_) noisy[p] = !(pixel_relative_error(sum[p], sum_sq[p]) < options_.noise_threshold);
+  const uint32_t width = scene_.camera.width;
+  std::vector<uint32_t> still;
+  still.reserve(active_.size());
+  for (uint32_t p : active_) {
+    const uint32_t x = p % width;
+    const bool near_noisy = noisy[p] || (x > 0 && noisy[p - 1]) || (x + 1 < width && noisy[p + 1]);
+    if (near_noisy) still.push_back(p);
+  }
+  active_.swap(still);
+  if (!active_.empty())
+    device_.queue().enqueueWriteBuffer(pixel_list_, CL_TRUE, 0, sizeof(uint32_t) * active_.size(), active_.data());
+  next_check_ = adaptive_check_after(spp_done_);
+}
+
+// After a restore: the pixels that have taken spp_done_ samples are those still sampling, and if
+// spp_done_ is a check's count, that check (made before the state was saved) is made again, with
+// the same outcome.
+void Renderer::list_sampling_pixels(const std::vector<glm::vec4>& albedo) {
+  active_.clear();
+  for (size_t i = 0; i < pixels_; ++i)
+    if (albedo[i].w == (float)spp_done_) active_.push_back((uint32_t)i);
+  if (!active_.empty())
+    device_.queue().enqueueWriteBuffer(pixel_list_, CL_TRUE, 0, sizeof(uint32_t) * active_.size(), active_.data());
+  next_check_ = std::min(options_.min_spp, options_.spp);
+  while (next_check_ < spp_done_) next_check_ = adaptive_check_after(next_check_);
+  if (next_check_ == spp_done_ && spp_done_ < options_.spp) check_pixels();
 }
 
 void Renderer::render() {
@@ -559,6 +645,9 @@ void Renderer::restore(const RenderState& st) {
   passes_ = st.passes;
   extend_rays_ = st.extend_rays;
   shadow_rays_ = st.shadow_rays;
+  samples_taken_ = 0;
+  for (const glm::vec4& a : st.albedo) samples_taken_ += (uint64_t)a.w;
+  if (adaptive()) list_sampling_pixels(st.albedo);
 }
 
 uint32_t Renderer::nonfinite_samples() const {
