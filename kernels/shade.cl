@@ -155,12 +155,17 @@ static inline XI_INLINE ShadeResult xi_shade_paths(XI_PATH_PARAMS xuint slot, xm
     // The environment, MIS-weighted against light sampling where the ray was a BSDF sample.
     xmask seen = active && escaped;
     if (XI_ANY(seen)) {
-      xfloat3 dir = xi_gather_xyz(ray_dir, slot, 0);
-      xfloat3 le = xi_env_radiance(env_texels, env, dir);
+      // The map's (u, v) once, for the lookup and the pdf; the pdf only where some lane needs it (not
+      // after camera rays, most of an asset's escaped paths).
+      xfloat3 in_map = xi_env_to_local(env, xi_gather_xyz(ray_dir, slot, 0));
+      xfloat2 uv = xi_env_direction_to_uv(in_map);
+      xfloat3 le = xi_env_lookup(env_texels, env, uv.x, uv.y);
       xfloat w = 1.0f;
-      if (xi_uses(shading, XI_USE_MIS))
-        w = prev_pdf > 0.0f ? xi_power_heuristic(prev_pdf, env.scale.w * xi_env_pdf(env_cdf, env, dir)) : w;
-      else if (xi_uses(shading, XI_USE_NEE))
+      xmask weighed = seen && prev_pdf > 0.0f;
+      if (xi_uses(shading, XI_USE_MIS)) {
+        if (XI_ANY(weighed))
+          w = weighed ? xi_power_heuristic(prev_pdf, env.scale.w * xi_env_pdf_local(env_cdf, env, in_map, uv)) : w;
+      } else if (xi_uses(shading, XI_USE_NEE))
         w = prev_pdf > 0.0f && env.scale.w > 0.0f ? (xfloat)0.0f : w;
       L = xi_select3(seen, xi_add3(L, xi_scale3(xi_mul3(beta, le), w)), L);
     }

@@ -250,10 +250,9 @@ static inline xfloat3 xi_env_sample(__global const float4* texels, __global cons
   return xi_env_to_world(env, dl);
 }
 
-// The solid-angle density with which xi_env_sample returns the world direction d (unit).
-static inline xfloat xi_env_pdf(__global const float* cdf, EnvironmentData env, xfloat3 d) {
-  xfloat3 l = xi_env_to_local(env, d);
-  xfloat2 uv = xi_env_direction_to_uv(l);
+// The solid-angle density with which xi_env_sample returns the direction l of the map's frame
+// (unit; uv = xi_env_direction_to_uv(l), which the caller may have for a lookup already).
+static inline xfloat xi_env_pdf_local(__global const float* cdf, EnvironmentData env, xfloat3 l, xfloat2 uv) {
   float wf = (float)env.width, hf = (float)env.height;
   // The patch column: texel centres at s = 0, 1, ..., with u = 0 half a texel before the first.
   xfloat sx = uv.x * wf - 0.5f;
@@ -266,6 +265,12 @@ static inline xfloat xi_env_pdf(__global const float* cdf, EnvironmentData env, 
   xi_env_patch_rows(env, k, &v0, &dv);
   xfloat s = clamp(sx - fx, 0.0f, 1.0f), t = clamp((uv.y - v0) / dv, 0.0f, 1.0f);
   return xi_env_patch_pdf(cdf, env, x, k, s, t, sqrt(l.x * l.x + l.z * l.z));
+}
+
+// The solid-angle density with which xi_env_sample returns the world direction d (unit).
+static inline xfloat xi_env_pdf(__global const float* cdf, EnvironmentData env, xfloat3 d) {
+  xfloat3 l = xi_env_to_local(env, d);
+  return xi_env_pdf_local(cdf, env, l, xi_env_direction_to_uv(l));
 }
 
 #endif
