@@ -9,6 +9,9 @@
 // answers agree.
 // --rays-out DIR also writes the rays (float32 origin xyz, tmax, direction xyz, 0) for bench/peers.py
 // to time Mitsuba's own ray queries on them.
+// --build instead times the two builds alone on the scene's triangles, no device needed: xi's
+// build_bvh (8 and 4 wide, with and without spatial splits, on every core) against Embree's
+// rtcCommitScene at each build quality (on every core too, through TBB); medians of RUNS.
 #include <embree3/rtcore.h>
 
 #include <algorithm>
@@ -22,6 +25,7 @@
 #include <thread>
 #include <vector>
 
+#include "xi/bvh.h"
 #include "xi/error.h"
 #include "render/ray_probe.h"
 #include "xi/renderer.h"
@@ -77,6 +81,7 @@ void set_embree_lane(RTCRay16* r, size_t k, const xi::RayBatch& rays, size_t i, 
 struct Embree {
   RTCDevice device = rtcNewDevice(nullptr);
   RTCScene scene = rtcNewScene(device);
+  double build_seconds = 0.0;  // rtcCommitScene's, after the vertices are in Embree's buffer
 
   Embree(const std::vector<glm::vec4>& tri_verts, RTCBuildQuality quality) {
     const size_t n = tri_verts.size() / 3;
@@ -95,7 +100,9 @@ struct Embree {
     rtcAttachGeometry(scene, geom);
     rtcReleaseGeometry(geom);
     rtcSetSceneBuildQuality(scene, quality);
+    auto start = std::chrono::steady_clock::now();
     rtcCommitScene(scene);
+    build_seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   }
   ~Embree() {
     rtcReleaseScene(scene);
@@ -212,8 +219,38 @@ void print_row(const char* what, size_t count, double xi_rate, int rays, double 
               what, count, xi_rate, rays_kind(rays), embree_rate, embree16_rate, same);
 }
 
+// --build: both builders on the scene's triangles, RUNS times each, interleaved.
+void time_builds(const xi::Scene& scene, int runs) {
+  std::vector<glm::vec4> verts;
+  verts.reserve(3 * scene.triangles.size());
+  for (const xi::Triangle& t : scene.triangles)
+    for (const glm::vec3& v : t.v) verts.push_back(glm::vec4(v, 0.0f));
+  struct Row {
+    std::string name;
+    std::function<double()> build;
+    std::vector<double> seconds;
+  };
+  std::vector<Row> rows;
+  for (int width : {8, 4})
+    for (bool splits : {true, false})
+      rows.push_back({"xi " + std::to_string(width) + "-wide" + (splits ? ", spatial splits" : ""), [&, width, splits] {
+                        return xi::build_bvh(scene.triangles, width, splits).stats.build_seconds;
+                      }});
+  for (const char* quality : {"high", "medium", "low"})
+    rows.push_back({std::string("embree ") + quality, [&, quality] {
+                      return Embree(verts, parse_quality(quality)).build_seconds;
+                    }});
+  for (int r = 0; r < runs; ++r)
+    for (Row& row : rows) row.seconds.push_back(row.build());
+  for (const Row& row : rows)
+    std::printf("%-28s %8.3f s (median of %d; fastest %.3f)\n", row.name.c_str(), median(row.seconds), runs,
+                *std::min_element(row.seconds.begin(), row.seconds.end()));
+}
+
 int main(int argc, char** argv) {
   std::vector<std::string> args(argv + 1, argv + argc);
+  bool build_only = false;
+  if (auto at = std::find(args.begin(), args.end(), "--build"); at != args.end()) build_only = true, args.erase(at);
   std::filesystem::path rays_out;
   if (auto at = std::find(args.begin(), args.end(), "--rays-out"); at != args.end()) {
     if (at + 1 == args.end()) args.clear();
@@ -226,12 +263,19 @@ int main(int argc, char** argv) {
   }
   if (args.empty()) {
     std::fprintf(stderr,
-                 "usage: xi_ceiling SCENE.json [RUNS] [WIDTHxHEIGHT] [high|medium|low] [--spp N] [--rays-out DIR]\n");
+                 "usage: xi_ceiling SCENE.json [RUNS] [WIDTHxHEIGHT] [high|medium|low] [--spp N] [--rays-out DIR]\n"
+                 "       xi_ceiling SCENE.json [RUNS] --build\n");
     return 2;
   }
   try {
     int runs = args.size() > 1 ? std::max(1, std::atoi(args[1].c_str())) : 5;
     xi::Scene scene = xi::load_scene(args[0]);
+    if (build_only) {
+      std::printf("scene %s: %zu triangles; %u host threads\n", args[0].c_str(), scene.triangles.size(),
+                  std::thread::hardware_concurrency());
+      time_builds(scene, runs);
+      return 0;
+    }
     if (args.size() > 2 && std::sscanf(args[2].c_str(), "%dx%d", &scene.width, &scene.height) != 2)
       throw xi::Error("expected WIDTHxHEIGHT", args[2]);
     const std::string quality = args.size() > 3 ? args[3] : "high";
@@ -251,7 +295,11 @@ int main(int argc, char** argv) {
       probe.record(bounce);
       recorder.run_pass();
       const xi::KernelConfig& k = recorder.kernels();
-      Embree embree(recorder.compiled().tri_verts, embree_quality);
+      // Hits are compared by triangle index, so Embree gets the triangles in the renderer's BVH order
+      // (the same build again: the renderer keeps no host copy).
+      const xi::CompiledScene ordered =
+          xi::compile_scene(scene, xi::KernelConfig::bvh_width_for(device.info(), opt), opt.spatial_splits);
+      Embree embree(ordered.tri_verts, embree_quality);
 
       const xi::RayBatch& rays = probe.recorded();
       std::vector<double> xi_s, em_s, em16_s;

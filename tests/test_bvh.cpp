@@ -305,7 +305,7 @@ vec3 random_direction(std::mt19937& rng) {
 
 // 10^4 random rays from inside and around the scene: closest hit and any hit of xi_trace over the
 // compiled (BVH-ordered) arrays against brute force over the scene's own triangles.
-void check_queries(const xi::Scene& scene, const xi::CompiledScene& cs, uint32_t seed) {
+void check_queries(const xi::Scene& scene, const xi::CompiledScene& cs, uint32_t seed, int kRays = 10000) {
   const auto& tris = scene.triangles;
   BruteForce brute(tris);
   Bounds b = scene_bounds(scene);
@@ -314,7 +314,6 @@ void check_queries(const xi::Scene& scene, const xi::CompiledScene& cs, uint32_t
   std::mt19937 rng(seed);
   std::uniform_real_distribution<float> unit(0.0f, 1.0f);
 
-  const int kRays = 10000;
   int hits = 0, ties = 0, any_hits = 0;
   for (int r = 0; r < kRays; ++r) {
     vec3 o = b.lo - margin + vec3(unit(rng), unit(rng), unit(rng)) * (b.hi - b.lo + 2.0f * margin);
@@ -535,6 +534,49 @@ TEST(BvhBuild, ThreadsBuildTheSameTree) {
       check_coverage(many, tris, w);
     }
   }
+}
+
+// A mesh of 327680 small triangles (an icosphere) in a room of 12 large ones, as scanned and
+// generated meshes come: the top nodes share their passes over the references out to threads
+// (over 2^17 references per thread), and spatial splits are not tried where every reference is
+// smaller than a bin of the node. The tree must be the one a single thread builds, byte for byte,
+// valid, and exact for queries.
+TEST(BvhBuild, LargeMeshOfSmallTriangles) {
+  xi::Scene s = xi::parse_scene(R"({
+    "camera": {"position": [0, 0, -5], "look_at": [0, 0, 0], "up": [0, 1, 0], "fov": 40},
+    "materials": {"white": {"type": "diffuse", "albedo": [0.5, 0.5, 0.5]}},
+    "shapes": [
+      {"type": "quad", "material": "white", "vertices": [[-3, -3, -3], [3, -3, -3], [3, -3, 3], [-3, -3, 3]]},
+      {"type": "quad", "material": "white", "vertices": [[-3, 3, -3], [-3, 3, 3], [3, 3, 3], [3, 3, -3]]},
+      {"type": "quad", "material": "white", "vertices": [[-3, -3, 3], [3, -3, 3], [3, 3, 3], [-3, 3, 3]]},
+      {"type": "quad", "material": "white", "vertices": [[-3, -3, -3], [-3, -3, 3], [-3, 3, 3], [-3, 3, -3]]},
+      {"type": "quad", "material": "white", "vertices": [[3, -3, -3], [3, 3, -3], [3, 3, 3], [3, -3, 3]]},
+      {"type": "sphere", "material": "white", "center": [0.3, -0.2, 0.1], "radius": 1.5, "subdivisions": 7},
+      {"type": "quad", "material": "white", "vertices": [[-3, -3, -3], [-3, 3, -3], [3, 3, -3], [3, -3, -3]]}]})",
+                                "room.json", ".");
+  const size_t n = s.triangles.size();
+  ASSERT_EQ(n, 12u + 327680u);
+  auto same_bytes = [](const auto& a, const auto& b) {
+    return a.size() == b.size() && (a.empty() || std::memcmp(a.data(), b.data(), sizeof(a[0]) * a.size()) == 0);
+  };
+  // The sphere alone too: its root's object split is partitioned on two threads (with the walls
+  // the root splits them spatially).
+  const std::vector<xi::Triangle> sphere(s.triangles.begin() + 10, s.triangles.end() - 2);
+  for (const std::vector<xi::Triangle>* tris : {(const std::vector<xi::Triangle>*)&s.triangles, &sphere}) {
+    SCOPED_TRACE(tris == &sphere ? "the sphere alone" : "the room");
+    const xi::Bvh one = xi::build_bvh(*tris, 8, true, 1), many = xi::build_bvh(*tris, 8, true, 3);
+    EXPECT_GE(many.stats.threads, 8u);
+    EXPECT_EQ(one.order, many.order);
+    EXPECT_TRUE(same_bytes(one.nodes8, many.nodes8));
+    EXPECT_TRUE(same_bytes(one.blocks, many.blocks));
+  }
+  xi::CompiledScene cs = xi::compile_scene(s, 4, true, 3);
+  const Walk w = check_tree(cs.bvh, s.triangles);
+  EXPECT_GT(cs.bvh.stats.references, n);  // spatial splits still made where they pay
+  check_stats(cs.bvh, w, false);
+  check_coverage(cs.bvh, s.triangles, w);
+  EXPECT_TRUE(root_bounds(cs.bvh) == scene_bounds(s));
+  check_queries(s, cs, 31, 1000);
 }
 
 // 100 copies of one triangle: every centroid coincides, so no SAH split separates them.

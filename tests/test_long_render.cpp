@@ -10,6 +10,8 @@
 
 #include "cli_test.h"
 #include "xi/checkpoint.h"
+#include "xi/compiled_scene.h"
+#include "xi/hash.h"
 #include "xi/device.h"
 #include "xi/error.h"
 #include "xi/image.h"
@@ -227,4 +229,38 @@ TEST(Checkpoint, RoundTripsAndRefusesAnotherDevice) {
     EXPECT_NE(std::string(e.what()).find("device Some Other GPU"), std::string::npos) << e.what();
   }
   fs::remove(file);
+}
+
+// The renderer frees its host copy of the triangles and the BVH once they are on the device, and
+// the checkpoint key's scene hash, read back from there, is the hash of the compiled arrays
+// themselves: a checkpoint of the same scene is recognised, one of a changed scene is not.
+TEST(Checkpoint, SceneHashComesFromTheDeviceAndMatchesTheCompiledScene) {
+  xi::Device& device = xi::test::device();
+  xi::Scene scene = xi::load_scene(kCornell);
+  scene.width = 8;
+  scene.height = 8;
+  xi::RenderOptions o;
+  o.spp = 1;
+  xi::Renderer renderer(device, scene, o);
+  const xi::CompiledScene& kept = renderer.compiled();
+  EXPECT_TRUE(kept.tri_verts.empty() && kept.tri_normals.empty() && kept.tri_material.empty() &&
+              kept.tri_light_pdf.empty() && kept.bvh.nodes.empty() && kept.bvh.nodes8.empty() && kept.bvh.blocks.empty());
+  EXPECT_GT(kept.bvh.stats.references, 0u);
+
+  const xi::CompiledScene cs = xi::compile_scene(scene, kept.bvh.width, o.spatial_splits);
+  xi::Hasher h;
+  h.add(cs.tri_verts);
+  h.add(cs.tri_normals);
+  h.add(cs.tri_material);
+  h.add(cs.materials);
+  h.add(cs.light_cdf);
+  h.add(cs.light_tri);
+  h.add(cs.tri_light_pdf);
+  h.add(&cs.camera, sizeof cs.camera);
+  h.add(&cs.background, sizeof cs.background);
+  EXPECT_EQ(renderer.scene_hash(), h.h);
+
+  scene.triangles[0].v[0].x += 1.0f;  // a changed scene hashes otherwise
+  xi::Renderer moved(device, scene, o);
+  EXPECT_NE(moved.scene_hash(), h.h);
 }

@@ -3,6 +3,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstring>
 #include <filesystem>
 #include <fstream>
 #include <functional>
@@ -11,6 +12,12 @@
 #include <glm/glm.hpp>
 #include <nlohmann/json.hpp>
 
+#include <assimp/Importer.hpp>
+#include <assimp/postprocess.h>
+#include <assimp/scene.h>
+
+#include "scene/geometry.h"
+#include "scene/ply.h"
 #include "xi/compiled_scene.h"
 #include "xi/error.h"
 #include "xi/image.h"
@@ -588,6 +595,257 @@ TEST(MeshLimits, PlyCountsAgainstTheFileSize) {
                "vertices.ply: its header declares 2000000000 'vertex', 1 'face' elements, but the file has only");
   write_bytes(dir / "faces.ply", header("binary_little_endian", "3", "1000000000") + binary);
   expect_error([&] { parse(mesh_scene("faces.ply"), dir); }, "faces.ply: its header declares 3 'vertex', 1000000000 'face'");
+  fs::remove_all(dir);
+}
+
+// ---------------------------------------------------------------------------------------------
+// Binary PLY files of triangles, read without Assimp (scene/ply.h): the same triangles as
+// Assimp's reader gives, or, for any file outside what that reader takes, Assimp's as before.
+
+namespace {
+
+// One PLY property: its type as the header spells it and its name.
+struct PlyProperty {
+  std::string type, name;
+};
+
+// A value of a PLY type, in the byte order asked for.
+void put(std::string& out, const std::string& type, double v, bool big_endian) {
+  unsigned char b[8];
+  size_t n = 0;
+  auto raw = [&](auto x) {
+    n = sizeof(x);
+    std::memcpy(b, &x, n);
+  };
+  if (type == "char" || type == "int8") raw((int8_t)v);
+  else if (type == "uchar" || type == "uint8") raw((uint8_t)v);
+  else if (type == "short" || type == "int16") raw((int16_t)v);
+  else if (type == "ushort" || type == "uint16") raw((uint16_t)v);
+  else if (type == "int" || type == "int32") raw((int32_t)v);
+  else if (type == "uint" || type == "uint32") raw((uint32_t)v);
+  else if (type == "float" || type == "float32") raw((float)v);
+  else raw(v);
+  if (big_endian) std::reverse(b, b + n);
+  out.append(reinterpret_cast<const char*>(b), n);
+}
+
+// A binary PLY: vertices of `props` (one row of values each), faces as index lists of the given
+// count and index types; `extra` header lines go before the elements.
+std::string ply_bytes(bool big_endian, const std::vector<PlyProperty>& props, const std::vector<std::vector<double>>& vertices,
+                      const std::vector<std::vector<int64_t>>& faces, const std::string& count_type = "uchar",
+                      const std::string& index_type = "int", const std::string& extra = "") {
+  std::string s = std::string("ply\nformat binary_") + (big_endian ? "big" : "little") + "_endian 1.0\n" + extra +
+                  "element vertex " + std::to_string(vertices.size()) + "\n";
+  for (const PlyProperty& p : props) s += "property " + p.type + " " + p.name + "\n";
+  s += "element face " + std::to_string(faces.size()) + "\nproperty list " + count_type + " " + index_type +
+       " vertex_indices\nend_header\n";
+  for (const auto& v : vertices)
+    for (size_t k = 0; k < props.size(); ++k) put(s, props[k].type, v[k], big_endian);
+  for (const auto& f : faces) {
+    put(s, count_type, (double)f.size(), big_endian);
+    for (int64_t i : f) put(s, index_type, (double)i, big_endian);
+  }
+  return s;
+}
+
+// A small grid of w × h quads, two triangles each, with normals and texture coordinates that are
+// not trivially derived from the positions (values of every kind a type can hold).
+void grid(int w, int h, std::vector<std::vector<double>>* vertices, std::vector<std::vector<int64_t>>* faces) {
+  for (int y = 0; y <= h; ++y)
+    for (int x = 0; x <= w; ++x)
+      vertices->push_back({x * 1.25 - 3.0, 0.1 * x * y, y * 0.75 + 1.0 / 3.0, 0.3, 0.9, -0.1 * x, x / 7.0, 1.0 - y / 9.0, 200.0});
+  for (int y = 0; y < h; ++y)
+    for (int x = 0; x < w; ++x) {
+      const int64_t a = y * (w + 1) + x, b = a + 1, c = a + w + 1, d = c + 1;
+      faces->push_back({a, b, d});
+      faces->push_back({a, d, c});
+    }
+}
+
+// The triangles Assimp gives for a mesh file, as load_mesh reads them. (The files here have no two
+// vertices that aiProcess_JoinIdenticalVertices would merge: the two readers agree bit for bit.)
+std::vector<xi::Triangle> assimp_triangles(const fs::path& path) {
+  Assimp::Importer importer;
+  const aiScene* scene = importer.ReadFile(
+      path.string(), aiProcess_Triangulate | aiProcess_JoinIdenticalVertices | aiProcess_PreTransformVertices);
+  std::vector<xi::Triangle> out;
+  if (!scene) return out;
+  for (unsigned i = 0; i < scene->mNumMeshes; ++i) xi::scene_detail::mesh_triangles(*scene->mMeshes[i], 0, true, out);
+  return out;
+}
+
+// Field by field and bit for bit (NaN payloads and signed zeros too).
+void expect_same_triangles(const std::vector<xi::Triangle>& a, const std::vector<xi::Triangle>& b) {
+  ASSERT_EQ(a.size(), b.size());
+  for (size_t i = 0; i < a.size(); ++i) {
+    SCOPED_TRACE(testing::Message() << "triangle " << i);
+    EXPECT_EQ(std::memcmp(a[i].v, b[i].v, sizeof a[i].v), 0);
+    EXPECT_EQ(std::memcmp(a[i].n, b[i].n, sizeof a[i].n), 0);
+    EXPECT_EQ(std::memcmp(a[i].uv, b[i].uv, sizeof a[i].uv), 0);
+    EXPECT_EQ(std::memcmp(a[i].tangent, b[i].tangent, sizeof a[i].tangent), 0);
+    EXPECT_EQ(a[i].has_normals, b[i].has_normals);
+    EXPECT_EQ(a[i].material, b[i].material);
+  }
+}
+
+}  // namespace
+
+TEST(MeshPly, SameTrianglesAsAssimp) {
+  const fs::path dir = temp_dir();
+  std::vector<std::vector<double>> vertices;
+  std::vector<std::vector<int64_t>> faces;
+  grid(6, 5, &vertices, &faces);
+  const std::vector<PlyProperty> full = {{"float", "x"},  {"float", "y"}, {"float", "z"},     {"float", "nx"}, {"float", "ny"},
+                                         {"float", "nz"}, {"float", "u"}, {"float", "v"}, {"uchar", "red"}};
+  struct Case {
+    std::string name;
+    bool big_endian;
+    std::vector<PlyProperty> props;
+    std::string count_type = "uchar", index_type = "int", extra = "";
+  };
+  auto with = [&](std::vector<std::pair<size_t, PlyProperty>> changes) {
+    std::vector<PlyProperty> p = full;
+    for (auto& [k, prop] : changes) p[k] = prop;
+    return p;
+  };
+  const std::vector<Case> cases = {
+      {"plain", false, {full[0], full[1], full[2]}},
+      {"normals-uv-colour", false, full},
+      {"big-endian", true, full, "uint8", "uint32"},
+      {"doubles", false, with({{0, {"double", "x"}}, {1, {"float64", "y"}}, {2, {"double", "z"}}, {6, {"double", "s"}}, {7, {"double", "t"}}})},
+      {"integers", false, with({{0, {"short", "x"}}, {1, {"int8", "y"}}, {2, {"ushort", "z"}}, {3, {"char", "nx"}}})},
+      {"uv-names", true, with({{6, {"float", "texture_u"}}, {7, {"float", "texture_v"}}}), "uchar", "ushort"},
+      {"extra-properties", false, with({{8, {"float", "quality"}}}), "int", "uint", "comment made by hand\nobj_info none\n"},
+  };
+  for (const Case& c : cases) {
+    SCOPED_TRACE(c.name);
+    std::vector<std::vector<double>> v = vertices;
+    for (auto& row : v) row.resize(c.props.size());
+    const fs::path file = dir / (c.name + ".ply");
+    write_bytes(file, ply_bytes(c.big_endian, c.props, v, faces, c.count_type, c.index_type, c.extra));
+    const std::vector<xi::Triangle> reference = assimp_triangles(file);
+    ASSERT_EQ(reference.size(), faces.size());
+    std::vector<xi::Triangle> ours = {xi::Triangle{}};  // appended after what is there
+    ASSERT_TRUE(xi::scene_detail::read_binary_ply(file, true, ours));
+    ASSERT_EQ(ours.size(), 1 + faces.size());
+    ours.erase(ours.begin());
+    expect_same_triangles(ours, reference);
+  }
+  fs::remove_all(dir);
+}
+
+// Assimp's own PLY models: those this reader takes give Assimp's triangles.
+TEST(MeshPly, AssimpModels) {
+  const fs::path models = "/usr/share/assimp/models/PLY";
+  if (!fs::is_directory(models)) GTEST_SKIP() << models << " is missing: scripts/install-deps.sh installs assimp-testmodels";
+  size_t read = 0;
+  for (const auto& entry : fs::directory_iterator(models)) {
+    if (entry.path().extension() != ".ply") continue;
+    SCOPED_TRACE(entry.path().string());
+    std::vector<xi::Triangle> ours;
+    if (!xi::scene_detail::read_binary_ply(entry.path(), true, ours)) continue;
+    read++;
+    expect_same_triangles(ours, assimp_triangles(entry.path()));
+  }
+  EXPECT_GE(read, 1u);  // cube_binary.ply at least
+}
+
+// Whatever it does not take it leaves to Assimp, with `out` untouched, and the scene still loads.
+TEST(MeshPly, LeavesOtherFilesToAssimp) {
+  const fs::path dir = temp_dir();
+  const std::vector<PlyProperty> xyz = {{"float", "x"}, {"float", "y"}, {"float", "z"}};
+  const std::vector<std::vector<double>> quad = {{0, 0, 0}, {1, 0, 0}, {1, 1, 0}, {0, 1, 0}};
+  const std::vector<std::vector<int64_t>> tris = {{0, 1, 2}, {0, 2, 3}};
+  std::string crlf = ply_bytes(false, xyz, quad, tris);
+  crlf.replace(crlf.find("\nformat"), 1, "\r\n");
+  std::string with_edge = ply_bytes(false, xyz, quad, tris);
+  with_edge.insert(with_edge.find("end_header"), "element edge 0\nproperty int vertex1\nproperty int vertex2\n");
+  std::string face_flags = ply_bytes(false, xyz, quad, {});
+  face_flags.replace(face_flags.find("element face 0"), 14, "element face 1");
+  face_flags.insert(face_flags.find("end_header"), "property uchar flags\n");
+  put(face_flags, "uchar", 3, false);
+  for (int i : {0, 1, 2}) put(face_flags, "int", i, false);
+  put(face_flags, "uchar", 7, false);
+  const std::string short_file = ply_bytes(false, xyz, quad, tris);
+  const struct {
+    std::string name, bytes;
+    size_t triangles;  // what the scene gets through Assimp
+  } cases[] = {
+      {"ascii", "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\n"
+                "element face 1\nproperty list uchar int vertex_indices\nend_header\n0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n", 1},
+      {"quad", ply_bytes(false, xyz, quad, {{0, 1, 2, 3}}), 2},
+      {"mixed", ply_bytes(true, xyz, quad, {{0, 1, 2}, {0, 1, 2, 3}}), 3},
+      {"crlf", crlf, 2},
+      {"edge", with_edge, 2},
+      {"face-flags", face_flags, 1},
+      {"index-type-float", ply_bytes(false, xyz, quad, tris, "uchar", "float"), 2},
+  };
+  for (const auto& c : cases) {
+    SCOPED_TRACE(c.name);
+    write_bytes(dir / (c.name + ".ply"), c.bytes);
+    std::vector<xi::Triangle> out(3);
+    EXPECT_FALSE(xi::scene_detail::read_binary_ply(dir / (c.name + ".ply"), true, out));
+    EXPECT_EQ(out.size(), 3u);
+    EXPECT_EQ(parse(mesh_scene(c.name + ".ply"), dir).triangles.size(), c.triangles);
+  }
+  // An index out of range, a file cut short: declined after reading part of it, `out` as it was.
+  write_bytes(dir / "bad-index.ply", ply_bytes(false, xyz, quad, {{0, 1, 2}, {0, 2, 4}}));
+  write_bytes(dir / "negative-index.ply", ply_bytes(false, xyz, quad, {{0, 1, 2}, {0, -1, 3}}));
+  write_bytes(dir / "short.ply", short_file.substr(0, short_file.size() - 1));
+  for (const char* name : {"bad-index.ply", "negative-index.ply", "short.ply"}) {
+    SCOPED_TRACE(name);
+    std::vector<xi::Triangle> out(3);
+    EXPECT_FALSE(xi::scene_detail::read_binary_ply(dir / name, true, out));
+    EXPECT_EQ(out.size(), 3u);
+  }
+  fs::remove_all(dir);
+}
+
+// A PLY mesh among other shapes: the scene's triangles in the shapes' order, each with its
+// material, the mesh's transform applied and its degenerate triangles dropped, as through Assimp.
+TEST(MeshPly, InASceneBetweenOtherShapes) {
+  const fs::path dir = temp_dir();
+  std::vector<std::vector<double>> vertices;
+  std::vector<std::vector<int64_t>> faces;
+  grid(4, 3, &vertices, &faces);
+  faces.push_back({0, 0, 1});  // degenerate: dropped
+  const std::vector<PlyProperty> props = {{"float", "x"},  {"float", "y"}, {"float", "z"}, {"float", "nx"},
+                                          {"float", "ny"}, {"float", "nz"}, {"float", "u"}, {"float", "v"}};
+  for (auto& row : vertices) row.resize(props.size());
+  write_bytes(dir / "grid.ply", ply_bytes(false, props, vertices, faces));
+  // The same grid as an OBJ, which Assimp reads.
+  std::ofstream obj(dir / "grid.obj");
+  obj.precision(17);
+  for (const auto& v : vertices) obj << "v " << (float)v[0] << " " << (float)v[1] << " " << (float)v[2] << "\n";
+  obj.close();
+  const std::string materials = R"("materials": {"a": {"type": "diffuse", "albedo": [0.5, 0.5, 0.5]},
+      "b": {"type": "diffuse", "albedo": [0.2, 0.2, 0.2]}})";
+  auto scene = [&](const std::string& file) {
+    return scene_text(R"({"type": "quad", "material": "a", "vertices": [[0,0,0], [1,0,0], [1,1,0], [0,1,0]]},
+        {"type": "mesh", "material": "b", "file": ")" + file + R"(", "transform": {"scale": 2, "translate": [1, 2, 3]}},
+        {"type": "triangle", "material": "a", "vertices": [[0,0,5], [1,0,5], [0,1,5]]})", materials);
+  };
+  const xi::Scene s = parse(scene("grid.ply"), dir);
+  const size_t mesh = faces.size() - 1;
+  ASSERT_EQ(s.triangles.size(), 2 + mesh + 1);
+  const uint32_t a = s.triangles[0].material, b = s.triangles[2].material;
+  EXPECT_NE(a, b);
+  for (size_t i = 0; i < s.triangles.size(); ++i)
+    EXPECT_EQ(s.triangles[i].material, i >= 2 && i < 2 + mesh ? b : a) << "triangle " << i;
+  EXPECT_EQ(s.triangles.back().v[0], glm::vec3(0, 0, 5));
+  EXPECT_TRUE(s.triangles[2].has_normals);
+  // The positions Assimp gives for the same vertices in an OBJ, after the same transform.
+  std::vector<std::vector<int64_t>> obj_faces = faces;
+  obj_faces.pop_back();
+  std::ofstream(dir / "grid.obj", std::ios::app) << [&] {
+    std::string f;
+    for (const auto& t : obj_faces) f += "f " + std::to_string(t[0] + 1) + " " + std::to_string(t[1] + 1) + " " + std::to_string(t[2] + 1) + "\n";
+    return f;
+  }();
+  const xi::Scene through_assimp = parse(scene("grid.obj"), dir);
+  ASSERT_EQ(through_assimp.triangles.size(), s.triangles.size());
+  for (size_t i = 2; i < 2 + mesh; ++i)
+    for (int k = 0; k < 3; ++k) EXPECT_EQ(s.triangles[i].v[k], through_assimp.triangles[i].v[k]) << "triangle " << i;
   fs::remove_all(dir);
 }
 

@@ -32,9 +32,11 @@ struct Bvh {
 };
 
 // spatial_splits: let a triangle be split between subtrees where that tightens their boxes (the
-// default); without them every triangle is in exactly one leaf and every box is exactly the
-// bounds of what it holds. threads: the cores to build on (0: all the machine has); subtrees are
-// built on threads of their own, and the tree is the same, byte for byte, for any number.
+// default; not tried where every triangle of a node is smaller than a sixteenth of it); without
+// them every triangle is in exactly one leaf and every box is exactly the bounds of what it holds.
+// threads: the cores to build on (0: all the machine has); subtrees are built, planned and laid
+// out on threads of their own, the passes of the nodes above them shared out, and the tree is the
+// same, byte for byte, for any number.
 Bvh build_bvh(const std::vector<Triangle>& triangles, int width = 4, bool spatial_splits = true,
               unsigned threads = 0);
 

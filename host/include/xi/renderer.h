@@ -171,7 +171,11 @@ class Renderer {
   // Whether the scene's own shading program is building in the background; waiting takes it.
   bool scene_shading_pending() const { return pending_shading_.valid(); }
   void wait_for_scene_shading();
+  // The scene as compiled. Its per-triangle arrays, BVH nodes and blocks and texels are empty: they
+  // are freed on the host once uploaded (their counts are in bvh.stats).
   const CompiledScene& compiled() const { return scene_; }
+  // FNV-1a of the compiled geometry, materials, lights and camera (checkpoints' scene_hash).
+  uint64_t scene_hash() const;
   const RenderOptions& options() const { return options_; }
   uint64_t extend_rays() const { return extend_rays_; }
   uint64_t shadow_rays() const { return shadow_rays_; }

@@ -3,15 +3,20 @@
 #include "xi/bvh.h"
 
 #include <algorithm>
+#include <atomic>
 #include <cfloat>
 #include <cmath>
 #include <chrono>
+#include <cstddef>
+#include <cstdlib>
 #include <cstring>
 #include <future>
+#include <memory>
 #include <glm/gtc/type_ptr.hpp>
 #include <span>
 #include <string>
 #include <thread>
+#include <type_traits>
 
 #include "traverse.h"
 #include "xi/error.h"
@@ -43,6 +48,7 @@ constexpr size_t kMinBinaryLeaf = 2;
 constexpr float kSpatialOverlap = 1e-5f;
 constexpr double kMaxReferences = 2.0;
 constexpr size_t kForkMin = 4096;  // references below which a subtree is not worth a thread
+constexpr size_t kParallelMin = 1 << 17;  // references per thread, at least, where one node's passes share them out
 
 struct Box {
   glm::vec3 lo{INFINITY}, hi{-INFINITY};
@@ -62,6 +68,114 @@ struct Ref {
   uint32_t tri;
   Box box;
 };
+static_assert(std::is_trivially_copyable_v<Ref> && std::is_trivially_destructible_v<Ref>, "kept in raw storage");
+
+// An array of n T's, uninitialised: malloc's pages are mapped only as they are written.
+struct Free {
+  void operator()(void* p) const { std::free(p); }
+};
+template <class T>
+using RawArray = std::unique_ptr<T[], Free>;
+template <class T>
+RawArray<T> raw_array(size_t n) {
+  T* p = static_cast<T*>(std::malloc(std::max<size_t>(n, 1) * sizeof(T)));
+  if (!p) throw std::bad_alloc();
+  return RawArray<T>(p);
+}
+
+// Runs work(begin, end, part) on `parts` contiguous stretches of [0, n), each on a thread of its
+// own but the last, which the calling thread takes.
+template <class Work>
+void parallel_chunks(size_t n, unsigned parts, const Work& work) {
+  std::vector<std::thread> pool;
+  for (unsigned p = 0; p + 1 < parts; ++p) pool.emplace_back(work, n * p / parts, n * (p + 1) / parts, p);
+  work(n * (parts - 1) / parts, n, parts - 1);
+  for (std::thread& t : pool) t.join();
+}
+
+// What each part of a pass over a node's references gathers, for `parts` parts: no allocation for
+// one part (most nodes).
+template <class T>
+struct Parts {
+  T first;
+  std::vector<T> more;
+  explicit Parts(unsigned parts) : more(parts - 1) {}
+  T& operator[](unsigned part) { return part == 0 ? first : more[part - 1]; }
+  unsigned size() const { return 1 + (unsigned)more.size(); }
+};
+
+// Runs work(i) for i in [0, n) on up to `threads` threads, each taking the next i as it is free
+// (for tasks of uneven sizes; each writes only its own results).
+template <class Work>
+void on_threads(size_t n, unsigned threads, const Work& work) {
+  std::atomic<size_t> next{0};
+  auto run = [&] {
+    for (size_t i; (i = next++) < n;) work(i);
+  };
+  std::vector<std::future<void>> pool;
+  for (unsigned t = 1; t < std::min<size_t>(threads, n); ++t) pool.push_back(std::async(std::launch::async, run));
+  run();
+  for (auto& f : pool) f.get();
+}
+
+// The binning loops' boxes, as 4-lane vectors (GCC and Clang vector extensions; the fourth lane
+// unused): a box grows by two vector min/max instead of six scalar ones, the build's commonest
+// step. The same comparisons as Box::grow (glm::min, glm::max), so the same bits.
+typedef float Vec4 __attribute__((vector_size(16)));
+constexpr Vec4 kInf4 = {INFINITY, INFINITY, INFINITY, INFINITY};
+struct Box4 {
+  Vec4 lo = kInf4, hi = -kInf4;
+  void grow(Vec4 l, Vec4 h) { lo = l < lo ? l : lo, hi = hi < h ? h : hi; }
+  void grow(const Box4& b) { grow(b.lo, b.hi); }
+  Box box() const { return Box{glm::vec3(lo[0], lo[1], lo[2]), glm::vec3(hi[0], hi[1], hi[2])}; }
+};
+Vec4 vec4_of(const glm::vec3& v) { return Vec4{v.x, v.y, v.z, 0.0f}; }
+// A reference's box corners as vectors, read from within the reference (lanes 3 unused).
+Vec4 lo_of(const Ref& r) {
+  Vec4 v;
+  std::memcpy(&v, reinterpret_cast<const char*>(&r) + offsetof(Ref, box), sizeof v);  // lo xyz, hi x
+  return v;
+}
+Vec4 hi_of(const Ref& r) {
+  Vec4 v;
+  std::memcpy(&v, reinterpret_cast<const char*>(&r) + offsetof(Ref, box) + 2 * sizeof(float), sizeof v);  // lo z, hi xyz
+  return __builtin_shufflevector(v, v, 1, 2, 3, 0);
+}
+static_assert(sizeof(Ref) == offsetof(Ref, box) + 6 * sizeof(float), "the vector loads stay within a reference");
+
+// What a node needs to know of its references before it splits them: the bounds of their boxes and
+// of their centroids, and the largest box's extent on each axis. Gathered while the parent shares
+// them out (a pass over every node's references saved), in the order of one pass over them: min
+// and max do not round, so the bounds are that pass's to the bit.
+struct Bounds {
+  Box box, centroids;
+  glm::vec3 largest{0.0f};
+  void grow(const Bounds& b) { box.grow(b.box), centroids.grow(b.centroids), largest = glm::max(largest, b.largest); }
+};
+
+// Bounds as they grow, reference by reference.
+struct BoundsAcc {
+  Box4 box, centroids;
+  Vec4 largest = {0.0f, 0.0f, 0.0f, 0.0f};
+  void grow(const Ref& r) {
+    const Vec4 lo = lo_of(r), hi = hi_of(r), c = 0.5f * (lo + hi), d = hi - lo;  // as Box::centre()
+    box.grow(lo, hi), centroids.grow(c, c);
+    largest = largest < d ? d : largest;
+  }
+  void grow(const BoundsAcc& b) {
+    box.grow(b.box), centroids.grow(b.centroids);
+    largest = largest < b.largest ? b.largest : largest;
+  }
+  Bounds bounds() const {
+    return Bounds{box.box(), centroids.box(), glm::vec3(largest[0], largest[1], largest[2])};
+  }
+};
+
+Bounds bounds_of(const Ref* refs, size_t count) {
+  BoundsAcc b;
+  for (size_t i = 0; i < count; ++i) b.grow(refs[i]);
+  return b.bounds();
+}
 
 // Where edge p–q crosses the plane p[axis] = at, if it does (an endpoint on the plane is no
 // crossing); the point's coordinate on `axis` is exactly `at`, the others rounded.
@@ -117,15 +231,28 @@ struct Builder {
   std::vector<BinaryNode> nodes{1};  // the root first
   std::vector<uint32_t> leaf_tris;   // the leaves' triangles (scene indices), leaf after leaf
   size_t forks = 0;                  // subtrees built on threads of their own, below this one
+  // A subtree built on a thread of its own for node r here, when `nodes_at` nodes and
+  // `leaves_at` leaf triangles had been built here: put in its place by flatten(), once, at the end
+  // (taking each one in at its fork copied the deep ones once per level).
+  struct Graft {
+    uint32_t r;
+    size_t nodes_at, leaves_at;
+    std::unique_ptr<Builder> sub;
+  };
+  std::vector<Graft> grafts;
   enum class Side : uint8_t { Left, Right, Both };
   struct Straddler {
     Box left, right;  // the clipped parts on each side of the plane
     Side side;        // where the reference goes
+    size_t at;        // its place among the node's references
   };
   std::vector<Straddler> straddlers;  // a spatial split's, in the order of its references
+  std::vector<size_t> part_sides;     // per part of decide_spatial's pass: the references wholly left, wholly right
 
-  Builder(const std::vector<Triangle>& triangles, bool splits, float area, Ref* all, Ref* spare)
-      : tris(triangles), spatial_splits(splits), root_area(area), refs(all), scratch(spare) {}
+  const unsigned threads;             // the build's; a node at depth d bins on threads >> d of them
+
+  Builder(const std::vector<Triangle>& triangles, bool splits, float area, Ref* all, Ref* spare, unsigned cores)
+      : tris(triangles), spatial_splits(splits), root_area(area), refs(all), scratch(spare), threads(cores) {}
 
   struct Split {
     float cost = INFINITY;  // SAH area × blocks of the two sides
@@ -185,21 +312,46 @@ struct Builder {
     }
   }
 
+  // The bins of a pass over part of a node's references. The parts' bins are merged in order, and
+  // min and max do not round, so they are those of one pass over them all.
+  struct ObjectBins {
+    Box4 box[3][kBins];
+    size_t count[3][kBins] = {};
+  };
+  struct SpatialBins {
+    Box4 box[3][kBins];
+    size_t enters[3][kBins] = {}, exits[3][kBins] = {};
+  };
+
   // Binned SAH over the centroids of the references' boxes; *overlap gets the area where the
   // best split's two boxes overlap.
-  Split object_split(std::span<const Ref> refs, const Box& cbox, float* overlap) {
+  Split object_split(std::span<const Ref> refs, const Box& cbox, float* overlap, unsigned parts) {
     Split best;
     // One pass over the references bins all three axes.
     const glm::vec3 scale = bin_scale(cbox);
+    const Vec4 origin = vec4_of(cbox.lo), scale4 = vec4_of(scale);
+    Parts<ObjectBins> part_bins(parts);
+    parallel_chunks(refs.size(), parts, [&](size_t begin, size_t end, unsigned part) {
+      ObjectBins& bins = part_bins[part];
+      for (size_t i = begin; i < end; ++i) {
+        const Ref& r = refs[i];
+        const Vec4 lo = lo_of(r), hi = hi_of(r), at = (0.5f * (lo + hi) - origin) * scale4;  // centroid_bin's
+        for (int axis = 0; axis < 3; ++axis) {
+          const int b = std::min(kBins - 1, (int)at[axis]);
+          bins.box[axis][b].grow(lo, hi);
+          bins.count[axis][b]++;
+        }
+      }
+    });
     Box bins[3][kBins];
     size_t counts[3][kBins] = {};
-    for (const Ref& r : refs) {
-      for (int axis = 0; axis < 3; ++axis) {
-        int b = centroid_bin(r, axis, cbox, scale);
-        bins[axis][b].grow(r.box);
-        counts[axis][b]++;
+    for (int axis = 0; axis < 3; ++axis)
+      for (int b = 0; b < kBins; ++b) {
+        Box4 merged;
+        for (unsigned p = 0; p < part_bins.size(); ++p)
+          merged.grow(part_bins[p].box[axis][b]), counts[axis][b] += part_bins[p].count[axis][b];
+        bins[axis][b] = merged.box();
       }
-    }
     for (int axis = 0; axis < 3; ++axis) {
       if (scale[axis] == 0.0f) continue;
       sweep(bins[axis], counts[axis], counts[axis],
@@ -244,45 +396,27 @@ struct Builder {
   }
 
   // Binned SAH over planes through the node's box, each reference clipped into the bins it spans.
-  Split spatial_split(std::span<const Ref> refs, const Box& box, size_t budget) {
+  Split spatial_split(std::span<const Ref> refs, const Box& box, size_t budget, unsigned parts) const {
     // One pass over the references bins all three axes.
     const glm::vec3 scale = bin_scale(box);
     float planes[3][kBins + 1];  // computed once: recomputing them in bin_in took most of this pass
     for (int axis = 0; axis < 3; ++axis)
       for (int b = 0; b <= kBins; ++b) planes[axis][b] = plane(box, axis, b);
+    Parts<SpatialBins> part_bins(parts);
+    parallel_chunks(refs.size(), parts, [&](size_t begin, size_t end, unsigned part) {
+      bin_spatial(refs.subspan(begin, end - begin), box, scale, planes, part_bins[part]);
+    });
     Box bins[3][kBins];
     size_t enters[3][kBins] = {}, exits[3][kBins] = {};
-    for (const Ref& r : refs) {
-      for (int axis = 0; axis < 3; ++axis) {
-        if (scale[axis] == 0.0f) continue;
-        Box* bin_box = bins[axis];
-        const float* at = planes[axis];
-        auto bin_of = [&](float x) { return bin_in(at, box.lo[axis], scale[axis], x); };
-        int first = bin_of(r.box.lo[axis]), last = bin_of(r.box.hi[axis]);
-        enters[axis][first]++;
-        exits[axis][last]++;
-        if (first == last) {
-          bin_box[first].grow(r.box);
-          continue;
+    for (int axis = 0; axis < 3; ++axis)
+      for (int b = 0; b < kBins; ++b) {
+        Box4 merged;
+        for (unsigned p = 0; p < part_bins.size(); ++p) {
+          const SpatialBins& pb = part_bins[p];
+          merged.grow(pb.box[axis][b]), enters[axis][b] += pb.enters[axis][b], exits[axis][b] += pb.exits[axis][b];
         }
-        // Only the costs need these boxes (partition_spatial clips the references it splits), so
-        // each bin gets the vertices and edge crossings of its planes, clamped to the reference's
-        // box and unwidened: each crossing computed once, for the two bins it bounds.
-        const Triangle& t = tris[r.tri];
-        for (const glm::vec3& p : t.v) {
-          int b = bin_of(p[axis]);
-          if (b >= first && b <= last) bin_box[b].grow(glm::clamp(p, r.box.lo, r.box.hi));
-        }
-        for (int b = first + 1; b <= last; ++b) {
-          for (int i = 0; i < 3; ++i) {
-            glm::vec3 x;
-            if (!edge_crossing(t.v[i], t.v[(i + 1) % 3], axis, at[b], &x)) continue;
-            x = glm::clamp(x, r.box.lo, r.box.hi);  // (x[axis] = at stays: the box spans the plane)
-            bin_box[b - 1].grow(x), bin_box[b].grow(x);
-          }
-        }
+        bins[axis][b] = merged.box();
       }
-    }
     Split best;
     for (int axis = 0; axis < 3; ++axis) {
       if (scale[axis] == 0.0f) continue;
@@ -293,6 +427,47 @@ struct Builder {
             });
     }
     return best;
+  }
+
+  // Bins references into spatial bins: each clipped into the bins it spans.
+  void bin_spatial(std::span<const Ref> refs, const Box& box, const glm::vec3& scale, const float (*planes)[kBins + 1],
+                   SpatialBins& out) const {
+    Box4 (&bins4)[3][kBins] = out.box;
+    size_t (&enters)[3][kBins] = out.enters;
+    size_t (&exits)[3][kBins] = out.exits;
+    for (const Ref& r : refs) {
+      const Vec4 lo = lo_of(r), hi = hi_of(r);
+      for (int axis = 0; axis < 3; ++axis) {
+        if (scale[axis] == 0.0f) continue;
+        Box4* bin_box = bins4[axis];
+        const float* at = planes[axis];
+        auto bin_of = [&](float x) { return bin_in(at, box.lo[axis], scale[axis], x); };
+        int first = bin_of(r.box.lo[axis]), last = bin_of(r.box.hi[axis]);
+        enters[axis][first]++;
+        exits[axis][last]++;
+        if (first == last) {
+          bin_box[first].grow(lo, hi);
+          continue;
+        }
+        // Only the costs need these boxes (partition_spatial clips the references it splits), so
+        // each bin gets the vertices and edge crossings of its planes, clamped to the reference's
+        // box and unwidened: each crossing computed once, for the two bins it bounds.
+        const Triangle& t = tris[r.tri];
+        auto grow = [](Box4& bin, const glm::vec3& p) { bin.grow(vec4_of(p), vec4_of(p)); };
+        for (const glm::vec3& p : t.v) {
+          int b = bin_of(p[axis]);
+          if (b >= first && b <= last) grow(bin_box[b], glm::clamp(p, r.box.lo, r.box.hi));
+        }
+        for (int b = first + 1; b <= last; ++b) {
+          for (int i = 0; i < 3; ++i) {
+            glm::vec3 x;
+            if (!edge_crossing(t.v[i], t.v[(i + 1) % 3], axis, at[b], &x)) continue;
+            x = glm::clamp(x, r.box.lo, r.box.hi);  // (x[axis] = at stays: the box spans the plane)
+            grow(bin_box[b - 1], x), grow(bin_box[b], x);
+          }
+        }
+      }
+    }
   }
 
   // The spatial bin of coordinate x: the b with planes[b] ≤ x < planes[b + 1], by the same planes
@@ -313,29 +488,45 @@ struct Builder {
 
   // Where a spatial split sends each reference that straddles its plane: to both sides, clipped,
   // unless putting it whole into one side costs less (Stich et al.'s unsplitting). Fills
-  // `straddlers` in order; *nl, *nr get the sides' reference counts.
-  void decide_spatial(std::span<const Ref> refs, const Box& box, const Split& s, size_t* nl, size_t* nr) {
+  // `straddlers` in order; *nl, *nr get the sides' reference counts. The pass that finds them is
+  // shared out to `parts` threads.
+  void decide_spatial(std::span<const Ref> refs, const Box& box, const Split& s, unsigned parts, size_t* nl, size_t* nr) {
     const float at = plane(box, s.axis, s.bin);
+    struct Part {
+      Box4 lbox, rbox;
+      size_t left_only = 0, right_only = 0;
+      std::vector<Straddler> straddlers;
+    };
+    Parts<Part> part(parts);
+    // Both sides' clipped parts first, so that the unsplitting test sees the sides' full extent.
+    parallel_chunks(refs.size(), parts, [&](size_t begin, size_t end, unsigned p) {
+      Part& q = part[p];
+      for (size_t i = begin; i < end; ++i) {
+        const Ref& r = refs[i];
+        switch (side_of(r, s.axis, at)) {
+          case Side::Left: q.left_only++, q.lbox.grow(lo_of(r), hi_of(r)); break;
+          case Side::Right: q.right_only++, q.rbox.grow(lo_of(r), hi_of(r)); break;
+          case Side::Both: {
+            const Straddler& st = q.straddlers.emplace_back(Straddler{clip(tris[r.tri], s.axis, -INFINITY, at, r.box),
+                                                                      clip(tris[r.tri], s.axis, at, INFINITY, r.box), Side::Both, i});
+            q.lbox.grow(vec4_of(st.left.lo), vec4_of(st.left.hi)), q.rbox.grow(vec4_of(st.right.lo), vec4_of(st.right.hi));
+            break;
+          }
+        }
+      }
+    });
     Box lbox, rbox;
     size_t left_only = 0, right_only = 0;
-    straddlers.clear();
-    // Both sides' clipped parts first, so that the unsplitting test sees the sides' full extent.
-    for (const Ref& r : refs) {
-      switch (side_of(r, s.axis, at)) {
-        case Side::Left: left_only++, lbox.grow(r.box); break;
-        case Side::Right: right_only++, rbox.grow(r.box); break;
-        case Side::Both:
-          straddlers.push_back(Straddler{clip(tris[r.tri], s.axis, -INFINITY, at, r.box),
-                                         clip(tris[r.tri], s.axis, at, INFINITY, r.box), Side::Both});
-          lbox.grow(straddlers.back().left), rbox.grow(straddlers.back().right);
-          break;
-      }
+    straddlers.clear(), part_sides.clear();
+    for (unsigned p = 0; p < parts; ++p) {
+      lbox.grow(part[p].lbox.box()), rbox.grow(part[p].rbox.box());
+      left_only += part[p].left_only, right_only += part[p].right_only;
+      part_sides.push_back(part[p].left_only), part_sides.push_back(part[p].right_only);
+      straddlers.insert(straddlers.end(), part[p].straddlers.begin(), part[p].straddlers.end());
     }
     *nl = left_only + straddlers.size(), *nr = right_only + straddlers.size();
-    size_t k = 0;
-    for (const Ref& r : refs) {
-      if (side_of(r, s.axis, at) != Side::Both) continue;
-      Straddler& st = straddlers[k++];
+    for (Straddler& st : straddlers) {
+      const Ref& r = refs[st.at];
       Box lwhole = lbox, rwhole = rbox;
       lwhole.grow(r.box), rwhole.grow(r.box);
       float both = lbox.area() * *nl + rbox.area() * *nr;
@@ -351,37 +542,92 @@ struct Builder {
 
   // Writes a spatial split's left references from the start of `refs` and its right ones from
   // `right`, as decide_spatial decided: on each side, those wholly on it first, then the
-  // straddlers, in the given order. `spare`: room for a copy of `refs`.
-  void partition_spatial(std::span<Ref> refs, Ref* spare, Ref* right, const Box& box, const Split& s) {
+  // straddlers, in the given order; *lb, *rb get their bounds. `spare`: room for a copy of `refs`.
+  // The references wholly on one side are written on decide_spatial's `parts` threads.
+  void partition_spatial(std::span<Ref> refs, Ref* spare, Ref* right, const Box& box, const Split& s, unsigned parts,
+                         Bounds* lb, Bounds* rb) {
     const std::span<const Ref> given(spare, refs.size());
-    std::copy(refs.begin(), refs.end(), spare);
     const float at = plane(box, s.axis, s.bin);
-    Ref* left = refs.data();
-    for (const Ref& r : given) {
-      const Side side = side_of(r, s.axis, at);
-      if (side == Side::Left) *left++ = r;
-      else if (side == Side::Right) *right++ = r;
-    }
-    size_t k = 0;
-    for (const Ref& r : given) {
-      if (side_of(r, s.axis, at) != Side::Both) continue;
-      const Straddler& st = straddlers[k++];
+    Parts<BoundsAcc> la(parts), ra(parts);
+    parallel_chunks(refs.size(), parts, [&](size_t begin, size_t end, unsigned) {
+      std::copy(refs.begin() + (ptrdiff_t)begin, refs.begin() + (ptrdiff_t)end, spare + begin);
+    });
+    parallel_chunks(refs.size(), parts, [&](size_t begin, size_t end, unsigned p) {
+      size_t to_left = 0, to_right = 0;  // where part p's go: after the parts before it
+      for (unsigned q = 0; q < p; ++q) to_left += part_sides[2 * q], to_right += part_sides[2 * q + 1];
+      for (size_t i = begin; i < end; ++i) {
+        const Ref& r = given[i];
+        const Side side = side_of(r, s.axis, at);
+        if (side == Side::Left) refs[to_left++] = r, la[p].grow(r);
+        else if (side == Side::Right) right[to_right++] = r, ra[p].grow(r);
+      }
+    });
+    BoundsAcc& l = la[0];
+    BoundsAcc& rr = ra[0];
+    for (unsigned p = 1; p < parts; ++p) l.grow(la[p]), rr.grow(ra[p]);
+    size_t left = 0, right_n = 0;
+    for (unsigned p = 0; p < parts; ++p) left += part_sides[2 * p], right_n += part_sides[2 * p + 1];
+    for (const Straddler& st : straddlers) {
+      const Ref& r = given[st.at];
       switch (st.side) {
-        case Side::Left: *left++ = r; break;
-        case Side::Right: *right++ = r; break;
-        case Side::Both: *left++ = Ref{r.tri, st.left}, *right++ = Ref{r.tri, st.right}; break;
+        case Side::Left: refs[left++] = r, l.grow(r); break;
+        case Side::Right: right[right_n++] = r, rr.grow(r); break;
+        case Side::Both:
+          refs[left++] = Ref{r.tri, st.left}, l.grow(refs[left - 1]);
+          right[right_n++] = Ref{r.tri, st.right}, rr.grow(right[right_n - 1]);
+          break;
       }
     }
+    *lb = l.bounds(), *rb = rr.bounds();
   }
 
-  // Builds the subtree of `node` over refs[first, first + count); its spatial splits may add at
-  // most `budget` references. The budget is shared out between the children by their sizes, not
-  // spent first come first served, so that the left subtree cannot starve the right.
-  // Below `fork_levels` levels from here, the right child is built on a thread of its own.
-  void build(size_t node, size_t first, size_t count, int depth, size_t budget, int fork_levels) {
+  // Whether every reference is smaller on every axis than a spatial bin along the node's longest
+  // side. Then a plane cuts only references that small, and clipping them moves the children's
+  // boxes by less than that, which an object split's boxes already come within: the spatial
+  // split is not tried (a mesh of millions of small triangles spent most of its build there).
+  static bool all_small(const glm::vec3& largest, const Box& box) {
+    const glm::vec3 extent = box.hi - box.lo;
+    const float bin = std::max({extent.x, extent.y, extent.z}) * (1.0f / kBins);
+    return largest.x <= bin && largest.y <= bin && largest.z <= bin;
+  }
+
+  // An object split's partition on `parts` threads, stable as the one-thread loop in build(): each
+  // part counts the references it sends left, then writes both sides at the offsets those counts
+  // give, into scratch (the right ones first, as build() expects them; the left ones after them),
+  // and the left ones are copied back in place.
+  void partition_object(std::span<Ref> span, size_t first, const Split& best, const Box& cbox, unsigned parts, size_t* nl,
+                        size_t* nr, Bounds* lb, Bounds* rb) {
+    const glm::vec3 scale = bin_scale(cbox);
+    auto left = [&](const Ref& r) { return centroid_bin(r, best.axis, cbox, scale) < best.bin; };
+    std::vector<size_t> lefts(parts + 1, 0);  // lefts[p + 1]: part p's
+    parallel_chunks(span.size(), parts, [&](size_t begin, size_t end, unsigned part) {
+      for (size_t i = begin; i < end; ++i) lefts[part + 1] += left(span[i]);
+    });
+    for (unsigned p = 0; p < parts; ++p) lefts[p + 1] += lefts[p];
+    *nl = lefts[parts], *nr = span.size() - *nl;
+    std::vector<BoundsAcc> la(parts), ra(parts);
+    parallel_chunks(span.size(), parts, [&](size_t begin, size_t end, unsigned part) {
+      Ref* to_left = scratch + first + *nr + lefts[part];
+      Ref* to_right = scratch + first + (begin - lefts[part]);
+      for (size_t i = begin; i < end; ++i) {
+        const Ref& r = span[i];
+        if (left(r)) *to_left++ = r, la[part].grow(r);
+        else *to_right++ = r, ra[part].grow(r);
+      }
+    });
+    std::copy(scratch + first + *nr, scratch + first + span.size(), span.begin());
+    *lb = Bounds(), *rb = Bounds();
+    for (unsigned p = 0; p < parts; ++p) lb->grow(la[p].bounds()), rb->grow(ra[p].bounds());
+  }
+
+  // Builds the subtree of `node` over refs[first, first + count), whose bounds are `bounds`; its
+  // spatial splits may add at most `budget` references. The budget is shared out between the
+  // children by their sizes, not spent first come first served, so that the left subtree cannot
+  // starve the right. Below `fork_levels` levels from here, the right child is built on a thread
+  // of its own.
+  void build(size_t node, size_t first, size_t count, int depth, size_t budget, int fork_levels, const Bounds& bounds) {
     const std::span<Ref> span(refs + first, count);
-    Box box, cbox;
-    for (const Ref& r : span) box.grow(r.box), cbox.grow(r.box.centre());
+    const Box &box = bounds.box, &cbox = bounds.centroids;
     nodes[node].box = box;
     // Down to pairs: which subtrees become leaves is the collapse's choice, by the costs of the
     // wide tree.
@@ -390,15 +636,18 @@ struct Builder {
     Split best;
     Ref sorted[kMaxLeaf];  // an exact split's order
     const bool exact = count <= kMaxLeaf;
+    // The top of the tree, before the forks give every core a subtree: its passes over the
+    // references on several threads, a part each (the results are those of one pass).
+    const unsigned parts = (unsigned)std::clamp<size_t>(count / kParallelMin, 1, std::max(1u, threads >> std::min(depth, 31)));
     if (depth < kMaxSahDepth && exact) {
       best = exact_split(span, sorted);
     } else if (depth < kMaxSahDepth) {
       float overlap = 0.0f;
-      best = object_split(span, cbox, &overlap);
+      best = object_split(span, cbox, &overlap, parts);
       // Not among a leaf's few references (above), which the collapse may well put in one leaf
       // (the engine's build 0.28 → 0.20 s).
-      if (spatial_splits && budget > 0 && overlap > kSpatialOverlap * root_area) {
-        Split spatial = spatial_split(span, box, budget);
+      if (spatial_splits && budget > 0 && overlap > kSpatialOverlap * root_area && !all_small(bounds.largest, box)) {
+        Split spatial = spatial_split(span, box, budget, parts);
         if (spatial.cost < best.cost) best = spatial;
       }
     }
@@ -409,18 +658,24 @@ struct Builder {
     // The children's references: left ones in order at `first`, right ones in order after the
     // left subtree's budget, each side's straddlers after the rest.
     size_t nl = 0, nr = 0;
+    Bounds lb, rb;  // the children's
     if (best.spatial) {
-      decide_spatial(span, box, best, &nl, &nr);
+      decide_spatial(span, box, best, parts, &nl, &nr);
     } else if (exact && best.axis >= 0) {  // the first best.bin in their sorted order go left
       nl = (size_t)best.bin, nr = count - nl;
       std::copy(sorted, sorted + nl, span.begin());
       std::copy(sorted + nl, sorted + count, scratch + first);
+      lb = bounds_of(sorted, nl), rb = bounds_of(sorted + nl, nr);
+    } else if (best.axis >= 0 && parts > 1) {
+      partition_object(span, first, best, cbox, parts, &nl, &nr, &lb, &rb);
     } else if (best.axis >= 0) {  // left ones in place, right ones to scratch
       const glm::vec3 scale = bin_scale(cbox);
+      BoundsAcc la, ra;
       for (const Ref& r : span) {
-        if (centroid_bin(r, best.axis, cbox, scale) < best.bin) span[nl++] = r;
-        else scratch[first + nr++] = r;
+        if (centroid_bin(r, best.axis, cbox, scale) < best.bin) span[nl++] = r, la.grow(r);
+        else scratch[first + nr++] = r, ra.grow(r);
       }
+      lb = la.bounds(), rb = ra.bounds();
     }
     // No split (coincident centroids, or a split unsplit to one side): halve, in the given order
     // (untouched: an object split that sends all to one side moves none).
@@ -432,43 +687,88 @@ struct Builder {
     const size_t right_first = first + nl + left_budget;
     if (halve) {
       std::copy_backward(span.begin() + (ptrdiff_t)nl, span.end(), refs + right_first + nr);
+      lb = bounds_of(refs + first, nl), rb = bounds_of(refs + right_first, nr);
     } else if (!best.spatial) {
       std::copy(scratch + first, scratch + first + nr, refs + right_first);
     } else {
-      partition_spatial(span, scratch + first, refs + right_first, box, best);
+      partition_spatial(span, scratch + first, refs + right_first, box, best, parts, &lb, &rb);
     }
     uint32_t l = (uint32_t)nodes.size(), r = l + 1;
     nodes.resize(nodes.size() + 2);
     nodes[node].left = l;
     nodes[node].right = r;
     if (fork_levels > 0 && nr >= kForkMin) {
-      Builder right(tris, spatial_splits, root_area, refs, scratch);
+      auto right = std::make_unique<Builder>(tris, spatial_splits, root_area, refs, scratch, threads);
+      // As many as it can make, reserved (never-written capacity takes no memory): growing would
+      // copy them into fresh pages each time.
+      right->nodes.reserve(2 * (nr + right_budget)), right->leaf_tris.reserve(nr + right_budget);
       auto job = std::async(std::launch::async, [&] {
-        right.build(0, right_first, nr, depth + 1, right_budget, fork_levels - 1);
+        right->build(0, right_first, nr, depth + 1, right_budget, fork_levels - 1, rb);
       });
-      build(l, first, nl, depth + 1, left_budget, fork_levels - 1);
+      build(l, first, nl, depth + 1, left_budget, fork_levels - 1, lb);
       job.get();
-      graft(r, right);
+      forks += 1 + right->forks;
+      grafts.push_back(Graft{r, nodes.size(), leaf_tris.size(), std::move(right)});
     } else {
-      build(l, first, nl, depth + 1, left_budget, fork_levels);
-      build(r, right_first, nr, depth + 1, right_budget, fork_levels);
+      build(l, first, nl, depth + 1, left_budget, fork_levels, lb);
+      build(r, right_first, nr, depth + 1, right_budget, fork_levels, rb);
     }
   }
 
-  // Takes in the subtree `sub` built for node r, after everything built here so far: its nodes
-  // renumbered, its leaves' triangles after those already here (leaves stay left to right).
-  void graft(uint32_t r, const Builder& sub) {
-    const uint32_t base = (uint32_t)nodes.size() - 1, leaf_base = (uint32_t)leaf_tris.size();
-    auto renumber = [&](uint32_t i) { return i == 0 ? r : base + i; };
-    for (size_t i = 0; i < sub.nodes.size(); ++i) {
-      BinaryNode n = sub.nodes[i];
-      if (n.count > 0) n.first += leaf_base;
-      else n.left = renumber(n.left), n.right = renumber(n.right);
-      if (i == 0) nodes[r] = n;
-      else nodes.push_back(n);
+  // The nodes and leaf triangles of this subtree, its grafts' included.
+  size_t all_nodes() const {
+    size_t n = nodes.size();
+    for (const Graft& g : grafts) n += g.sub->all_nodes() - 1;  // (its root is node r here)
+    return n;
+  }
+  size_t all_leaf_tris() const {
+    size_t n = leaf_tris.size();
+    for (const Graft& g : grafts) n += g.sub->all_leaf_tris();
+    return n;
+  }
+
+  // Writes the subtree into one array of nodes and one of leaf triangles, each graft in its place:
+  // its node 0 at out_nodes[root], its other nodes from out_nodes[first_node] on, its leaves'
+  // triangles from out_leaves[first_leaf] on. A graft's nodes and triangles go after those built
+  // here before it and before those built here after it, so that the whole tree is laid out as if
+  // one thread had built it; the grafts are written on threads of their own.
+  void flatten(BinaryNode* out_nodes, uint32_t* out_leaves, uint32_t root, size_t first_node, size_t first_leaf) const {
+    std::vector<size_t> graft_nodes, graft_leaves;  // where each graft's go
+    size_t node_shift = 0, leaf_shift = 0;
+    for (const Graft& g : grafts) {
+      graft_nodes.push_back(first_node + g.nodes_at - 1 + node_shift);
+      graft_leaves.push_back(first_leaf + g.leaves_at + leaf_shift);
+      node_shift += g.sub->all_nodes() - 1, leaf_shift += g.sub->all_leaf_tris();
     }
-    leaf_tris.insert(leaf_tris.end(), sub.leaf_tris.begin(), sub.leaf_tris.end());
-    forks += 1 + sub.forks;
+    auto place = [&](uint32_t i) -> uint32_t {  // where node i built here goes
+      if (i == 0) return root;
+      size_t shift = 0;
+      for (const Graft& g : grafts)
+        if (g.nodes_at <= i) shift += g.sub->all_nodes() - 1;
+      return (uint32_t)(first_node + i - 1 + shift);
+    };
+    auto place_leaf = [&](uint32_t j) -> uint32_t {  // where triangle j of leaf_tris goes
+      size_t shift = 0;
+      for (const Graft& g : grafts)
+        if (g.leaves_at <= j) shift += g.sub->all_leaf_tris();
+      return (uint32_t)(first_leaf + j + shift);
+    };
+    std::vector<std::future<void>> jobs;
+    for (size_t k = 0; k < grafts.size(); ++k)
+      jobs.push_back(std::async(std::launch::async, [&, k] {
+        grafts[k].sub->flatten(out_nodes, out_leaves, place(grafts[k].r), graft_nodes[k], graft_leaves[k]);
+      }));
+    std::vector<uint32_t> roots;  // the nodes here that grafts' roots fill
+    for (const Graft& g : grafts) roots.push_back(g.r);
+    for (uint32_t i = 0; i < nodes.size(); ++i) {
+      if (std::find(roots.begin(), roots.end(), i) != roots.end()) continue;
+      BinaryNode n = nodes[i];
+      if (n.count > 0) n.first = place_leaf(n.first);
+      else n.left = place(n.left), n.right = place(n.right);
+      out_nodes[place(i)] = n;
+    }
+    for (size_t j = 0; j < leaf_tris.size(); ++j) out_leaves[place_leaf((uint32_t)j)] = leaf_tris[j];
+    for (auto& job : jobs) job.get();
   }
 };
 
@@ -491,8 +791,8 @@ void store_node(Node& n, const float (*lo)[8], const float (*hi)[8], const uint3
 // laid out top-down. (A greedy collapse kept the binary build's leaves: in the Cornell box one leaf
 // held three walls, so every ray inside the room tested it.)
 struct Collapser {
-  const std::vector<BinaryNode>& bin;
-  const std::vector<uint32_t>& leaf_tris;
+  std::span<const BinaryNode> bin;
+  std::span<const uint32_t> leaf_tris;
   const std::vector<Triangle>& tris;
   Bvh& bvh;
 
@@ -503,7 +803,7 @@ struct Collapser {
     bool leaf;              // given one lane: a leaf, else a wide node
     uint32_t first, count;  // its references, leaf_tris[first, first + count)
   };
-  std::vector<Plan> plan;
+  RawArray<Plan> plan;  // per binary node; uninitialised, each written by the thread that plans it
   double root_area = 0.0, root_volume = 0.0;
 
   // How likely a ray is to enter box b, up to a factor the same for every box: the SAH's surface
@@ -529,116 +829,158 @@ struct Collapser {
     return w * kLeafTestCost * std::ceil((float)count / (bvh.width == 8 ? 8.0f : 4.0f));
   }
 
-  // Children come after their parents in `bin`, so one backward pass is bottom-up.
-  void plan_tree() {
-    const int width = bvh.width;
-    plan.resize(bin.size());
+  // Children come after their parents in `bin`, so a backward pass is bottom-up. The build lays
+  // out each subtree depth first (a node's two children side by side, then the left one's
+  // subtree, then the right one's), so the nodes below a node lie in one stretch of `bin`: the
+  // two subtrees of each node of the top `levels` levels are planned on threads of their own.
+  void plan_tree(int levels) {
+    plan = raw_array<Plan>(bin.size());
     const glm::dvec3 root = glm::dvec3(bin[0].box.hi) - glm::dvec3(bin[0].box.lo);
     root_area = bin[0].box.area(), root_volume = root.x * root.y * root.z;
-    for (size_t n = bin.size(); n-- > 0;) {
-      const BinaryNode& b = bin[n];
-      Plan& p = plan[n];
-      const float w = weight(b.box);
-      std::fill(p.split, p.split + 8, 0);
-      p.node_split = 0;
-      if (b.count > 0) {  // a binary leaf: the build made it no larger than a leaf may be
-        p.first = b.first, p.count = b.count, p.leaf = true;
-        std::fill(p.cost, p.cost + 8, leaf_cost(w, b.count));
-        continue;
+    plan_below(0, bin.size(), levels);
+    plan_node(0);
+  }
+
+  // Plans the nodes below binary node n, bin[bin[n].left, end), bottom-up.
+  void plan_below(uint32_t n, size_t end, int levels) {
+    if (bin[n].count > 0) return;
+    const uint32_t l = bin[n].left, r = bin[n].right;
+    if (r != l + 1) throw Error("internal: the BVH's children are not side by side");
+    if (levels == 0 || end - l < kForkMin) {
+      for (size_t i = end; i-- > l;) plan_node((uint32_t)i);
+      return;
+    }
+    const size_t right_below = bin[r].count > 0 ? end : bin[r].left;  // where r's subtree starts
+    auto job = std::async(std::launch::async, [&] { plan_below(r, end, levels - 1); });
+    plan_below(l, right_below, levels - 1);
+    job.get();
+    plan_node(r), plan_node(l);
+  }
+
+  // Binary node n's plan, from its children's.
+  void plan_node(uint32_t n) {
+    const int width = bvh.width;
+    const BinaryNode& b = bin[n];
+    Plan& p = plan[n];
+    const float w = weight(b.box);
+    std::fill(p.split, p.split + 8, 0);
+    p.node_split = 0;
+    if (b.count > 0) {  // a binary leaf: the build made it no larger than a leaf may be
+      p.first = b.first, p.count = b.count, p.leaf = true;
+      std::fill(p.cost, p.cost + 8, leaf_cost(w, b.count));
+      return;
+    }
+    const Plan &l = plan[b.left], &r = plan[b.right];
+    if (r.first != l.first + l.count) throw Error("internal: the BVH's leaves are out of order");
+    p.first = l.first, p.count = l.count + r.count;
+    float spread[9];  // spread[j]: the least cost of the two subtrees sharing j lanes
+    uint8_t spread_split[9];
+    for (int j = 2; j <= width; ++j) {
+      spread[j] = INFINITY, spread_split[j] = 1;
+      for (int k = 1; k < j; ++k) {
+        float c = l.cost[k - 1] + r.cost[j - k - 1];
+        if (c < spread[j]) spread[j] = c, spread_split[j] = (uint8_t)k;
       }
-      const Plan &l = plan[b.left], &r = plan[b.right];
-      if (r.first != l.first + l.count) throw Error("internal: the BVH's leaves are out of order");
-      p.first = l.first, p.count = l.count + r.count;
-      float spread[9];  // spread[j]: the least cost of the two subtrees sharing j lanes
-      uint8_t spread_split[9];
-      for (int j = 2; j <= width; ++j) {
-        spread[j] = INFINITY, spread_split[j] = 1;
-        for (int k = 1; k < j; ++k) {
-          float c = l.cost[k - 1] + r.cost[j - k - 1];
-          if (c < spread[j]) spread[j] = c, spread_split[j] = (uint8_t)k;
-        }
-      }
-      const float as_node = w * kNodeCost + spread[width];
-      const float as_leaf = leaf_cost(w, p.count);
-      p.leaf = as_leaf <= as_node;
-      p.node_split = spread_split[width];
-      p.cost[0] = std::min(as_leaf, as_node);
-      for (int i = 2; i <= width; ++i) {
-        p.cost[i - 1] = p.cost[i - 2];
-        if (spread[i] < p.cost[i - 1]) p.cost[i - 1] = spread[i], p.split[i - 1] = spread_split[i];
-      }
+    }
+    const float as_node = w * kNodeCost + spread[width];
+    const float as_leaf = leaf_cost(w, p.count);
+    p.leaf = as_leaf <= as_node;
+    p.node_split = spread_split[width];
+    p.cost[0] = std::min(as_leaf, as_node);
+    for (int i = 2; i <= width; ++i) {
+      p.cost[i - 1] = p.cost[i - 2];
+      if (spread[i] < p.cost[i - 1]) p.cost[i - 1] = spread[i], p.split[i - 1] = spread_split[i];
     }
   }
 
+  // The binary nodes of a wide node's lanes (at most 8, no allocation).
+  struct Lanes {
+    uint32_t node[8];
+    size_t size = 0;
+    const uint32_t* begin() const { return node; }
+    const uint32_t* end() const { return node + size; }
+    uint32_t operator[](size_t k) const { return node[k]; }
+  };
+
   // Appends to `lanes` the binary nodes that take the i lanes given to subtree n.
-  void gather(uint32_t n, int i, std::vector<uint32_t>& lanes) const {
+  void gather(uint32_t n, int i, Lanes& lanes) const {
     while (i > 1 && plan[n].split[i - 1] == 0) --i;
-    if (i == 1) return lanes.push_back(n);
+    if (i == 1) return void(lanes.node[lanes.size++] = n);
     gather(bin[n].left, plan[n].split[i - 1], lanes);
     gather(bin[n].right, i - plan[n].split[i - 1], lanes);
   }
 
   // The binary nodes that become the lanes of the wide node made from binary node n.
-  std::vector<uint32_t> lanes_of(uint32_t n) const {
-    std::vector<uint32_t> lanes;
-    if (bin[n].count > 0) return {n};  // a root that is a leaf: one leaf lane
+  Lanes lanes_of(uint32_t n) const {
+    Lanes lanes;
+    if (bin[n].count > 0) return lanes.node[lanes.size++] = n, lanes;  // a root that is a leaf: one leaf lane
     gather(bin[n].left, plan[n].node_split, lanes);
     gather(bin[n].right, bvh.width - plan[n].node_split, lanes);
     return lanes;
   }
 
-  // The triangle blocks the wide node made from n and the nodes below it hold, at most (reserved
-  // up front: growing a vector of this size would copy it into fresh pages).
-  size_t blocks_below(uint32_t n) const {
-    size_t blocks = 0;
-    for (uint32_t k : lanes_of(n)) blocks += plan[k].leaf ? (plan[k].count + 3) / 4 : blocks_below(k);
-    return blocks;
-  }
-
-  uint32_t new_node() {
-    if (bvh.width == 8) bvh.nodes8.push_back(BvhNode8{});
-    else bvh.nodes.push_back(BvhNode{});
-    return (uint32_t)(bvh.width == 8 ? bvh.nodes8.size() : bvh.nodes.size()) - 1;
-  }
-
-  // Appends the blocks of the triangles of leaf_tris[first, first + count) (scene indices; a
-  // triangle spatial splits put there twice, once) and returns the leaf's child entry. Blocks name
-  // a triangle by its position in bvh.order.
-  uint32_t leaf(uint32_t first, uint32_t count) {
-    uint32_t unique_tris[kMaxLeaf];
+  // The distinct triangles of leaf_tris[first, first + count) (spatial splits can put one there
+  // twice), in order; returns their number.
+  uint32_t unique_tris(uint32_t first, uint32_t count, uint32_t* out) const {
     uint32_t unique = 0;
     for (uint32_t i = first; i < first + count; ++i)
-      if (std::find(unique_tris, unique_tris + unique, leaf_tris[i]) == unique_tris + unique)
-        unique_tris[unique++] = leaf_tris[i];
-    const uint32_t first_block = (uint32_t)bvh.blocks.size(), blocks = (unique + 3) / 4;
-    // Spatial splits can make up to twice as many blocks as the triangles' count checked up front.
-    if (first_block + blocks > XI_BVH_FIRST_MASK)
-      throw Error("too many triangle blocks for the BVH's 27-bit leaf entries", "try --no-spatial-splits");
-    for (uint32_t b = 0; b < blocks; ++b) {
-      TriBlock blk;
-      for (auto& axis : blk.coord) std::fill(axis, axis + 3, glm::vec4(NAN));
-      for (uint32_t k = 0; k < 4; ++k) {
-        blk.tri[k] = XI_NO_HIT;
-        if (4 * b + k >= unique) continue;
-        const uint32_t tri = unique_tris[4 * b + k];
-        blk.tri[k] = bvh.position[tri];
-        for (int j = 0; j < 3; ++j)
-          for (int a = 0; a < 3; ++a) blk.coord[a][j][k] = tris[tri].v[j][a];
+      if (std::find(out, out + unique, leaf_tris[i]) == out + unique) out[unique++] = leaf_tris[i];
+    return unique;
+  }
+
+  // The wide nodes below the wide node made from binary node n, and the blocks it and they hold.
+  struct Count {
+    size_t nodes = 0, blocks = 0;
+  };
+  Count count(uint32_t n) const {
+    Count c;
+    for (uint32_t k : lanes_of(n)) {
+      if (plan[k].leaf) {
+        uint32_t tris[kMaxLeaf];
+        c.blocks += (unique_tris(plan[k].first, plan[k].count, tris) + 3) / 4;
+      } else {
+        const Count below = count(k);
+        c.nodes += 1 + below.nodes, c.blocks += below.blocks;
       }
-      bvh.blocks.push_back(blk);
     }
-    bvh.stats.leaves++;
-    bvh.stats.references += unique;
-    bvh.stats.max_leaf = std::max<size_t>(bvh.stats.max_leaf, unique);
+    return c;
+  }
+
+  // Where a subtree's collapse writes its wide nodes and blocks next, and what it counts on the way.
+  struct Cursor {
+    size_t node = 0, block = 0;
+    size_t leaves = 0, references = 0, max_leaf = 0;
+    int depth = 0;
+  };
+
+  // Writes the blocks of the triangles of leaf_tris[first, first + count) (scene indices; a
+  // triangle spatial splits put there twice, once) and returns the leaf's child entry. Blocks name
+  // a triangle by its position in bvh.order; their vertices are filled in afterwards, on every
+  // core (fill_blocks: reading them from the scene's triangles was most of the collapse's time).
+  uint32_t leaf(uint32_t first, uint32_t count, Cursor& at) {
+    uint32_t tris[kMaxLeaf];
+    const uint32_t unique = unique_tris(first, count, tris);
+    const uint32_t first_block = (uint32_t)at.block, blocks = (unique + 3) / 4;
+    for (uint32_t b = 0; b < blocks; ++b) {
+      TriBlock& blk = bvh.blocks[at.block++];
+      for (auto& axis : blk.coord) std::fill(axis, axis + 3, glm::vec4(NAN));  // unused lanes stay NaN
+      for (uint32_t k = 0; k < 4; ++k) blk.tri[k] = 4 * b + k < unique ? bvh.position[tris[4 * b + k]] : XI_NO_HIT;
+    }
+    at.leaves++;
+    at.references += unique;
+    at.max_leaf = std::max<size_t>(at.max_leaf, unique);
     return XI_BVH_LEAF | (blocks - 1) << 27 | first_block;
   }
 
-  // Lays out the wide node `wide` made from binary node b and the nodes below it. Returns the
-  // stack entries a traversal of this subtree may hold beyond those below it.
-  size_t collapse(uint32_t b, size_t wide, int depth) {
-    const std::vector<uint32_t> kids = lanes_of(b);
+  // Lays out the wide node `wide` made from binary node b and the nodes below it, from `at`'s
+  // next node and block on. Returns the stack entries a traversal of this subtree may hold beyond
+  // those below it. Given `counts` (count() of each of its lanes' binary nodes that is not a leaf),
+  // the subtrees of its interior children are laid out on `threads` threads, each from where one
+  // thread would have put it: the same tree for any number.
+  size_t collapse(uint32_t b, size_t wide, int depth, Cursor& at, const Count* counts = nullptr, unsigned threads = 1) {
+    const Lanes kids = lanes_of(b);
     const size_t width = (size_t)bvh.width;
-    bvh.stats.depth = std::max(bvh.stats.depth, depth + 1);
+    at.depth = std::max(at.depth, depth + 1);
     const float inf = INFINITY;
     float lo[3][8], hi[3][8];
     uint32_t child[8];
@@ -647,18 +989,85 @@ struct Collapser {
     for (size_t k = 0; k < width; ++k) {
       for (int a = 0; a < 3; ++a) lo[a][k] = inf, hi[a][k] = -inf;
       child[k] = XI_BVH_EMPTY;
-      if (k >= kids.size()) continue;
+      if (k >= kids.size) continue;
       const BinaryNode& c = bin[kids[k]];
       for (int a = 0; a < 3; ++a) lo[a][k] = c.box.lo[a], hi[a][k] = c.box.hi[a];
-      child[k] = plan[kids[k]].leaf ? leaf(plan[kids[k]].first, plan[kids[k]].count) : new_node();
+      child[k] = plan[kids[k]].leaf ? leaf(plan[kids[k]].first, plan[kids[k]].count, at) : (uint32_t)at.node++;
     }
     size_t below = 0;
-    for (size_t k = 0; k < kids.size(); ++k)
-      if (!(child[k] & XI_BVH_LEAF)) below = std::max(below, collapse(kids[k], child[k], depth + 1));
+    if (counts) {
+      Cursor sub[8];
+      size_t stack[8] = {};
+      std::vector<size_t> interior;
+      for (size_t k = 0; k < kids.size; ++k)
+        if (!(child[k] & XI_BVH_LEAF)) interior.push_back(k);
+      for (size_t k : interior) {
+        sub[k].node = at.node, sub[k].block = at.block;
+        at.node += counts[k].nodes, at.block += counts[k].blocks;
+      }
+      on_threads(interior.size(), threads, [&](size_t i) {
+        const size_t k = interior[i];
+        stack[k] = collapse(kids[k], child[k], depth + 1, sub[k]);
+      });
+      for (size_t k : interior) {
+        below = std::max(below, stack[k]);
+        at.leaves += sub[k].leaves, at.references += sub[k].references;
+        at.max_leaf = std::max(at.max_leaf, sub[k].max_leaf), at.depth = std::max(at.depth, sub[k].depth);
+      }
+    } else {
+      for (size_t k = 0; k < kids.size; ++k)
+        if (!(child[k] & XI_BVH_LEAF)) below = std::max(below, collapse(kids[k], child[k], depth + 1, at));
+    }
     if (width == 8) store_node<BvhNode8, 8>(bvh.nodes8[wide], lo, hi, child);
     else store_node<BvhNode, 4>(bvh.nodes[wide], lo, hi, child);
     // Traversal pushes up to one entry per lane and pops one to descend into an interior child.
-    return std::max(kids.size(), kids.size() - 1 + below);
+    return std::max(kids.size, kids.size - 1 + below);
+  }
+
+  // The whole tree, its root's subtrees counted and laid out on `threads` threads.
+  void collapse_tree(unsigned threads) {
+    const Lanes kids = lanes_of(0);
+    Count counts[8], total;
+    on_threads(kids.size, threads, [&](size_t k) {
+      if (!plan[kids[k]].leaf) counts[k] = count(kids[k]);
+    });
+    for (size_t k = 0; k < kids.size; ++k) {
+      if (plan[kids[k]].leaf) {
+        uint32_t tris[kMaxLeaf];
+        total.blocks += (unique_tris(plan[kids[k]].first, plan[kids[k]].count, tris) + 3) / 4;
+      } else {
+        total.nodes += 1 + counts[k].nodes, total.blocks += counts[k].blocks;
+      }
+    }
+    const size_t nodes = 1 + total.nodes;
+    // Spatial splits can make up to twice as many blocks as the triangles' count checked up front.
+    if (total.blocks > XI_BVH_FIRST_MASK)
+      throw Error("too many triangle blocks for the BVH's 27-bit leaf entries", "try --no-spatial-splits");
+    if (bvh.width == 8) bvh.nodes8.resize(nodes);
+    else bvh.nodes.resize(nodes);
+    bvh.blocks.resize(total.blocks);
+    Cursor at;
+    at.node = 1;  // the root's is 0
+    bvh.stats.stack = collapse(0, 0, 0, at, counts, threads);
+    if (at.node != nodes || at.block != total.blocks) throw Error("internal: the BVH's collapse miscounted");
+    bvh.stats.depth = at.depth, bvh.stats.leaves = at.leaves;
+    bvh.stats.references = at.references, bvh.stats.max_leaf = at.max_leaf;
+  }
+
+  // The blocks' vertices, from the triangles they name.
+  void fill_blocks(unsigned threads) {
+    const size_t n = bvh.blocks.size();
+    parallel_chunks(n, (unsigned)std::clamp<size_t>(n >> 14, 1, threads), [&](size_t begin, size_t end, unsigned) {
+      for (size_t b = begin; b < end; ++b) {
+        TriBlock& blk = bvh.blocks[b];
+        for (int k = 0; k < 4; ++k) {
+          if (blk.tri[k] == XI_NO_HIT) continue;
+          const Triangle& t = tris[bvh.order[blk.tri[k]]];
+          for (int j = 0; j < 3; ++j)
+            for (int a = 0; a < 3; ++a) blk.coord[a][j][k] = t.v[j][a];
+        }
+      }
+    });
   }
 };
 
@@ -673,37 +1082,60 @@ Bvh build_bvh(const std::vector<Triangle>& triangles, int width, bool spatial_sp
   if (triangles.size() > XI_BVH_FIRST_MASK) throw Error("too many triangles for the BVH (at most 134217727)");
   Bvh bvh;
   bvh.width = width;
-  const size_t budget = spatial_splits ? (size_t)((kMaxReferences - 1.0) * (double)triangles.size()) : 0;
-  std::vector<Ref> refs(triangles.size() + budget), scratch(refs.size());
-  Box root;
-  for (size_t i = 0; i < triangles.size(); ++i) {
-    refs[i].tri = (uint32_t)i;
-    for (auto& v : triangles[i].v) refs[i].box.grow(v);
-    root.grow(refs[i].box);
-  }
-  Builder b(triangles, spatial_splits, root.area(), refs.data(), scratch.data());
-  b.nodes.reserve(2 * triangles.size());
-  b.leaf_tris.reserve(refs.size());
-  // Forks down to about four subtrees per core, so that uneven halves still keep every core busy.
   if (threads == 0) threads = std::max(1u, std::thread::hardware_concurrency());
+  const size_t n = triangles.size();
+  const size_t budget = spatial_splits ? (size_t)((kMaxReferences - 1.0) * (double)n) : 0;
+  // Uninitialised: pages are written only as references land there (the budget's part only if
+  // spatial splits use it), not all zeroed up front.
+  RawArray<Ref> refs = raw_array<Ref>(n + budget), scratch = raw_array<Ref>(n + budget);
+  const unsigned init_parts = (unsigned)std::clamp<size_t>(n >> 16, 1, threads);  // a thread per 64K triangles at most
+  std::vector<BoundsAcc> parts(init_parts);
+  parallel_chunks(n, init_parts, [&](size_t begin, size_t end, unsigned part) {
+    for (size_t i = begin; i < end; ++i) {
+      Ref& r = refs[i];
+      r.tri = (uint32_t)i, r.box = Box();
+      for (auto& v : triangles[i].v) r.box.grow(v);
+      parts[part].grow(r);
+    }
+  });
+  Bounds root;
+  for (const BoundsAcc& b : parts) root.grow(b.bounds());
+  Builder b(triangles, spatial_splits, root.box.area(), refs.get(), scratch.get(), threads);
+  b.nodes.reserve(2 * n);
+  b.leaf_tris.reserve(n + budget);
+  // Forks down to about four subtrees per core, so that uneven halves still keep every core busy.
   int fork_levels = 0;
-  for (unsigned n = 1; threads > 1 && n < 4 * threads && fork_levels < 8; n *= 2) ++fork_levels;
-  b.build(0, 0, triangles.size(), 0, budget, fork_levels);
-  std::vector<Ref>().swap(refs), std::vector<Ref>().swap(scratch);  // done with: the collapse needs room
+  for (unsigned k = 1; threads > 1 && k < 4 * threads && fork_levels < 8; k *= 2) ++fork_levels;
+  b.build(0, 0, n, 0, budget, fork_levels, root);
+  refs.reset(), scratch.reset();  // done with: the collapse needs room
   bvh.stats.threads = 1 + b.forks;
+  // The subtrees built on threads of their own, in their places in one tree (uninitialised arrays:
+  // their pages are first written by the threads that fill them).
+  const size_t node_count = b.all_nodes(), leaf_count = b.all_leaf_tris();
+  RawArray<BinaryNode> all_nodes;
+  RawArray<uint32_t> all_leaves;
+  std::span<const BinaryNode> bin(b.nodes);
+  std::span<const uint32_t> leaf_tris(b.leaf_tris);
+  if (!b.grafts.empty()) {
+    all_nodes = raw_array<BinaryNode>(node_count), all_leaves = raw_array<uint32_t>(leaf_count);
+    b.flatten(all_nodes.get(), all_leaves.get(), 0, 1, 0);
+    bin = std::span<const BinaryNode>(all_nodes.get(), node_count);
+    leaf_tris = std::span<const uint32_t>(all_leaves.get(), leaf_count);
+    b.grafts.clear(), std::vector<BinaryNode>().swap(b.nodes), std::vector<uint32_t>().swap(b.leaf_tris);
+  }
   // BVH order: the triangles by their first place in a leaf, leaves left to right, so that the
   // arrays in this order (CompiledScene) follow the tree.
   constexpr uint32_t kUnplaced = ~0u;
   std::vector<uint32_t>& position = bvh.position;
   position.assign(triangles.size(), kUnplaced);
-  for (uint32_t t : b.leaf_tris)
+  bvh.order.reserve(triangles.size());
+  for (uint32_t t : leaf_tris)
     if (position[t] == kUnplaced) position[t] = (uint32_t)bvh.order.size(), bvh.order.push_back(t);
   if (bvh.order.size() != triangles.size()) throw Error("internal: the BVH lost a triangle");
-  Collapser collapser{b.nodes, b.leaf_tris, triangles, bvh, {}, 0.0, 0.0};
-  collapser.plan_tree();
-  bvh.blocks.reserve(collapser.blocks_below(0));
-  collapser.new_node();  // the root
-  bvh.stats.stack = collapser.collapse(0, 0, 0);
+  Collapser collapser{bin, leaf_tris, triangles, bvh, nullptr, 0.0, 0.0};
+  collapser.plan_tree(fork_levels);
+  collapser.collapse_tree(threads);
+  collapser.fill_blocks(threads);
   if (bvh.stats.stack > XI_BVH_STACK)
     throw Error("the scene's BVH is too deep for the kernels' traversal stack",
                 "needs " + std::to_string(bvh.stats.stack) + " entries, XI_BVH_STACK is " + std::to_string(XI_BVH_STACK));

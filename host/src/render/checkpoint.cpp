@@ -15,20 +15,6 @@ namespace {
 // then an FNV-1a checksum of every byte before it.
 constexpr char kMagic[8] = {'X', 'I', 'C', 'K', 'P', 'T', '0', '1'};
 
-std::string scene_hash(const CompiledScene& s) {
-  Hasher h;
-  h.add(s.tri_verts);
-  h.add(s.tri_normals);
-  h.add(s.tri_material);
-  h.add(s.materials);
-  h.add(s.light_cdf);
-  h.add(s.light_tri);
-  h.add(s.tri_light_pdf);
-  h.add(&s.camera, sizeof s.camera);
-  h.add(&s.background, sizeof s.background);
-  return hex(h.h);
-}
-
 void append(std::string* out, const void* data, size_t n) { out->append(static_cast<const char*>(data), n); }
 
 template <typename T>
@@ -43,7 +29,7 @@ CheckpointKey checkpoint_key(const Renderer& renderer, const std::filesystem::pa
   const RenderOptions& o = renderer.options();
   const CompiledScene& s = renderer.compiled();
   return CheckpointKey{std::filesystem::absolute(scene_file).string(),
-                       scene_hash(s),
+                       hex(renderer.scene_hash()),
                        (int)s.camera.width,
                        (int)s.camera.height,
                        o.spp,

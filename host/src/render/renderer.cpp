@@ -12,6 +12,7 @@
 #include "memory.h"
 #include "ray_probe.h"
 #include "xi/error.h"
+#include "xi/hash.h"
 
 namespace xi {
 namespace {
@@ -50,6 +51,15 @@ template <typename T>
 cl::Buffer upload(cl::Context& ctx, const std::vector<T>& data) {
   return cl::Buffer(ctx, CL_MEM_READ_ONLY | CL_MEM_COPY_HOST_PTR, sizeof(T) * data.size(),
                     const_cast<T*>(data.data()));
+}
+
+// Uploads a host array of the compiled scene, then frees it: from then on the device's copy is the
+// only one (a large mesh's triangles and BVH are most of a render's memory).
+template <typename T>
+cl::Buffer upload_and_free(cl::Context& ctx, std::vector<T>& data) {
+  cl::Buffer buffer = upload(ctx, data);
+  std::vector<T>().swap(data);
+  return buffer;
 }
 
 }  // namespace
@@ -238,9 +248,12 @@ void Renderer::size_waves() {
 // The compiled scene's buffers the kernels read as they are: each uploaded from the CompiledScene
 // field of its name into the Renderer member of that name and a trailing _, and counted in the
 // memory check. (The BVH and the texture coordinates are chosen per kernel configuration, below.)
-#define XI_SCENE_BUFFERS(F)                                                                             \
-  F(tri_verts) F(tri_normals) F(tri_material) F(materials) F(light_cdf) F(light_tri) F(tri_light_pdf) \
-      F(tri_tangents) F(texture_refs) F(images) F(texels) F(punctual) F(environment_texels) F(environment_cdf)
+// XI_PER_TRIANGLE_BUFFERS (and the texels) are freed on the host once uploaded; the others are
+// small, and the CLI and the library's users read them from compiled().
+#define XI_PER_TRIANGLE_BUFFERS(F) F(tri_verts) F(tri_normals) F(tri_material) F(tri_light_pdf) F(tri_tangents) F(texels)
+#define XI_SCENE_BUFFERS(F)                                                                     \
+  F(materials) F(light_cdf) F(light_tri) F(texture_refs) F(images) F(punctual) F(environment_texels) \
+      F(environment_cdf)
 
 // The kernels read 3 texture coordinates per triangle wherever their word has textures, an
 // --all-features build of a scene without any too: zeros then.
@@ -260,6 +273,7 @@ void Renderer::check_memory() const {
   add(sizeof(glm::vec4) * tri_uv_entries());
   if (adaptive()) add(sizeof(uint32_t) * pixels_);  // the list of pixels still sampling
 #define XI_COUNT_BUFFER(name) add(sizeof(scene_.name[0]) * scene_.name.size());
+  XI_PER_TRIANGLE_BUFFERS(XI_COUNT_BUFFER)
   XI_SCENE_BUFFERS(XI_COUNT_BUFFER)
 #undef XI_COUNT_BUFFER
   xi::check_memory(device_, needs);
@@ -276,14 +290,18 @@ void Renderer::allocate() {
   counter_count_ = XI_COUNTER_COUNT(options_.max_depth);
   counters_ = cl::Buffer(ctx, CL_MEM_READ_WRITE, sizeof(uint32_t) * counter_count_);
   queue_counts_.assign(counter_count_, 0);
-  nodes_ = scene_.bvh.width == 8 ? upload(ctx, scene_.bvh.nodes8) : upload(ctx, scene_.bvh.nodes);
-  tri_blocks_ = upload(ctx, scene_.bvh.blocks);
+  nodes_ = scene_.bvh.width == 8 ? upload_and_free(ctx, scene_.bvh.nodes8) : upload_and_free(ctx, scene_.bvh.nodes);
+  std::vector<BvhNode>().swap(scene_.bvh.nodes);  // the 4-wide nodes an 8-wide tree was collapsed from
+  tri_blocks_ = upload_and_free(ctx, scene_.bvh.blocks);
   tri_uv_ = tri_uv_entries() > scene_.tri_uv.size()
                 ? upload(ctx, std::vector<glm::vec4>(tri_uv_entries(), glm::vec4(0.0f)))
-                : upload(ctx, scene_.tri_uv);
+                : upload_and_free(ctx, scene_.tri_uv);
 #define XI_UPLOAD_BUFFER(name) name##_ = upload(ctx, scene_.name);
   XI_SCENE_BUFFERS(XI_UPLOAD_BUFFER)
 #undef XI_UPLOAD_BUFFER
+#define XI_UPLOAD_AND_FREE_BUFFER(name) name##_ = upload_and_free(ctx, scene_.name);
+  XI_PER_TRIANGLE_BUFFERS(XI_UPLOAD_AND_FREE_BUFFER)
+#undef XI_UPLOAD_AND_FREE_BUFFER
   film_sum_ = cl::Buffer(ctx, CL_MEM_READ_WRITE, sizeof(glm::vec4) * pixels_);
   film_sum_sq_ = cl::Buffer(ctx, CL_MEM_READ_WRITE, sizeof(glm::vec4) * pixels_);
   film_albedo_ = cl::Buffer(ctx, CL_MEM_READ_WRITE, sizeof(glm::vec4) * pixels_);
@@ -598,6 +616,30 @@ void Renderer::warm_up() {
   device_.queue().finish();
   launches_.clear();
   launch_events_.clear();
+}
+
+uint64_t Renderer::scene_hash() const {
+  Hasher h;
+  // The device's copies of what the host no longer holds, a slice at a time.
+  auto add_device = [&](const cl::Buffer& buffer) {
+    std::vector<unsigned char> slice((size_t)1 << 24);
+    const size_t bytes = buffer.getInfo<CL_MEM_SIZE>();
+    for (size_t offset = 0; offset < bytes; offset += slice.size()) {
+      const size_t n = std::min(slice.size(), bytes - offset);
+      device_.queue().enqueueReadBuffer(buffer, CL_TRUE, offset, n, slice.data());
+      h.add(slice.data(), n);
+    }
+  };
+  add_device(tri_verts_);
+  add_device(tri_normals_);
+  add_device(tri_material_);
+  h.add(scene_.materials);
+  h.add(scene_.light_cdf);
+  h.add(scene_.light_tri);
+  add_device(tri_light_pdf_);
+  h.add(&scene_.camera, sizeof scene_.camera);
+  h.add(&scene_.background, sizeof scene_.background);
+  return h.h;
 }
 
 std::vector<glm::vec4> Renderer::read(const cl::Buffer& film) const {

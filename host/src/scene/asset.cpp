@@ -25,13 +25,12 @@ namespace xi {
 
 namespace scene_detail {
 
-std::vector<Triangle> mesh_triangles(const aiMesh& mesh, uint32_t material, bool flip_v) {
-  std::vector<Triangle> out;
-  out.reserve(mesh.mNumFaces);
+void mesh_triangles(const aiMesh& mesh, uint32_t material, bool flip_v, std::vector<Triangle>& out) {
+  make_room(out, mesh.mNumFaces);
   for (unsigned f = 0; f < mesh.mNumFaces; ++f) {
     const aiFace& face = mesh.mFaces[f];
     if (face.mNumIndices != 3) continue;  // points and lines survive triangulation; skip them
-    Triangle t{};
+    Triangle& t = out.emplace_back();
     t.has_normals = mesh.HasNormals();
     t.material = material;
     for (int k = 0; k < 3; ++k) {
@@ -54,21 +53,35 @@ std::vector<Triangle> mesh_triangles(const aiMesh& mesh, uint32_t material, bool
           t.uv[set][k] = {uv.x, flip_v ? 1.0f - uv.y : uv.y};
         }
     }
-    out.push_back(t);
   }
-  return out;
 }
 
-long long place_mesh(const Transform& xf, std::vector<Triangle>& tris) {
-  size_t kept = 0;
-  for (size_t i = 0; i < tris.size(); ++i) {
-    Triangle t = tris[i];
-    apply(xf, t);
-    if (!within_range(t)) return (long long)i;
-    if (degenerate(t)) continue;  // common in real meshes and harmless to drop
-    for (const auto& nv : t.n) t.has_normals = t.has_normals && std::isfinite(nv.x + nv.y + nv.z);
-    tris[kept++] = t;
-  }
+long long place_mesh(const Transform& xf, std::vector<Triangle>& tris, size_t first) {
+  // Each triangle on its own, on every core for a large mesh (in double precision: most of a
+  // large mesh's load after reading it); then the kept ones moved together, in order.
+  const size_t n = tris.size() - first;
+  std::vector<uint8_t> keep(n);
+  std::vector<size_t> bad(std::max(1u, std::thread::hardware_concurrency()), SIZE_MAX);  // per part, its first out of range
+  in_parts(n, [&](size_t begin, size_t end, unsigned part) {
+    for (size_t i = begin; i < end; ++i) {
+      Triangle& t = tris[first + i];
+      apply(xf, t);
+      if (!within_range(t)) {
+        bad[part] = i;
+        return;
+      }
+      keep[i] = !degenerate(t);  // common in real meshes and harmless to drop
+      for (const auto& nv : t.n) t.has_normals = t.has_normals && std::isfinite(nv.x + nv.y + nv.z);
+    }
+  });
+  for (size_t b : bad)
+    if (b != SIZE_MAX) return (long long)b;
+  size_t kept = first;
+  for (size_t i = 0; i < n; ++i)
+    if (keep[i]) {
+      if (kept != first + i) tris[kept] = tris[first + i];
+      kept++;
+    }
   tris.resize(kept);
   return -1;
 }
@@ -282,12 +295,12 @@ AssetGeometry geometry(const fs::path& path, const aiScene& scene) {
     for (unsigned k = 0; k < node->mNumMeshes; ++k) {
       if (node->mMeshes[k] >= scene.mNumMeshes) throw Error("node names a mesh that does not exist", path.string());
       const aiMesh& mesh = *scene.mMeshes[node->mMeshes[k]];
-      std::vector<Triangle> tris = mesh_triangles(mesh, material(mesh.mMaterialIndex), gltf);
-      if (place_mesh(make_transform(m), tris) >= 0)
+      const size_t first = g.triangles.size();
+      mesh_triangles(mesh, material(mesh.mMaterialIndex), gltf, g.triangles);
+      if (place_mesh(make_transform(m), g.triangles, first) >= 0)
         throw Error("mesh '" + std::string(mesh.mName.C_Str()) +
                         "' has a non-finite vertex coordinate or one beyond +-1e9 (after its node transforms)",
                     path.string());
-      g.triangles.insert(g.triangles.end(), tris.begin(), tris.end());
     }
   }
   if (g.triangles.empty()) throw Error("asset has no triangles (after dropping degenerate ones)", path.string());

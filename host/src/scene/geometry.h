@@ -10,6 +10,7 @@
 #include <utility>
 #include <string>
 #include <string_view>
+#include <thread>
 #include <vector>
 
 #include <glm/glm.hpp>
@@ -41,11 +42,29 @@ constexpr float kMaxCoordinate = 1e9f;
 // right. 1e-6 leaves edges of a thousandth of the scene well clear of that.
 constexpr double kMinExtent = 1e-6;
 
+// Runs work(begin, end) over [0, n) in contiguous parts, on every core where n is large (a
+// thread per 64K items at most); the parts are in order.
+template <class Work>
+void in_parts(size_t n, const Work& work) {
+  const unsigned parts = (unsigned)std::clamp<size_t>(n >> 16, 1, std::max(1u, std::thread::hardware_concurrency()));
+  std::vector<std::thread> pool;
+  for (unsigned p = 1; p < parts; ++p) pool.emplace_back(work, n * p / parts, n * (p + 1) / parts, p);
+  work(0, n / parts, 0u);
+  for (std::thread& t : pool) t.join();
+}
+
 // The longest side of the triangles' bounding box (0 for none).
 inline double extent(const std::vector<Triangle>& tris) {
+  std::vector<std::pair<glm::dvec3, glm::dvec3>> parts(std::max<size_t>(1, std::thread::hardware_concurrency()),
+                                                       {glm::dvec3(INFINITY), glm::dvec3(-INFINITY)});
+  in_parts(tris.size(), [&](size_t begin, size_t end, unsigned part) {
+    glm::dvec3 lo(INFINITY), hi(-INFINITY);
+    for (size_t i = begin; i < end; ++i)
+      for (const glm::vec3& v : tris[i].v) lo = glm::min(lo, glm::dvec3(v)), hi = glm::max(hi, glm::dvec3(v));
+    parts[part] = {lo, hi};
+  });
   glm::dvec3 lo(INFINITY), hi(-INFINITY);
-  for (const Triangle& t : tris)
-    for (const glm::vec3& v : t.v) lo = glm::min(lo, glm::dvec3(v)), hi = glm::max(hi, glm::dvec3(v));
+  for (const auto& [l, h] : parts) lo = glm::min(lo, l), hi = glm::max(hi, h);
   const glm::dvec3 size = hi - lo;
   return tris.empty() ? 0.0 : std::max({size.x, size.y, size.z});
 }
@@ -104,14 +123,24 @@ inline bool degenerate(const Triangle& t) {
   return !(glm::length(glm::cross(e1, e2)) > 1e-6 * std::max(glm::dot(e1, e1), glm::dot(e2, e2)));
 }
 
-// The triangles of an Assimp mesh, in the mesh's own coordinates, with its vertex normals if it has
-// them; points and lines (which survive triangulation) are skipped. Defined in asset.cpp.
-// flip_v: v = 1 - v, undoing the flip Assimp applies to glTF files (glTF's v runs down the image).
-std::vector<Triangle> mesh_triangles(const aiMesh& mesh, uint32_t material = 0, bool flip_v = false);
+// Room in `tris` for `more` triangles: for a large mesh, at once (growing by doubling would copy it
+// and hold it twice), with an eighth more for the shapes after it; for small ones, doubling as
+// push_back does. Capacity never written takes no memory.
+inline void make_room(std::vector<Triangle>& tris, size_t more) {
+  const size_t need = tris.size() + more;
+  if (tris.capacity() < need) tris.reserve(std::max(need + need / 8, 2 * tris.capacity()));
+}
 
-// Transforms loaded triangles in place, then checks them as every mesh is checked: a vertex beyond
-// +-1e9 (or not finite) is an error (the index of the first such triangle is returned, else -1),
-// degenerate triangles are dropped, non-finite normals turn the triangle's normals off.
-long long place_mesh(const Transform& xf, std::vector<Triangle>& tris);
+// Appends to `out` the triangles of an Assimp mesh, in the mesh's own coordinates, with its vertex
+// normals if it has them; points and lines (which survive triangulation) are skipped. Defined in
+// asset.cpp. flip_v: v = 1 - v, undoing the flip Assimp applies to glTF files (glTF's v runs down
+// the image).
+void mesh_triangles(const aiMesh& mesh, uint32_t material, bool flip_v, std::vector<Triangle>& out);
+
+// Transforms loaded triangles, tris[first, end), in place, then checks them as every mesh is
+// checked: a vertex beyond +-1e9 (or not finite) is an error (the index from `first` of the first
+// such triangle is returned, else -1), degenerate triangles are dropped, non-finite normals turn
+// the triangle's normals off.
+long long place_mesh(const Transform& xf, std::vector<Triangle>& tris, size_t first = 0);
 
 }  // namespace xi::scene_detail

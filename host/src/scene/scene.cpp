@@ -11,6 +11,7 @@
 #include <map>
 #include <sstream>
 #include <string_view>
+#include <thread>
 #include <unordered_map>
 
 #include <assimp/Importer.hpp>
@@ -21,6 +22,7 @@
 
 #include "geometry.h"
 #include "mesh_check.h"
+#include "ply.h"
 #include "xi/asset.h"
 #include "xi/error.h"
 #include "xi/texture.h"
@@ -442,24 +444,24 @@ std::vector<Triangle> icosphere(glm::vec3 center, float radius, int levels) {
   return out;
 }
 
-std::vector<Triangle> load_mesh(const Node& file_node, const fs::path& base_dir) {
+// Appends the mesh file's triangles to `out`, read where they land: a large mesh is never copied.
+void load_mesh(const Node& file_node, const fs::path& base_dir, std::vector<Triangle>& out) {
   const fs::path path = base_dir / file_node.string();
   std::error_code ec;
   if (!fs::is_regular_file(path, ec)) file_node.fail("mesh file not found: " + path.string());
   // Before Assimp allocates what the header claims (it would exhaust memory, not fail).
   if (auto why = implausible_mesh_counts(path)) file_node.fail("cannot load mesh " + path.string() + ": " + *why);
+  // Binary PLY files of triangles without Assimp (Assimp picks its reader by the extension).
+  if (lower_extension(path) == ".ply" && read_binary_ply(path, true, out)) return;
   Assimp::Importer importer;
   const aiScene* scene = importer.ReadFile(
       path.string(), aiProcess_Triangulate | aiProcess_JoinIdenticalVertices | aiProcess_PreTransformVertices);
   if (!scene || (scene->mFlags & AI_SCENE_FLAGS_INCOMPLETE) || !scene->mRootNode)
     file_node.fail("cannot load mesh " + path.string() + ": " + importer.GetErrorString());
-  std::vector<Triangle> out;
   for (unsigned i = 0; i < scene->mNumMeshes; ++i) {
     // Assimp puts every format's texture origin at the bottom left (it flips glTF's); xi's v runs down.
-    const std::vector<Triangle> tris = mesh_triangles(*scene->mMeshes[i], 0, true);
-    out.insert(out.end(), tris.begin(), tris.end());
+    mesh_triangles(*scene->mMeshes[i], 0, true, out);
   }
-  return out;
 }
 
 void read_shape(const Node& n, const std::map<std::string, uint32_t>& materials, const fs::path& base_dir,
@@ -508,13 +510,17 @@ void read_shape(const Node& n, const std::map<std::string, uint32_t>& materials,
       if (!within_range(t)) n.fail("sphere reaches a vertex coordinate beyond +-1e9 (after its transform)");
     }
   } else {
+    // Straight into `out`: a mesh of millions of triangles is neither copied nor held twice.
     const Node file = n.at("file");
-    tris = load_mesh(file, base_dir);
-    const long long bad = place_mesh(xf, tris);
+    const size_t first = out.size();
+    load_mesh(file, base_dir, out);
+    const long long bad = place_mesh(xf, out, first);
     if (bad >= 0)  // NaN or Inf in the file's data, or overflow in the transform
       file.fail("mesh " + file.string() + ": triangle " + std::to_string(bad) +
                 " has a non-finite vertex coordinate or one beyond +-1e9 (after its transform)");
-    if (tris.empty()) file.fail("mesh has no triangles (after dropping degenerate ones)");
+    if (out.size() == first) file.fail("mesh has no triangles (after dropping degenerate ones)");
+    for (size_t i = first; i < out.size(); ++i) out[i].material = found->second;
+    return;
   }
   for (Triangle& t : tris) t.material = found->second;
   out.insert(out.end(), tris.begin(), tris.end());
@@ -555,7 +561,8 @@ void read_asset_shape(const Node& n, const fs::path& base_dir, Scene& s) {
     s.lights.push_back(light);
   }
   for (Triangle& t : g.triangles) t.material += first;
-  s.triangles.insert(s.triangles.end(), g.triangles.begin(), g.triangles.end());
+  if (s.triangles.empty()) s.triangles = std::move(g.triangles);  // the common case: no copy
+  else s.triangles.insert(s.triangles.end(), g.triangles.begin(), g.triangles.end());
   for (const std::string& w : g.warnings)
     if (std::find(s.warnings.begin(), s.warnings.end(), w) == s.warnings.end()) s.warnings.push_back(w);
 }
@@ -710,8 +717,13 @@ Scene parse_scene(const std::string& json_text, const std::string& source_name, 
 }
 
 void check_scene_limits(const Scene& scene) {
-  for (size_t i = 0; i < scene.triangles.size(); ++i)
-    if (!within_range(scene.triangles[i]))
+  std::vector<size_t> bad(std::max(1u, std::thread::hardware_concurrency()), SIZE_MAX);  // per part, its first
+  in_parts(scene.triangles.size(), [&](size_t begin, size_t end, unsigned part) {
+    for (size_t i = begin; i < end && bad[part] == SIZE_MAX; ++i)
+      if (!within_range(scene.triangles[i])) bad[part] = i;
+  });
+  for (size_t i : bad)
+    if (i != SIZE_MAX)
       throw Error("triangle " + std::to_string(i) + " has a non-finite vertex coordinate or one beyond +-1e9",
                   scene.source);
   if (const std::string small = too_small(scene.triangles); !small.empty()) throw Error(small, scene.source);
