@@ -6,11 +6,10 @@
 // the environment, light sampling (NEE) and MIS.
 // Each work item shades XI_LANES paths at once (lanes.h): branches that differ between paths are
 // lane masks, and every path of one launch is at the same depth, `bounce`.
-#include "bsdf.h"
 #include "lanes.h"
 #include "layout.h"
 #include "lights.h"
-#include "microfacet.h"
+#include "material.h"
 #include "sampling.h"
 #include "shading.h"
 #include "spawn.h"
@@ -111,6 +110,59 @@ static inline XI_INLINE xfloat3 xi_pbr_normal(XI_SCENE_PARAMS, uint shading, xui
   // Never above the geometric normal's own cosine, so the geometric normal itself is left as it is.
   xfloat c = xi_dot3(n, wo), least = fmin((xfloat)0.01f, xi_dot3(n_geo, wo));
   return xi_select3(c < least, xi_normalize3(xi_add3(n, xi_scale3(wo, least - c))), n);
+}
+
+// The BSDF at a hit (material.h): the shading normal (interpolated vertex normals, a normal map),
+// the material's parameters after its textures, and the metallic-roughness lobes' frame. m holds
+// the material after the base colour texture; front: wo is on the geometric normal ng's side.
+static inline XI_INLINE Bsdf xi_surface_bsdf(XI_SCENE_PARAMS, uint shading, ShadingMaterial m, xuint mi, xuint tri,
+                                             xmask at_surface, xmask front, xfloat3 ng, xfloat3 wo, xfloat b1,
+                                             xfloat b2, xfloat3 p0, xfloat3 p1, xfloat3 p2, xfloat2 uv0,
+                                             xfloat2 uv1) {
+  Bsdf b;
+  b.at_surface = at_surface;
+  b.type = m.type;
+  b.ior = m.ior;
+  b.entering = front;
+  b.n_geo = xi_select3(front, ng, xi_neg3(ng));
+  b.n = b.n_geo;
+  if (xi_uses(shading, XI_USE_NORMALS)) {
+    xfloat has_normals;  // w marks a triangle that has vertex normals
+    xfloat3 na = xi_gather_xyz(tri_normals, 3u * tri, &has_normals);
+    xmask smooth = has_normals > 0.0f;
+    if (XI_ANY(smooth)) {
+      xfloat3 ns = xi_normalize3(xi_add3(xi_add3(xi_scale3(na, 1.0f - b1 - b2),
+                                                 xi_scale3(xi_gather_xyz(tri_normals, 3u * tri + 1u, 0), b1)),
+                                         xi_scale3(xi_gather_xyz(tri_normals, 3u * tri + 2u, 0), b2)));
+      ns = xi_select3(xi_dot3(ns, b.n_geo) < 0.0f, xi_neg3(ns), ns);
+      b.n = xi_select3(smooth, ns, b.n_geo);
+    }
+  }
+
+  // The metallic-roughness material: its inputs, shading normal and local frame (n = +z, wo above).
+  b.pbr.base_color = m.albedo;
+  b.pbr.metallic = b.pbr.alpha = b.pbr.transmission = 0.0f;
+  b.pbr.multiple_scattering = xi_uses(shading, XI_USE_MULTIPLE_SCATTERING) ? 1.0f : 0.0f;
+  b.pbr.eta = 1.5f;
+  b.frame_t = b.frame_b = b.n;
+  if (xi_uses(shading, XI_USE_PBR)) {
+    xmask pbr = at_surface && m.type == XI_MATERIAL_PBR;
+    if (XI_ANY(pbr)) {
+      PbrInputs in = xi_pbr_inputs(XI_SCENE_ARGS, shading, mi, m.albedo, uv0, uv1);
+      xfloat3 np = xi_pbr_normal(XI_SCENE_ARGS, shading, mi, tri, b1, b2, b.n, b.n_geo, wo, in.normal_scale, p0, p1,
+                                 p2, uv0, uv1);
+      b.n = xi_select3(pbr, np, b.n);
+      xi_basis(b.n, &b.frame_t, &b.frame_b);
+      b.pbr.base_color = in.base_color;
+      b.pbr.metallic = in.metallic;
+      b.pbr.alpha = in.roughness * in.roughness;
+      b.pbr.eta = front ? m.ior : 1.0f / m.ior;
+      b.pbr.transmission = in.transmission;
+      m.albedo = xi_select3(pbr, in.base_color, m.albedo);
+    }
+  }
+  b.tint = m.albedo;
+  return b;
 }
 
 // Whether an escaped ray gathers light: from an environment map or a background that is not black.
@@ -227,132 +279,47 @@ static inline XI_INLINE ShadeResult xi_shade_paths(XI_PATH_PARAMS xuint slot, xm
   xi_scatter4(radiance, slot, L, (xfloat)0.0f, active);
   if (d >= max_depth) return r;
 
-  xfloat3 n_geo = xi_select3(front, ng, xi_neg3(ng));  // geometric normal on the side of wo
-  xfloat3 n = n_geo;
-  if (xi_uses(shading, XI_USE_NORMALS)) {
-    xfloat has_normals;  // w marks a triangle that has vertex normals
-    xfloat3 na = xi_gather_xyz(tri_normals, 3u * tri, &has_normals);
-    xmask smooth = has_normals > 0.0f;
-    if (XI_ANY(smooth)) {
-      xfloat3 ns = xi_normalize3(xi_add3(xi_add3(xi_scale3(na, 1.0f - h.y - h.z),
-                                                 xi_scale3(xi_gather_xyz(tri_normals, 3u * tri + 1u, 0), h.y)),
-                                         xi_scale3(xi_gather_xyz(tri_normals, 3u * tri + 2u, 0), h.z)));
-      ns = xi_select3(xi_dot3(ns, n_geo) < 0.0f, xi_neg3(ns), ns);
-      n = xi_select3(smooth, ns, n_geo);
-    }
-  }
-
-  // The metallic-roughness material: its inputs, shading normal and local frame (n = +z, wo above).
-  xmask pbr = XI_FALSE;
-  PbrLobes lobes;
-  lobes.base_color = m.albedo;
-  lobes.metallic = lobes.alpha = lobes.transmission = 0.0f;
-  lobes.multiple_scattering = xi_uses(shading, XI_USE_MULTIPLE_SCATTERING) ? 1.0f : 0.0f;
-  lobes.eta = 1.5f;
-  xfloat3 frame_t = n, frame_b = n, wo_local = wo;
-  if (xi_uses(shading, XI_USE_PBR)) {
-    pbr = at_surface && m.type == XI_MATERIAL_PBR;
-    if (XI_ANY(pbr)) {
-      PbrInputs in = xi_pbr_inputs(XI_SCENE_ARGS, shading, mi, m.albedo, uv0, uv1);
-      xfloat3 np = xi_pbr_normal(XI_SCENE_ARGS, shading, mi, tri, h.y, h.z, n, n_geo, wo, in.normal_scale, p0, p1, p2,
-                                 uv0, uv1);
-      n = xi_select3(pbr, np, n);
-      xi_basis(n, &frame_t, &frame_b);
-      wo_local = make_xfloat3(xi_dot3(wo, frame_t), xi_dot3(wo, frame_b), xi_dot3(wo, n));
-      lobes.base_color = in.base_color;
-      lobes.metallic = in.metallic;
-      lobes.alpha = in.roughness * in.roughness;
-      lobes.eta = front ? m.ior : 1.0f / m.ior;
-      lobes.transmission = in.transmission;
-      m.albedo = xi_select3(pbr, in.base_color, m.albedo);  // for the albedo AOV
-    }
-  }
-
+  Bsdf bsdf = xi_surface_bsdf(XI_SCENE_ARGS, shading, m, mi, tri, at_surface, front, ng, wo, h.y, h.z, p0, p1, p2,
+                               uv0, uv1);
   if (d == 0u) {
-    xi_scatter4(aov_albedo, slot, m.albedo, (xfloat)0.0f, at_surface);
-    xi_scatter4(aov_normal, slot, n, (xfloat)0.0f, at_surface);
+    xi_scatter4(aov_albedo, slot, bsdf.tint, (xfloat)0.0f, at_surface);
+    xi_scatter4(aov_normal, slot, bsdf.n, (xfloat)0.0f, at_surface);
   }
 
-  xfloat3 wi = n;     // the next direction, where a lobe below sets it
-  xfloat pdf = 0.0f;  // stays 0 for specular lobes
-  xmask goes_on = XI_FALSE;
-  xmask diffuse = at_surface && m.type == XI_MATERIAL_DIFFUSE && xi_max3(m.albedo) > 0.0f;
-  // A metal whose lobes are all delta has nothing for a light sample to reach.
-  xmask pbr_nee = pbr && !(lobes.alpha < XI_DELTA_ALPHA && lobes.metallic >= 1.0f);
-  if (xi_uses(shading, XI_USE_NEE) && light_count > 0u && XI_ANY(diffuse || pbr_nee)) {
+  // Direct light: one light sample, weighed against the BSDF's own density, as a shadow ray.
+  xmask reachable = xi_bsdf_has_non_delta(bsdf, shading);
+  if (xi_uses(shading, XI_USE_NEE) && light_count > 0u && XI_ANY(reachable)) {
     xfloat2 ul = xi_sample_2d(sampler_kind, sampler, pixel, sample_index, XI_PAIR_BOUNCE(d, XI_BOUNCE_LIGHT));
-    xfloat3 org = xi_offset_ray_origin(p, p_error, n_geo, n_geo);  // lights behind n_geo are skipped
+    xfloat3 org = xi_offset_ray_origin(p, p_error, bsdf.n_geo, bsdf.n_geo);  // lights behind n_geo are skipped
     LightSample ls = xi_sample_light(light_cdf, light_tri, tri_light_pdf, tri_verts, tri_material, materials,
                                      punctual, env, env_texels, env_cdf, shading, light_count, org, ul);
-    xfloat cos_s = xi_dot3(n, ls.wi);
+    BsdfValue f = xi_bsdf_eval(bsdf, shading, wo, ls.wi);
+    xfloat cos_s = xi_dot3(bsdf.n, ls.wi);
     xfloat w = 1.0f;
-    if (xi_uses(shading, XI_USE_MIS)) w = xi_power_heuristic(ls.pdf, xi_lambert_pdf(n, ls.wi));
-    if (xi_uses(shading, XI_USE_PUNCTUAL)) w = ls.delta ? (xfloat)1.0f : w;
-    r.shadow = diffuse && ls.pdf > 0.0f && cos_s > 0.0f && xi_dot3(n_geo, ls.wi) > 0.0f;
-    r.shadow_contrib = xi_scale3(xi_mul3(xi_scale3(xi_mul3(beta, m.albedo), XI_INV_PI), ls.radiance),
-                                 cos_s * w / ls.pdf);
+    if (xi_uses(shading, XI_USE_MIS)) w = ls.delta ? (xfloat)1.0f : xi_power_heuristic(ls.pdf, f.pdf);
+    // Lights on either side: reflection above the surface, transmission below (the shadow ray then
+    // starts below it), the shading and geometric normals agreeing on the side.
+    xfloat side = xi_dot3(bsdf.n_geo, ls.wi);
+    r.shadow = reachable && ls.pdf > 0.0f && side * cos_s > 0.0f && xi_max3(f.colour) > 0.0f;
+    r.shadow_contrib = xi_scale3(xi_mul3(xi_scale3(xi_mul3(beta, f.colour), f.scale), ls.radiance),
+                                 fabs(cos_s) * w / (ls.pdf > 0.0f ? ls.pdf : (xfloat)1.0f));
     // Its end is off the light already; the margin covers the rounding of the hit distance.
-    r.shadow_org = org;
+    r.shadow_org = xi_select3(side < 0.0f, xi_offset_ray_origin(p, p_error, bsdf.n_geo, ls.wi), org);
     r.shadow_tmax = ls.dist * (1.0f - 1e-4f);
     r.shadow_dir = ls.wi;
-    if (xi_uses(shading, XI_USE_PBR) && XI_ANY(pbr_nee)) {
-      // Lights on either side: reflection above the surface, transmission below (the shadow ray
-      // then starts below it), the shading and geometric normals agreeing on the side.
-      xfloat3 wi_local = make_xfloat3(xi_dot3(ls.wi, frame_t), xi_dot3(ls.wi, frame_b), cos_s);
-      xfloat bsdf_pdf;
-      xfloat3 f = xi_pbr_eval_pdf(lobes, wo_local, wi_local, &bsdf_pdf);
-      xfloat wp = 1.0f;
-      if (xi_uses(shading, XI_USE_MIS)) wp = ls.delta ? (xfloat)1.0f : xi_power_heuristic(ls.pdf, bsdf_pdf);
-      xfloat side = xi_dot3(n_geo, ls.wi);
-      xmask ok = pbr_nee && ls.pdf > 0.0f && side * cos_s > 0.0f && xi_max3(f) > 0.0f;
-      r.shadow = r.shadow || ok;
-      r.shadow_contrib = xi_select3(pbr_nee, xi_scale3(xi_mul3(xi_mul3(beta, f), ls.radiance),
-                                                       fabs(cos_s) * wp / (ls.pdf > 0.0f ? ls.pdf : (xfloat)1.0f)),
-                                    r.shadow_contrib);
-      r.shadow_org = xi_select3(pbr_nee && side < 0.0f, xi_offset_ray_origin(p, p_error, n_geo, ls.wi), r.shadow_org);
-    }
   }
-  if (XI_ANY(diffuse)) {
-    xfloat2 ub = xi_sample_2d(sampler_kind, sampler, pixel, sample_index, XI_PAIR_BOUNCE(d, XI_BOUNCE_BSDF_DIR));
-    xfloat lambert_pdf;
-    xfloat3 wl = xi_lambert_sample(n, ub, &lambert_pdf);
-    wi = xi_select3(diffuse, wl, wi);
-    pdf = diffuse ? lambert_pdf : pdf;
-    // A shading normal may send the sample below the surface.
-    goes_on = goes_on || (diffuse && xi_dot3(wl, n_geo) > 0.0f && lambert_pdf > 0.0f);
-  }
-  xmask mirror = at_surface && m.type == XI_MATERIAL_MIRROR;
-  if (xi_uses(shading, XI_USE_MIRROR) && XI_ANY(mirror)) {
-    xfloat3 wm = xi_reflect(wo, n);
-    wi = xi_select3(mirror, wm, wi);
-    goes_on = goes_on || (mirror && xi_dot3(wm, n_geo) > 0.0f);
-  }
-  xmask glass = at_surface && m.type == XI_MATERIAL_DIELECTRIC;
-  if (xi_uses(shading, XI_USE_DIELECTRIC) && XI_ANY(glass)) {
-    xfloat2 uc = xi_sample_2d(sampler_kind, sampler, pixel, sample_index, XI_PAIR_BOUNCE(d, XI_BOUNCE_LOBE));
-    xmask reflected;
-    wi = xi_select3(glass, xi_dielectric_sample(wo, n, m.ior, front, uc.x, &reflected), wi);
-    goes_on = goes_on || glass;
-  }
-  xfloat3 pbr_weight = xi_splat3(make_float3(1.0f, 1.0f, 1.0f));
-  if (xi_uses(shading, XI_USE_PBR) && XI_ANY(pbr)) {
-    xfloat2 ub = xi_sample_2d(sampler_kind, sampler, pixel, sample_index, XI_PAIR_BOUNCE(d, XI_BOUNCE_BSDF_DIR));
-    xfloat2 uc = xi_sample_2d(sampler_kind, sampler, pixel, sample_index, XI_PAIR_BOUNCE(d, XI_BOUNCE_LOBE));
-    xfloat3 wi_local;
-    xfloat pdf_local;
-    xmask delta;
-    pbr_weight = xi_pbr_sample(lobes, wo_local, uc.x, ub, &wi_local, &pdf_local, &delta);
-    xfloat3 wp = xi_add3(xi_add3(xi_scale3(frame_t, wi_local.x), xi_scale3(frame_b, wi_local.y)),
-                         xi_scale3(n, wi_local.z));
-    wi = xi_select3(pbr, wp, wi);
-    pdf = pbr ? (delta ? (xfloat)0.0f : pdf_local) : pdf;
-    // The geometric normal must agree with the lobe's side, or light would leak through.
-    goes_on = goes_on || (pbr && xi_max3(pbr_weight) > 0.0f && xi_dot3(wp, n_geo) * wi_local.z > 0.0f);
-  }
-  // (A material the shading word leaves out ends its path.)
+
+  // Scatter: the BSDF's sample is the next ray. (A material the shading word leaves out ends its path.)
+  xfloat2 ub = xi_sample_2d(sampler_kind, sampler, pixel, sample_index, XI_PAIR_BOUNCE(d, XI_BOUNCE_BSDF_DIR));
+  xfloat u_lobe = 0.0f;
+  if (xi_uses(shading, XI_USE_DIELECTRIC | XI_USE_PBR))
+    u_lobe = xi_sample_2d(sampler_kind, sampler, pixel, sample_index, XI_PAIR_BOUNCE(d, XI_BOUNCE_LOBE)).x;
+  BsdfSample bs = xi_bsdf_sample(bsdf, shading, wo, u_lobe, ub);
+  xfloat3 wi = bs.wi;
+  xfloat pdf = bs.pdf;
+  xmask goes_on = bs.valid;
   xfloat3 beta_in = beta;
-  beta = xi_mul3(beta, m.albedo);
-  if (xi_uses(shading, XI_USE_PBR)) beta = xi_select3(pbr, xi_mul3(beta_in, pbr_weight), beta);
+  beta = xi_mul3(beta, bs.weight);
 
   if (d + 1u >= XI_ROULETTE_DEPTH) {
     // The decision takes an independent uniform, whatever the sampler: a deterministic sample set
@@ -370,7 +337,7 @@ static inline XI_INLINE ShadeResult xi_shade_paths(XI_PATH_PARAMS xuint slot, xm
     pdf = passes ? prev_pdf : pdf;
   }
 
-  xi_scatter4(ray_org, slot, xi_offset_ray_origin(p, p_error, n_geo, wi), (xfloat)0.0f, goes_on);
+  xi_scatter4(ray_org, slot, xi_offset_ray_origin(p, p_error, bsdf.n_geo, wi), (xfloat)0.0f, goes_on);
   xi_scatter4(ray_dir, slot, wi, (xfloat)0.0f, goes_on);
   xi_scatter4(throughput, slot, beta, pdf, goes_on);
   r.next_ray = goes_on;

@@ -1,4 +1,5 @@
-// Scattering: Lambertian (albedo/π), perfect mirror, smooth dielectric. Directions are unit
+// The lobes of the simple materials: Lambertian (albedo/π), perfect mirror, smooth dielectric
+// (material.h puts them behind the BSDF interface). Directions are unit
 // vectors pointing away from the surface; `n` is the normal on the side of wo. Written on lane
 // types (lanes.h).
 #ifndef XI_BSDF_H
@@ -6,6 +7,13 @@
 #include "lanes.h"
 #include "layout.h"
 #include "warps.h"
+
+// The kind of lobe a sample came from (pbrt-v4's BxDFFlags, Mitsuba 3's BSDFFlags, in short).
+#define XI_LOBE_REFLECTION 1u
+#define XI_LOBE_TRANSMISSION 2u
+#define XI_LOBE_DIFFUSE 4u
+#define XI_LOBE_GLOSSY 8u
+#define XI_LOBE_SPECULAR 16u
 
 // A material's parameters, lane k holding those of path k's material.
 typedef struct {

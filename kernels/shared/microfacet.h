@@ -273,9 +273,10 @@ static inline xfloat xi_pbr_pdf(PbrLobes m, xfloat3 wo, xfloat3 wi) {
 // whole non-delta BSDF and pdf = xi_pbr_pdf (one-sample MIS over the lobes), and *pdf. A delta
 // lobe returns its own weight (Fresnel and tint over its probability) with *pdf = 0 and *delta
 // set. A sample that leaves its lobe's side of the surface (reflection below, transmission above)
-// or meets total internal reflection returns weight 0 and *pdf = 0.
-static inline xfloat3 xi_pbr_sample(PbrLobes m, xfloat3 wo, xfloat u_lobe, xfloat2 u, xfloat3* wi, xfloat* pdf,
-                                    xmask* delta) {
+// or meets total internal reflection returns weight 0 and *pdf = 0. *lobe: the XI_LOBE_* bits of
+// the lobe chosen (material.h).
+static inline xfloat3 xi_pbr_sample_lobe(PbrLobes m, xfloat3 wo, xfloat u_lobe, xfloat2 u, xfloat3* wi, xfloat* pdf,
+                                         xmask* delta, xuint* lobe) {
   xfloat pr, pd, pt;
   xi_pbr_lobe_probabilities(m, wo, &pr, &pd, &pt);
   xmask pick_r = u_lobe < pr || (pd <= 0.0f && pt <= 0.0f);
@@ -319,7 +320,15 @@ static inline xfloat3 xi_pbr_sample(PbrLobes m, xfloat3 wo, xfloat u_lobe, xfloa
   *wi = w;
   *pdf = is_delta || !valid ? (xfloat)0.0f : p;
   *delta = is_delta;
+  xuint side = pick_t ? (xuint)XI_LOBE_TRANSMISSION : (xuint)XI_LOBE_REFLECTION;
+  *lobe = side | (is_delta ? (xuint)XI_LOBE_SPECULAR : pick_d ? (xuint)XI_LOBE_DIFFUSE : (xuint)XI_LOBE_GLOSSY);
   return xi_select3(is_delta, weight_delta, weight);
+}
+
+static inline xfloat3 xi_pbr_sample(PbrLobes m, xfloat3 wo, xfloat u_lobe, xfloat2 u, xfloat3* wi, xfloat* pdf,
+                                    xmask* delta) {
+  xuint lobe;
+  return xi_pbr_sample_lobe(m, wo, u_lobe, u, wi, pdf, delta, &lobe);
 }
 
 #endif
