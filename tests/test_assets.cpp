@@ -88,6 +88,39 @@ glm::dvec2 gltf_project(const glm::dmat4& world, double yfov, double aspect, glm
   return {(nx + 1.0) / 2.0 * w, (1.0 - ny) / 2.0 * h};
 }
 
+// An automatically framed camera: at `centre` + distance * `toward_camera` (a unit vector), the
+// distance putting the bounding sphere's edge at 1/1.1 of the half-height of the 40-degree frame
+// (distance = 1.1 r / sin 20°, r half the box's diagonal); looking at the centre, up +y; every
+// vertex inside the square frame, the farthest from its centre beyond half of it.
+void expect_framed(const xi::Scene& s, glm::dvec3 centre, glm::dvec3 toward_camera) {
+  glm::dvec3 lo(INFINITY), hi(-INFINITY);
+  for (const xi::Triangle& t : s.triangles)
+    for (const glm::vec3& v : t.v) lo = glm::min(lo, glm::dvec3(v)), hi = glm::max(hi, glm::dvec3(v));
+  for (int k = 0; k < 3; ++k) EXPECT_NEAR(0.5 * (lo[k] + hi[k]), centre[k], 1e-5) << "the test's centre";
+  const double radius = 0.5 * glm::length(hi - lo), distance = 1.1 * radius / std::sin(glm::radians(20.0));
+  const glm::dvec3 want = centre + distance * toward_camera;
+  for (int k = 0; k < 3; ++k) {
+    EXPECT_NEAR(s.camera.position[k], want[k], 1e-4 * distance) << "camera position, axis " << k;
+    EXPECT_NEAR(s.camera.look_at[k], centre[k], 1e-4) << "look_at, axis " << k;
+  }
+  EXPECT_EQ(s.camera.up, glm::vec3(0, 1, 0));
+  EXPECT_EQ(s.camera.vfov_degrees, 40.0f);
+  EXPECT_EQ(s.width, s.height);
+  const glm::dvec3 pos(s.camera.position), forward = glm::normalize(centre - pos);
+  const glm::dvec3 right = glm::normalize(glm::cross(forward, glm::dvec3(0, 1, 0))), up = glm::cross(right, forward);
+  const double t = std::tan(glm::radians(20.0));
+  double farthest = 0.0;
+  for (const xi::Triangle& tri : s.triangles)
+    for (const glm::vec3& v : tri.v) {
+      const glm::dvec3 c = glm::dvec3(v) - pos;
+      const double x = glm::dot(c, right) / glm::dot(c, forward) / t, y = glm::dot(c, up) / glm::dot(c, forward) / t;
+      EXPECT_LT(std::abs(x), 1.0) << "vertex outside the frame";
+      EXPECT_LT(std::abs(y), 1.0) << "vertex outside the frame";
+      farthest = std::max({farthest, std::abs(x), std::abs(y)});
+    }
+  EXPECT_GT(farthest, 0.5) << "framed far too loosely";
+}
+
 }  // namespace
 
 // Assimp 5.2 reads Cameras.gltf's perspective camera with mHorizontalFOV = yfov (× aspectRatio) and
@@ -348,9 +381,9 @@ TEST(AssetMaterials, NonFiniteEmission) {
   fs::remove_all(dir);
 }
 
-// No camera: the bounding box framed from +z, said in the notes; no light: the bundled sky (strength
-// 1, not turned), said too; or the environment the caller names; or with sky off, nothing but the
-// scene's background. Every vertex projects inside the film through xi's camera.
+// No camera: the bounding sphere framed as a glTF viewer does (from the front, 15 degrees above),
+// said in the notes; no light: the bundled sky (strength 1, not turned), said too; or the
+// environment the caller names; or with sky off, nothing but the scene's background.
 TEST(AssetScene, NoCameraFramingAndNoLightSky) {
   const fs::path dir = temp_dir();
   Gltf g;
@@ -359,7 +392,7 @@ TEST(AssetScene, NoCameraFramingAndNoLightSky) {
   g.node({{"mesh", 0}, {"translation", {100.0, 0.0, 0.0}}});
   g.write(dir / "plain.gltf");
   const xi::Scene s = xi::load_asset(dir / "plain.gltf");
-  EXPECT_TRUE(contains(s.notes, "no camera in the file: framing its bounding box from +z")) << s.notes.at(0);
+  EXPECT_TRUE(contains(s.notes, "no camera in the file: framing its bounding sphere from --orbit 0,15 (")) << s.notes.at(0);
   EXPECT_TRUE(contains(s.notes, "no light in the file: lit by xi's bundled sky (")) << s.notes.back();
   EXPECT_TRUE(contains(s.notes, "--background R,G,B a constant one"));
   ASSERT_TRUE(s.environment.has_value());
@@ -378,19 +411,32 @@ TEST(AssetScene, NoCameraFramingAndNoLightSky) {
   EXPECT_TRUE(contains(bare.notes, "no light in the file and no environment: the background alone lights it"));
   EXPECT_EQ(s.width, 512);
   EXPECT_EQ(s.height, 512);
-  const glm::vec3 centre(101, 1.5f, -2);
-  const glm::vec3 dir_ = glm::normalize(s.camera.look_at - s.camera.position);
-  EXPECT_NEAR(dir_.z, -1.0f, 1e-6);
-  EXPECT_NEAR(s.camera.look_at.x, centre.x, 1e-4);
-  EXPECT_NEAR(s.camera.look_at.y, centre.y, 1e-4);
-  const float t = std::tan(glm::radians(s.camera.vfov_degrees) / 2.0f);
-  for (const xi::Triangle& tri : s.triangles)
-    for (const glm::vec3& v : tri.v) {
-      const glm::vec3 c = v - s.camera.position;  // camera axes are the world's (looking down -z)
-      EXPECT_LT(std::abs(c.x / -c.z), t) << "vertex outside the frame";
-      EXPECT_LT(std::abs(c.y / -c.z), t) << "vertex outside the frame";
-      EXPECT_GT(std::abs(c.y / -c.z) + std::abs(c.x / -c.z), 0.2f * t) << "framed far too loosely";
-    }
+  expect_framed(s, {101, 1.5, -2}, {0.0, std::sin(glm::radians(15.0)), std::cos(glm::radians(15.0))});
+}
+
+// --orbit YAW,PITCH: yaw turns the framing camera about +y toward +x, pitch raises it; always at
+// the same distance, looking at the centre, the bounding sphere filling the frame. Refused when
+// the file's own camera is used, and for a pitch outside (-90, 90).
+TEST(AssetScene, OrbitTurnsTheFraming) {
+  const fs::path dir = temp_dir();
+  Gltf g;
+  g.add("materials", diffuse("grey", 0.5));
+  g.mesh({{-1, 0, 0}, {3, 0, 0}, {3, 2, 0}, {-1, 0, 0}, {3, 2, 0}, {-1, 2, 4}}, 0);
+  g.node({{"mesh", 0}});
+  g.write(dir / "plain.gltf");
+  const glm::dvec3 centre(1, 1, 2);
+  const xi::Scene side = xi::load_asset(dir / "plain.gltf", {.orbit = xi::Orbit{90, 0}});
+  EXPECT_TRUE(contains(side.notes, "framing its bounding sphere from --orbit 90,0 (")) << side.notes.at(0);
+  expect_framed(side, centre, {1, 0, 0});  // on +x, at the centre's height
+  EXPECT_NEAR(side.camera.position.y, 1.0f, 1e-5);
+  const double yaw = glm::radians(-40.0), pitch = glm::radians(-25.0);
+  expect_framed(xi::load_asset(dir / "plain.gltf", {.orbit = xi::Orbit{-40, -25}}), centre,
+                {std::sin(yaw) * std::cos(pitch), std::sin(pitch), std::cos(yaw) * std::cos(pitch)});
+  for (double bad : {90.0, -90.0, 120.0, double(NAN)})
+    expect_error([&] { xi::load_asset(dir / "plain.gltf", {.orbit = xi::Orbit{0, bad}}); }, {"pitch", "(-90, 90)", "--orbit"});
+  expect_error([&] { xi::load_asset(kCameras, {.orbit = xi::Orbit{}}); }, {"--orbit", "camera 0 'nodes[1]'", "Cameras.gltf"});
+  expect_error([&] { xi::load_asset(kCameras, {.camera = "0", .orbit = xi::Orbit{10, 5}}); }, {"--orbit", "camera 0"});
+  fs::remove_all(dir);
 }
 
 // An asset whose geometry, after its node transforms, spans less than 1e-6 is refused as a JSON
@@ -658,6 +704,35 @@ TEST_F(AssetCli, CameraByIndexFilmFromAspectAndBadCamera) {
   expect_user_error(name, {"no camera 'back'", "0 'front-node'"}, before);
   const auto json_scene = run_xi(xi_test::concat({"render", xi_test::kCornell.string(), "--camera", "0"}, xi_test::kFast));
   expect_user_error(json_scene, {"--camera chooses among an asset file's cameras"}, before);
+}
+
+// `xi render --orbit`: the framing's direction from the flag, said in the note; one error (and no
+// file) for a file whose camera is used, a JSON scene, and a malformed or out-of-range value.
+TEST_F(AssetCli, OrbitFlag) {
+  Gltf g;
+  g.mesh({{0, 0, 0}, {1, 0, 0}, {0, 1, 0}}, -1);
+  g.node({{"mesh", 0}});
+  g.write(work_ / "plain.gltf");
+  const auto r = run_xi({"render", "plain.gltf", "--orbit", "90,0", "--spp", "1", "--resolution", "8x8"});
+  ASSERT_EQ(r.code, 0) << r.err;
+  EXPECT_NE(r.out.find("no camera in the file: framing its bounding sphere from --orbit 90,0 ("), std::string::npos) << r.out;
+  const auto plain = run_xi({"render", "plain.gltf", "--spp", "1", "--resolution", "8x8", "-o", "default.exr"});
+  EXPECT_NE(plain.out.find("framing its bounding sphere from --orbit 0,15 ("), std::string::npos) << plain.out;
+
+  glm::dmat4 world;
+  write_framing(work_ / "frame.gltf", &world);
+  const auto before = files();
+  expect_user_error(run_xi(xi_test::concat({"render", "frame.gltf", "--orbit", "0,10"}, xi_test::kFast)),
+                    {"--orbit", "camera 0 'front-node'"}, before);
+  expect_user_error(run_xi(xi_test::concat({"render", "frame.gltf", "--camera", "side-node", "--orbit", "0,10"}, xi_test::kFast)),
+                    {"--orbit", "camera 1 'side-node'"}, before);
+  expect_user_error(run_xi(xi_test::concat({"render", xi_test::kCornell.string(), "--orbit", "0,10"}, xi_test::kFast)),
+                    {"--orbit 0,10", "a JSON scene has its own camera"}, before);
+  for (const char* bad : {"10", "a,b", "10,", "1,2,3", "nan,0"})
+    expect_user_error(run_xi(xi_test::concat({"render", "plain.gltf", "--orbit", bad}, xi_test::kFast)),
+                      {"expected YAW,PITCH", std::string("--orbit ") + bad}, before);
+  expect_user_error(run_xi(xi_test::concat({"render", "plain.gltf", "--orbit", "0,90"}, xi_test::kFast)),
+                    {"pitch", "(-90, 90)", "--orbit"}, before);
 }
 
 // `xi render` on the engine .glb as shipped: works, says which camera, what lights it (no light in

@@ -5,6 +5,7 @@
 #include <vector>
 
 #include "xi/denoise.h"
+#include "xi/view.h"
 
 namespace xi::cli {
 
@@ -35,6 +36,12 @@ int tonemap(const std::vector<std::string>& args);
 int prebuild(const std::vector<std::string>& args);
 int export_scene(const std::vector<std::string>& args);  // `xi export`
 int denoise(const std::vector<std::string>& args);       // `xi denoise`
+// --view and --exposure (render and tonemap): how the PNG shows the linear image.
+struct PngView {
+  View view = View::Standard;
+  float exposure = 1.0f;
+};
+PngView read_png_view(const Args& args, View fallback);
 // --denoise-quality and --denoise-prefilter (render and denoise), for a render on `device`.
 DenoiseOptions read_denoise_options(const Args& args, Device* device);
 

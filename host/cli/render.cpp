@@ -175,6 +175,7 @@ struct Job {
   Scene scene;
   RenderOptions opt;
   std::filesystem::path out, png, convergence, trace;
+  PngView png_view;  // how the PNG shows the image (--view, --exposure)
   std::optional<Image> reference;
   bool measured = false;  // --reference given: every rank's share of the mean is gathered to measure it
   double time_budget = INFINITY;
@@ -227,11 +228,23 @@ Args parse_render_args(const std::vector<std::string>& argv) {
                "--convergence", "--trace", "--paths-in-flight", "--samples-per-pass",
                "--time", "--snapshot-every", "--checkpoint", "--checkpoint-every", "--resume", "--camera", "--env",
                "--env-strength", "--env-rotate", "--background", "--threads", "--noise-threshold", "--min-spp",
-               "--denoise-quality", "--denoise-prefilter"},
+               "--denoise-quality", "--denoise-prefilter", "--view", "--exposure", "--orbit"},
               {"--profile", "--quiet", "--all-features", "--no-spatial-splits", "--denoise"});
 }
 
-// The scene file, with --camera and --resolution applied; every rank must get whole rows.
+// --orbit YAW,PITCH: two numbers, in degrees (load_asset checks the pitch's range).
+Orbit parse_orbit(const std::string& text) {
+  const size_t comma = text.find(',');
+  try {
+    if (comma != std::string::npos)
+      return {parse_number(text.substr(0, comma), -1e6, 1e6, "--orbit", ""),
+              parse_number(text.substr(comma + 1), -1e6, 1e6, "--orbit", "")};
+  } catch (const Error&) {
+  }
+  throw Error("expected YAW,PITCH in degrees (-90 < PITCH < 90), got '" + text + "'", "--orbit " + text);
+}
+
+// The scene file, with --camera, --orbit and --resolution applied; every rank must get whole rows.
 void load_job_scene(Job& job, const Args& args, const Team& team) {
   if (args.positional().size() > 1) throw Error("expected at most one scene file", args.positional()[1]);
   job.scene_path = args.positional().empty() ? default_scene() : std::filesystem::path(args.positional()[0]);
@@ -240,9 +253,14 @@ void load_job_scene(Job& job, const Args& args, const Team& team) {
   if (args.has("--camera") && !job.asset)
     throw Error("--camera chooses among an asset file's cameras (.gltf, .glb...); a JSON scene has one camera",
                 "--camera " + args.get("--camera"));
+  if (args.has("--orbit") && !job.asset)
+    throw Error("--orbit turns the framing of an asset file without a camera (.gltf, .glb...); a JSON scene has "
+                "its own camera",
+                "--orbit " + args.get("--orbit"));
   const EnvironmentFlags environment = read_environment_flags(args);
   AssetOptions asset_options;
   asset_options.camera = args.get("--camera");
+  if (args.has("--orbit")) asset_options.orbit = parse_orbit(args.get("--orbit"));
   asset_options.environment = environment.environment;
   asset_options.sky = !environment.none;
   Scene& scene = job.scene;
@@ -312,6 +330,8 @@ void read_output_names(Job& job, const Args& args) {
   job.out.replace_extension(".exr");
   job.convergence = args.get("--convergence");
   job.trace = args.get("--trace");
+  // An asset file's PNG looks as glTF viewers show it; a JSON scene's is clipped, as it always was.
+  job.png_view = read_png_view(args, job.asset ? View::Neutral : View::Standard);
   job.measured = args.has("--reference");
   if (args.has("--convergence") && !args.has("--reference")) throw Error("--convergence needs --reference", "--convergence");
 }
@@ -670,6 +690,8 @@ class RenderRun {
                         {"strategy", std::string(strategy_name(opt.strategy))},
                         {"maxDepth", opt.max_depth}};
     if (team_.size() > 1) attrs["processes"] = team_.size();
+    attrs["pngView"] = std::string(view_name(job_.png_view.view));  // the PNG's; these pixels are linear
+    attrs["pngExposure"] = job_.png_view.exposure;
     if (spp < opt.spp) attrs["sppTarget"] = opt.spp;
     for (auto& [name, value] : last_error_) attrs["error." + name] = value;
     const std::optional<Image> denoised = denoise(film, attrs);
@@ -686,7 +708,7 @@ class RenderRun {
       attrs["sppMean"] = taken / (double)film.spp.pixels.size();
     }
     write_exr(job_.out, layers, attrs);
-    write_png(job_.png, color);
+    write_png(job_.png, color, job_.png_view.exposure, job_.png_view.view);
     return (size_t)std::count_if(film.variance.pixels.begin(), film.variance.pixels.end(),
                                  [](const glm::vec3& v) { return !std::isfinite(v.x + v.y + v.z); });
   }

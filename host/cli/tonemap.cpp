@@ -1,6 +1,7 @@
 // `xi tonemap`: an EXR as the PNG `xi render` writes beside it (a preview of a reference whose PNG
-// was not kept, or of one layer).
+// was not kept, or of one layer), through the view --view names.
 #include <algorithm>
+#include <optional>
 
 #include "cli.h"
 #include "xi/error.h"
@@ -9,12 +10,25 @@
 
 namespace xi::cli {
 
+PngView read_png_view(const Args& args, View fallback) {
+  PngView v;
+  v.exposure = (float)args.get_positive("--exposure", 1.0, "an exposure");
+  v.view = fallback;
+  if (args.has("--view")) {
+    const std::string name = args.get("--view");
+    const std::optional<View> view = view_from_name(name);
+    if (!view) throw Error("unknown view '" + name + "': expected " + kViewNames, "--view " + name);
+    v.view = *view;
+  }
+  return v;
+}
+
 int tonemap(const std::vector<std::string>& argv) {
-  Args args(argv, {"--exposure", "--layer"}, {});
+  Args args(argv, {"--exposure", "--layer", "--view"}, {});
   if (args.positional().size() != 2) throw Error("expected IMAGE.exr OUT.png", "xi tonemap");
   const std::filesystem::path out = args.positional()[1];
   if (out.extension() != ".png") throw Error("the output must be a .png file", out.string());
-  const float exposure = (float)args.get_positive("--exposure", 1.0, "an exposure");
+  const PngView png = read_png_view(args, View::Standard);
   const std::string in = args.positional()[0];
   Image image = read_exr(in, args.get("--layer"));
   check_finite(image, "image " + in);  // a PNG would show them as black, hiding them
@@ -26,7 +40,7 @@ int tonemap(const std::vector<std::string>& argv) {
     if (most > 0.0f)
       for (glm::vec3& n : image.pixels) n /= most;
   }
-  write_png(out, image, exposure);
+  write_png(out, image, png.exposure, png.view);
   return 0;
 }
 

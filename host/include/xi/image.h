@@ -12,6 +12,8 @@
 
 #include <glm/glm.hpp>
 
+#include "xi/view.h"
+
 namespace xi {
 
 struct Image {
@@ -39,8 +41,10 @@ void write_exr(const std::filesystem::path& path, const std::vector<ExrLayer>& l
 Image read_exr(const std::filesystem::path& path, const std::string& layer = "");
 ExrAttributes read_exr_attributes(const std::filesystem::path& path);
 
-// 8-bit sRGB PNG: each channel scaled by `exposure`, clipped to [0, 1], then sRGB-encoded.
-void write_png(const std::filesystem::path& path, const Image& image, float exposure = 1.0f);
+// 8-bit sRGB PNG: each pixel scaled by `exposure`, shown through `view` (View::Standard: clipped
+// to [0, 1]), then sRGB-encoded (display_pixel in view.h).
+void write_png(const std::filesystem::path& path, const Image& image, float exposure = 1.0f,
+               View view = View::Standard);
 // 8-bit RGBA PNG of texels as TextureImage holds them (red in the low byte, top row first), the
 // bytes unchanged.
 void write_png_rgba8(const std::filesystem::path& path, int width, int height, const std::vector<uint32_t>& texels);

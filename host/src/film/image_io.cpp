@@ -24,11 +24,6 @@ std::string channel(const std::string& layer, char c) {
   return layer.empty() ? std::string(1, c) : layer + "." + c;
 }
 
-float srgb_encode(float v) {
-  v = std::fmin(std::fmax(v, 0.0f), 1.0f);
-  return v <= 0.0031308f ? 12.92f * v : 1.055f * std::pow(v, 1.0f / 2.4f) - 0.055f;
-}
-
 float srgb_decode(float v) {
   return v <= 0.04045f ? v / 12.92f : std::pow((v + 0.055f) / 1.055f, 2.4f);
 }
@@ -127,11 +122,12 @@ ExrAttributes read_exr_attributes(const std::filesystem::path& path) {
   return out;
 }
 
-void write_png(const std::filesystem::path& path, const Image& image, float exposure) {
+void write_png(const std::filesystem::path& path, const Image& image, float exposure, View view) {
   std::vector<unsigned char> rgb((size_t)image.width * image.height * 3);
-  for (size_t i = 0; i < image.pixels.size(); ++i)
-    for (int c = 0; c < 3; ++c)
-      rgb[3 * i + c] = (unsigned char)std::lround(255.0f * srgb_encode(exposure * image.pixels[i][c]));
+  for (size_t i = 0; i < image.pixels.size(); ++i) {
+    const glm::u8vec3 shown = display_pixel(view, image.pixels[i], exposure);
+    for (int c = 0; c < 3; ++c) rgb[3 * i + c] = shown[c];
+  }
   write_atomically(path, [&](const std::filesystem::path& tmp) {
     png_image img{};
     img.version = PNG_IMAGE_VERSION;

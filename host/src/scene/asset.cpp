@@ -420,6 +420,10 @@ Scene load_asset(const fs::path& path, const AssetOptions& options) {
   }
 
   float aspect = 1.0f;
+  if (chosen >= 0 && options.orbit)
+    throw Error("--orbit turns the framing of a file without a camera, but this render uses camera " +
+                    std::to_string(chosen) + " '" + list[chosen].name + "' of " + path.filename().string(),
+                "--orbit");
   if (chosen >= 0) {
     const CameraInfo& c = list[chosen];
     const glm::vec3 dir = c.camera.look_at - c.camera.position;
@@ -435,20 +439,35 @@ Scene load_asset(const fs::path& path, const AssetOptions& options) {
                   c.name.c_str(), list.size(), c.camera.vfov_degrees, c.aspect);
     s.notes.push_back(buf);
   } else {
-    // Frame the bounding sphere of the box from +z: the glTF front view (y up, looking down -z).
+    // Frame the bounding sphere of the box as glTF viewers do: from the front (+z, the glTF front
+    // view), a little above, looking at its centre, up +y, the sphere filling the frame's height.
+    const Orbit orbit = options.orbit.value_or(Orbit{});
+    if (!std::isfinite(orbit.yaw) || !(std::abs(orbit.pitch) < 90.0)) {
+      char buf[120];
+      std::snprintf(buf, sizeof buf,
+                    "the framing's pitch must be within (-90, 90) degrees and its yaw finite, got %g,%g", orbit.yaw,
+                    orbit.pitch);
+      throw Error(buf, "--orbit");
+    }
     glm::dvec3 lo(INFINITY), hi(-INFINITY);
     for (const Triangle& t : s.triangles)
       for (const auto& v : t.v) lo = glm::min(lo, glm::dvec3(v)), hi = glm::max(hi, glm::dvec3(v));
     const glm::dvec3 centre = 0.5 * (lo + hi);
     const double radius = std::max(0.5 * glm::length(hi - lo), 1e-6);
     const double vfov = 40.0, distance = 1.1 * radius / std::sin(glm::radians(vfov / 2.0));
-    s.camera.position = glm::vec3(centre + glm::dvec3(0, 0, distance));
+    const double yaw = glm::radians(orbit.yaw), pitch = glm::radians(orbit.pitch);
+    const glm::dvec3 toward_camera(std::sin(yaw) * std::cos(pitch), std::sin(pitch), std::cos(yaw) * std::cos(pitch));
+    s.camera.position = glm::vec3(centre + distance * toward_camera);
     s.camera.look_at = glm::vec3(centre);
     s.camera.up = {0.0f, 1.0f, 0.0f};
     s.camera.vfov_degrees = float(vfov);
     s.camera.focus_distance = float(distance);
-    s.notes.push_back(std::string(list.empty() ? "no camera in the file" : "no perspective camera in the file") +
-                      ": framing its bounding box from +z (looking down -z, up +y, vertical fov 40 degrees)");
+    char buf[200];
+    std::snprintf(buf, sizeof buf,
+                  ": framing its bounding sphere from --orbit %g,%g (yaw about +y from the front, pitch above "
+                  "the horizontal, in degrees; looking at its centre, up +y, vertical fov 40 degrees)",
+                  orbit.yaw, orbit.pitch);
+    s.notes.push_back(std::string(list.empty() ? "no camera in the file" : "no perspective camera in the file") + buf);
   }
   s.height = options.height;
   s.width = int(std::clamp(std::lround(options.height * double(aspect)), 1L, 16384L));
