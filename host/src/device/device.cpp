@@ -10,6 +10,7 @@
 #include <fstream>
 #include <sstream>
 #include <thread>
+#include <pthread.h>
 #include <unistd.h>
 
 #include "xi/error.h"
@@ -40,7 +41,25 @@ struct Found {
   cl::Device device;
 };
 
+// PoCL's CPU device runs a work group's items one after another on one of its threads and keeps
+// each item's values that live across a barrier on that thread's stack, so shade at the largest
+// work group (kMaxLocalSize, `--local-size 0`) needs more than glibc's default 8 MB. Threads
+// created from here on, PoCL's pool among them, get this much (address space, touched only as
+// used), unless their default is larger already.
+constexpr size_t kThreadStackBytes = (size_t)32 << 20;
+
+void widen_default_thread_stack() {
+  pthread_attr_t attr;
+  size_t size = 0;
+  if (pthread_getattr_default_np(&attr) != 0) return;
+  if (pthread_attr_getstacksize(&attr, &size) == 0 && size < kThreadStackBytes &&
+      pthread_attr_setstacksize(&attr, kThreadStackBytes) == 0)
+    pthread_setattr_default_np(&attr);
+  pthread_attr_destroy(&attr);
+}
+
 std::vector<Found> enumerate() {
+  widen_default_thread_stack();
   // PoCL compiles each kernel's work-group function once more for every launch configuration it
   // specialises on (the work-group size; grids of fewer than 65535 items or more), seconds per
   // new program at the first launches. xi's kernels run as fast from the one general function
