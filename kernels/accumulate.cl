@@ -6,9 +6,7 @@
 // (the film's `spp`, which adaptive sampling tells apart per pixel).
 #include "layout.h"
 
-__kernel void accumulate(XI_PATH_PARAMS __global float4* restrict film_sum,
-                         __global float4* restrict film_sum_sq, __global float4* restrict film_albedo,
-                         __global float4* restrict film_normal, volatile __global uint* restrict counters,
+__kernel void accumulate(XI_PATH_PARAMS XI_FILM_BUFFERS(XI_FILM_PARAM) volatile __global uint* restrict counters,
                          __global const uint* restrict pixel_list, WaveParams wave) {
   uint p = get_global_id(0);
   if (p >= wave.pixels) return;

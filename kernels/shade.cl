@@ -20,19 +20,9 @@
 // of the image, and ending them early adds more variance than it saves time.
 #define XI_ROULETTE_DEPTH 5u
 
-// The scene's buffers and records shade reads, beyond the path state.
-#define XI_SCENE_PARAMS                                                                                     \
-  __global const MaterialData *restrict materials, __global const float4 *restrict tri_verts,              \
-      __global const uint *restrict tri_material, __global const float4 *restrict tri_normals,             \
-      __global const float *restrict light_cdf, __global const uint *restrict light_tri,                   \
-      __global const float *restrict tri_light_pdf, uint light_count, __global const float4 *restrict tri_uv, \
-      __global const TextureRef *restrict texture_refs, __global const uint *restrict images,              \
-      __global const uint *restrict texels, __global const PunctualLightData *restrict punctual,           \
-      EnvironmentData env, __global const float4 *restrict env_texels, __global const float *restrict env_cdf, \
-      __global const float4 *restrict tri_tangents
-#define XI_SCENE_ARGS                                                                                        \
-  materials, tri_verts, tri_material, tri_normals, light_cdf, light_tri, tri_light_pdf, light_count, tri_uv, \
-      texture_refs, images, texels, punctual, env, env_texels, env_cdf, tri_tangents
+// What shade reads of the scene beyond its buffers.
+#define XI_SCENE_PARAMS XI_SCENE_BUFFERS(XI_CONST_PARAM) uint light_count, EnvironmentData env
+#define XI_SCENE_ARGS XI_SCENE_BUFFERS(XI_ARG) light_count, env
 
 // The metallic-roughness inputs at a hit: factors times textures (the base colour's texture is
 // in the albedo already).
@@ -211,12 +201,12 @@ static inline XI_INLINE ShadeResult xi_shade_paths(XI_PATH_PARAMS xuint slot, xm
       // after camera rays, most of an asset's escaped paths).
       xfloat3 in_map = xi_env_to_local(env, xi_gather_xyz(ray_dir, slot, 0));
       xfloat2 uv = xi_env_direction_to_uv(in_map);
-      xfloat3 le = xi_env_lookup(env_texels, env, uv.x, uv.y);
+      xfloat3 le = xi_env_lookup(environment_texels, env, uv.x, uv.y);
       xfloat w = 1.0f;
       xmask weighed = seen && prev_pdf > 0.0f;
       if (xi_uses(shading, XI_USE_MIS)) {
         if (XI_ANY(weighed))
-          w = weighed ? xi_power_heuristic(prev_pdf, env.scale.w * xi_env_pdf_local(env_cdf, env, in_map, uv)) : w;
+          w = weighed ? xi_power_heuristic(prev_pdf, env.scale.w * xi_env_pdf_local(environment_cdf, env, in_map, uv)) : w;
       } else if (xi_uses(shading, XI_USE_NEE))
         w = prev_pdf > 0.0f && env.scale.w > 0.0f ? (xfloat)0.0f : w;
       L = xi_select3(seen, xi_add3(L, xi_scale3(xi_mul3(beta, le), w)), L);
@@ -292,7 +282,7 @@ static inline XI_INLINE ShadeResult xi_shade_paths(XI_PATH_PARAMS xuint slot, xm
     xfloat2 ul = xi_sample_2d(sampler_kind, sampler, pixel, sample_index, XI_PAIR_BOUNCE(d, XI_BOUNCE_LIGHT));
     xfloat3 org = xi_offset_ray_origin(p, p_error, bsdf.n_geo, bsdf.n_geo);  // lights behind n_geo are skipped
     LightSample ls = xi_sample_light(light_cdf, light_tri, tri_light_pdf, tri_verts, tri_material, materials,
-                                     punctual, env, env_texels, env_cdf, shading, light_count, org, ul);
+                                     punctual, env, environment_texels, environment_cdf, shading, light_count, org, ul);
     BsdfValue f = xi_bsdf_eval(bsdf, shading, wo, ls.wi);
     xfloat cos_s = xi_dot3(bsdf.n, ls.wi);
     xfloat w = 1.0f;
@@ -346,17 +336,8 @@ static inline XI_INLINE ShadeResult xi_shade_paths(XI_PATH_PARAMS xuint slot, xm
 
 // Work item i shades queue entries XI_LANES·i to XI_LANES·i + XI_LANES − 1.
 __kernel void shade(XI_PATH_PARAMS __global const uint* restrict queue_in, __global uint* restrict queue_out,
-                    XI_SHADOW_PARAMS volatile __global uint* restrict counters, uint bounce,
-                    __global const MaterialData* restrict materials, __global const float4* restrict tri_verts,
-                    __global const uint* restrict tri_material, __global const float4* restrict tri_normals,
-                    __global const float* restrict light_cdf, __global const uint* restrict light_tri,
-                    __global const float* restrict tri_light_pdf, uint light_count,
-                    SamplerParams sampler, uint shading_argument, uint max_depth, float4 background,
-                    __global const float4* restrict tri_uv, __global const TextureRef* restrict texture_refs,
-                    __global const uint* restrict images, __global const uint* restrict texels,
-                    __global const PunctualLightData* restrict punctual, EnvironmentData env,
-                    __global const float4* restrict env_texels, __global const float* restrict env_cdf,
-                    __global const float4* restrict tri_tangents) {
+                    XI_SHADOW_PARAMS volatile __global uint* restrict counters, uint bounce, XI_SCENE_PARAMS,
+                    SamplerParams sampler, uint shading_argument, uint max_depth, float4 background) {
   const uint shading = xi_shading(shading_argument);
   volatile __local uint partition_count[2], append_count[2], group_base[2];
   const uint count = counters[XI_COUNTER_RAYS(bounce)];

@@ -13,11 +13,8 @@
 
 // What a shadow ray needs to see through cut-out surfaces: the scene's surface data, the render's
 // seed, and the path's pixel and sample (path state) and bounce for its blend decisions.
-#define XI_ALPHA_PARAMS                                                                                      \
-  __global const MaterialData *restrict materials, __global const uint *restrict tri_material,              \
-      __global const float4 *restrict tri_uv, __global const TextureRef *restrict texture_refs,             \
-      __global const uint *restrict images, __global const uint *restrict texels, uint seed
-#define XI_ALPHA_ARGS materials, tri_material, tri_uv, texture_refs, images, texels, seed
+#define XI_ALPHA_PARAMS XI_SURFACE_BUFFERS(XI_CONST_PARAM) uint seed
+#define XI_ALPHA_ARGS XI_SURFACE_BUFFERS(XI_ARG) seed
 #define XI_PATH_ID_PARAMS __global const uint *restrict item_pixel, __global const uint *restrict item_sample, uint bounce
 #define XI_PATH_ID_ARGS item_pixel, item_sample, bounce
 

@@ -441,9 +441,8 @@ void print_devices(const Job& job, const Team& team, const std::vector<std::stri
 
 void print_scene(const Job& job) {
   const Renderer& renderer = *job.renderer;
-  const CompiledScene& cs = renderer.compiled();
   std::printf("scene: %s, %zu triangles, %zu lights, features: %s\n", job.scene_path.string().c_str(),
-              job.scene.triangles.size(), cs.features.emitters ? cs.light_tri.size() : 0,
+              job.scene.triangles.size(), (size_t)renderer.light_count(),
               renderer.kernels().features.describe().c_str());
   for (const std::string& note : job.scene.notes) std::printf("%s\n", note.c_str());
   if (job.asset)

@@ -170,7 +170,7 @@ RenderState Team::scatter(const RenderState& frame, int width, int height) {
       const int scalars[] = {frame.spp_done, frame.passes};
       send(r, scalars, sizeof scalars);
       send(r, &frame.seconds, sizeof frame.seconds);
-      for (auto* v : {&theirs.sum, &theirs.sum_sq, &theirs.albedo, &theirs.normal})
+      for (auto* v : film_buffers(theirs))
         send(r, v->data(), sizeof(glm::vec4) * v->size());
     }
     return select_rows(frame, rows(), width, height);
@@ -180,7 +180,7 @@ RenderState Team::scatter(const RenderState& frame, int width, int height) {
   receive(0, &share.seconds, sizeof share.seconds);
   share.spp_done = scalars[0];
   share.passes = scalars[1];
-  for (auto* v : {&share.sum, &share.sum_sq, &share.albedo, &share.normal}) {
+  for (auto* v : film_buffers(share)) {
     v->resize((size_t)width * rows().count(height));
     receive(0, v->data(), sizeof(glm::vec4) * v->size());
   }
@@ -194,7 +194,7 @@ RenderState Team::gather(const RenderState& share, int width, int height) {
   frame.shadow_rays = sum(share.shadow_rays);
   frame.nonfinite = (uint32_t)sum(share.nonfinite);
   if (!leader()) {
-    for (auto* v : {&share.sum, &share.sum_sq, &share.albedo, &share.normal})
+    for (auto* v : film_buffers(share))
       send(0, v->data(), sizeof(glm::vec4) * v->size());
     return RenderState{};
   }
@@ -202,12 +202,12 @@ RenderState Team::gather(const RenderState& share, int width, int height) {
   frame.passes = share.passes;
   frame.seconds = share.seconds;
   const size_t pixels = (size_t)width * height;
-  for (auto* v : {&frame.sum, &frame.sum_sq, &frame.albedo, &frame.normal}) v->resize(pixels);
+  for (auto* v : film_buffers(frame)) v->resize(pixels);
   insert_rows(&frame, share, rows(), width, height);
   for (int r = 1; r < size_; ++r) {
     const FilmRows their{r, size_};
     RenderState theirs;
-    for (auto* v : {&theirs.sum, &theirs.sum_sq, &theirs.albedo, &theirs.normal}) {
+    for (auto* v : film_buffers(theirs)) {
       v->resize((size_t)width * their.count(height));
       receive(r, v->data(), sizeof(glm::vec4) * v->size());
     }

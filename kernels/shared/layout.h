@@ -186,7 +186,27 @@ typedef struct {
   F(float4, shadow_dir)     /* xyz: unit direction */       \
   F(float4, shadow_contrib) /* rgb; w: as_float(path slot) */
 
+// The scene's device buffers, each declared once as F(element type in the kernels, name): the
+// host's buffers, the kernels' parameters and the host's bindings all expand these lists, and each
+// buffer is uploaded from the CompiledScene field of its name. The tracing stages read the surface
+// buffers too (shadow rays look up cut-out materials' alpha); shade reads them all.
+#define XI_SURFACE_BUFFERS(F)                                                                           \
+  F(MaterialData, materials) F(uint, tri_material) F(float4, tri_uv) F(TextureRef, texture_refs)         \
+  F(uint, images) F(uint, texels)
+#define XI_SCENE_BUFFERS(F)                                                                           \
+  XI_SURFACE_BUFFERS(F)                                                                               \
+  F(float4, tri_verts) F(float4, tri_normals) F(float4, tri_tangents) F(float, light_cdf) F(uint, light_tri) \
+  F(float, tri_light_pdf) F(PunctualLightData, punctual) F(float4, environment_texels) F(float, environment_cdf)
+
+// The film: one float4 per pixel in each of these buffers, which accumulate adds the finished
+// paths to (its parameters film_sum, ...) and the host reads back into RenderState's fields of the
+// same names (sum: radiance, w the sample count; sum_sq: squared radiance; albedo: first-hit
+// reflectance, w the samples taken; normal: first-hit shading normal).
+#define XI_FILM_BUFFERS(F) F(sum) F(sum_sq) F(albedo) F(normal)
+#define XI_FILM_PARAM(name) __global float4* restrict film_##name,
+
 #define XI_PARAM(type, name) __global type* restrict name,
+#define XI_CONST_PARAM(type, name) __global const type* restrict name,
 #define XI_PATH_PARAMS XI_PATH_STATE(XI_PARAM)
 #define XI_ARG(type, name) name,
 #define XI_PATH_ARGS XI_PATH_STATE(XI_ARG)

@@ -2,11 +2,13 @@
 // resolves to.
 #pragma once
 #include <algorithm>
+#include <array>
 #include <cstdint>
 #include <vector>
 
 #include <glm/glm.hpp>
 
+#include "layout.h"
 #include "xi/image.h"
 
 namespace xi {
@@ -43,8 +45,26 @@ struct RenderState {
   double seconds = 0.0;  // render time so far: kept by the caller, carried through checkpoints
   uint64_t extend_rays = 0, shadow_rays = 0;
   uint32_t nonfinite = 0;
-  std::vector<glm::vec4> sum, sum_sq, albedo, normal;  // the film buffers, one vec4 per pixel (albedo w: samples taken)
+  // The film buffers (XI_FILM_BUFFERS), one vec4 per pixel each.
+#define XI_FILM_FIELD(name) std::vector<glm::vec4> name;
+  XI_FILM_BUFFERS(XI_FILM_FIELD)
+#undef XI_FILM_FIELD
 };
+
+// The film buffers of a state, in XI_FILM_BUFFERS's order.
+#define XI_FILM_MEMBER(name) &RenderState::name,
+inline constexpr std::vector<glm::vec4> RenderState::*kFilmBuffers[] = {XI_FILM_BUFFERS(XI_FILM_MEMBER)};
+#undef XI_FILM_MEMBER
+inline std::array<std::vector<glm::vec4>*, std::size(kFilmBuffers)> film_buffers(RenderState& st) {
+  std::array<std::vector<glm::vec4>*, std::size(kFilmBuffers)> out;
+  for (size_t i = 0; i < out.size(); ++i) out[i] = &(st.*kFilmBuffers[i]);
+  return out;
+}
+inline std::array<const std::vector<glm::vec4>*, std::size(kFilmBuffers)> film_buffers(const RenderState& st) {
+  std::array<const std::vector<glm::vec4>*, std::size(kFilmBuffers)> out;
+  for (size_t i = 0; i < out.size(); ++i) out[i] = &(st.*kFilmBuffers[i]);
+  return out;
+}
 
 // The rows `rows` of a whole frame's state (film buffers of width × height pixels), and back: the
 // share's rows copied into their places. Counters and spp are the frame's; merging adds none.

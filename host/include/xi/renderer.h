@@ -171,9 +171,11 @@ class Renderer {
   // Whether the scene's own shading program is building in the background; waiting takes it.
   bool scene_shading_pending() const { return pending_shading_.valid(); }
   void wait_for_scene_shading();
-  // The scene as compiled. Its per-triangle arrays, BVH nodes and blocks and texels are empty: they
-  // are freed on the host once uploaded (their counts are in bvh.stats).
+  // The scene as compiled. Its buffers (XI_SCENE_BUFFERS) and its BVH's nodes and blocks are empty:
+  // they are freed on the host once uploaded (the BVH's counts are in bvh.stats).
   const CompiledScene& compiled() const { return scene_; }
+  // The lights that light sampling picks from: emissive triangles, punctual lights, the environment.
+  uint32_t light_count() const { return light_count_; }
   // FNV-1a of the compiled geometry, materials, lights and camera (checkpoints' scene_hash).
   uint64_t scene_hash() const;
   const RenderOptions& options() const { return options_; }
@@ -203,7 +205,6 @@ class Renderer {
   // The constructor's steps, in order.
   void build_kernels();
   void size_waves();
-  size_t tri_uv_entries() const;  // the texture coordinates the kernels read (renderer.cpp)
   void check_memory() const;
   void allocate();
   // The scene's own generate and shade kernels, built on another thread and launched there once.
@@ -218,7 +219,8 @@ class Renderer {
   SamplerParams sampler_params() const;
   int bind_path_state(cl::Kernel& kernel) const;               // returns the next argument index
   int bind_shadow_state(cl::Kernel& kernel, int arg) const;
-  int bind_textures(cl::Kernel& kernel, int arg) const;
+  int bind_surface_buffers(cl::Kernel& kernel, int arg) const;  // XI_SURFACE_BUFFERS
+  int bind_scene(cl::Kernel& kernel, int arg) const;            // XI_SCENE_BUFFERS, the light count, the environment
   std::vector<glm::vec4> read(const cl::Buffer& film) const;
 
   Device& device_;
@@ -257,10 +259,14 @@ class Renderer {
   XI_SHADOW_STATE(XI_DECLARE_BUFFER)
 #undef XI_DECLARE_BUFFER
   cl::Buffer queue_a_, queue_b_, counters_;
-  cl::Buffer nodes_, tri_blocks_, tri_verts_, tri_normals_, tri_material_, materials_;
-  cl::Buffer light_cdf_, light_tri_, tri_light_pdf_;
-  cl::Buffer tri_uv_, tri_tangents_, texture_refs_, images_, texels_, punctual_, environment_texels_, environment_cdf_;
-  cl::Buffer film_sum_, film_sum_sq_, film_albedo_, film_normal_;
+  cl::Buffer nodes_, tri_blocks_;
+#define XI_DECLARE_SCENE_BUFFER(type, name) cl::Buffer name##_;
+  XI_SCENE_BUFFERS(XI_DECLARE_SCENE_BUFFER)
+#undef XI_DECLARE_SCENE_BUFFER
+  uint32_t light_count_ = 0;
+#define XI_DECLARE_FILM_BUFFER(name) cl::Buffer film_##name##_;
+  XI_FILM_BUFFERS(XI_DECLARE_FILM_BUFFER)
+#undef XI_DECLARE_FILM_BUFFER
   cl::Buffer pixel_list_;  // active_ on the device
 };
 

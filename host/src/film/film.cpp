@@ -7,9 +7,6 @@
 namespace xi {
 namespace {
 
-// The film buffers of a state, one vec4 per pixel each.
-constexpr std::vector<glm::vec4> RenderState::*kFilmBuffers[] = {&RenderState::sum, &RenderState::sum_sq,
-                                                                  &RenderState::albedo, &RenderState::normal};
 
 }  // namespace
 

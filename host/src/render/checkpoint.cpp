@@ -57,7 +57,7 @@ void write_checkpoint(const std::filesystem::path& path, const CheckpointKey& ke
   append(&data, (uint64_t)text.size());
   data += text;
   append(&data, (uint64_t)st.sum.size());
-  for (auto* v : {&st.sum, &st.sum_sq, &st.albedo, &st.normal}) append(&data, v->data(), sizeof(glm::vec4) * v->size());
+  for (auto* v : film_buffers(st)) append(&data, v->data(), sizeof(glm::vec4) * v->size());
   Hasher h;
   h.add(data.data(), data.size());
   append(&data, h.h);
@@ -147,7 +147,7 @@ RenderState read_checkpoint(const std::filesystem::path& path, const CheckpointK
     throw Error("checkpoint is damaged (its film is not " + std::to_string(expected.width) + "x" +
                     std::to_string(expected.height) + ")",
                 where);
-  for (auto* v : {&st.sum, &st.sum_sq, &st.albedo, &st.normal}) {
+  for (auto* v : film_buffers(st)) {
     v->resize(pixels);
     take(v->data(), sizeof(glm::vec4) * pixels);
   }

@@ -152,6 +152,10 @@ Renderer::Renderer(Device& device, const Scene& scene, const RenderOptions& opti
   exact_bounds_ = options.launch_bound == RenderOptions::LaunchBound::Auto
                       ? device.info().type == "CPU"
                       : options.launch_bound == RenderOptions::LaunchBound::Exact;
+  // The kernels read 3 texture coordinates per triangle wherever their word has textures, an
+  // --all-features build of a scene without any too: zeros then.
+  if (kernels_.features.textures && scene_.tri_uv.size() < scene_.tri_verts.size())
+    scene_.tri_uv.assign(scene_.tri_verts.size(), glm::vec4(0.0f));
   build_kernels();
   size_waves();
   check_memory();
@@ -245,22 +249,6 @@ void Renderer::size_waves() {
   if (paths_ > UINT32_MAX / 2) throw Error("too many paths in flight", std::to_string(paths_));
 }
 
-// The compiled scene's buffers the kernels read as they are: each uploaded from the CompiledScene
-// field of its name into the Renderer member of that name and a trailing _, and counted in the
-// memory check. (The BVH and the texture coordinates are chosen per kernel configuration, below.)
-// XI_PER_TRIANGLE_BUFFERS (and the texels) are freed on the host once uploaded; the others are
-// small, and the CLI and the library's users read them from compiled().
-#define XI_PER_TRIANGLE_BUFFERS(F) F(tri_verts) F(tri_normals) F(tri_material) F(tri_light_pdf) F(tri_tangents) F(texels)
-#define XI_SCENE_BUFFERS(F)                                                                     \
-  F(materials) F(light_cdf) F(light_tri) F(texture_refs) F(images) F(punctual) F(environment_texels) \
-      F(environment_cdf)
-
-// The kernels read 3 texture coordinates per triangle wherever their word has textures, an
-// --all-features build of a scene without any too: zeros then.
-size_t Renderer::tri_uv_entries() const {
-  return kernels_.features.textures ? std::max(scene_.tri_uv.size(), scene_.tri_verts.size()) : scene_.tri_uv.size();
-}
-
 void Renderer::check_memory() const {
   MemoryNeeds needs{pixels_, paths_, path_bytes()};
   const Bvh& bvh = scene_.bvh;
@@ -270,10 +258,8 @@ void Renderer::check_memory() const {
   };
   add(sizeof(BvhNode) * bvh.nodes.size() + sizeof(BvhNode8) * bvh.nodes8.size());
   add(sizeof(TriBlock) * bvh.blocks.size());
-  add(sizeof(glm::vec4) * tri_uv_entries());
   if (adaptive()) add(sizeof(uint32_t) * pixels_);  // the list of pixels still sampling
-#define XI_COUNT_BUFFER(name) add(sizeof(scene_.name[0]) * scene_.name.size());
-  XI_PER_TRIANGLE_BUFFERS(XI_COUNT_BUFFER)
+#define XI_COUNT_BUFFER(type, name) add(sizeof(scene_.name[0]) * scene_.name.size());
   XI_SCENE_BUFFERS(XI_COUNT_BUFFER)
 #undef XI_COUNT_BUFFER
   xi::check_memory(device_, needs);
@@ -293,23 +279,18 @@ void Renderer::allocate() {
   nodes_ = scene_.bvh.width == 8 ? upload_and_free(ctx, scene_.bvh.nodes8) : upload_and_free(ctx, scene_.bvh.nodes);
   std::vector<BvhNode>().swap(scene_.bvh.nodes);  // the 4-wide nodes an 8-wide tree was collapsed from
   tri_blocks_ = upload_and_free(ctx, scene_.bvh.blocks);
-  tri_uv_ = tri_uv_entries() > scene_.tri_uv.size()
-                ? upload(ctx, std::vector<glm::vec4>(tri_uv_entries(), glm::vec4(0.0f)))
-                : upload_and_free(ctx, scene_.tri_uv);
-#define XI_UPLOAD_BUFFER(name) name##_ = upload(ctx, scene_.name);
+  light_count_ = scene_.features.lights() ? (uint32_t)scene_.light_tri.size() : 0u;
+#define XI_UPLOAD_BUFFER(type, name) name##_ = upload_and_free(ctx, scene_.name);
   XI_SCENE_BUFFERS(XI_UPLOAD_BUFFER)
 #undef XI_UPLOAD_BUFFER
-#define XI_UPLOAD_AND_FREE_BUFFER(name) name##_ = upload_and_free(ctx, scene_.name);
-  XI_PER_TRIANGLE_BUFFERS(XI_UPLOAD_AND_FREE_BUFFER)
-#undef XI_UPLOAD_AND_FREE_BUFFER
-  film_sum_ = cl::Buffer(ctx, CL_MEM_READ_WRITE, sizeof(glm::vec4) * pixels_);
-  film_sum_sq_ = cl::Buffer(ctx, CL_MEM_READ_WRITE, sizeof(glm::vec4) * pixels_);
-  film_albedo_ = cl::Buffer(ctx, CL_MEM_READ_WRITE, sizeof(glm::vec4) * pixels_);
-  film_normal_ = cl::Buffer(ctx, CL_MEM_READ_WRITE, sizeof(glm::vec4) * pixels_);
+#define XI_ALLOCATE_FILM_BUFFER(name) film_##name##_ = cl::Buffer(ctx, CL_MEM_READ_WRITE, sizeof(glm::vec4) * pixels_);
+  XI_FILM_BUFFERS(XI_ALLOCATE_FILM_BUFFER)
+#undef XI_ALLOCATE_FILM_BUFFER
   pixel_list_ = cl::Buffer(ctx, CL_MEM_READ_WRITE, sizeof(uint32_t) * (adaptive() ? pixels_ : 1));
   cl::CommandQueue& q = device_.queue();
-  for (cl::Buffer* b : {&film_sum_, &film_sum_sq_, &film_albedo_, &film_normal_})
-    q.enqueueFillBuffer(*b, 0.0f, 0, sizeof(glm::vec4) * pixels_);
+#define XI_CLEAR_FILM_BUFFER(name) q.enqueueFillBuffer(film_##name##_, 0.0f, 0, sizeof(glm::vec4) * pixels_);
+  XI_FILM_BUFFERS(XI_CLEAR_FILM_BUFFER)
+#undef XI_CLEAR_FILM_BUFFER
   q.enqueueFillBuffer(counters_, 0u, 0, sizeof(uint32_t) * counter_count_);
   q.finish();
 }
@@ -371,13 +352,19 @@ void Renderer::extend(const cl::Buffer& queue, int bounce, size_t global) {
 }
 
 // Texture coordinates, texture records, image headers and texels, in that order (shade, shadow).
-int Renderer::bind_textures(cl::Kernel& kernel, int arg) const {
-  kernel.setArg(arg++, tri_uv_);
-  kernel.setArg(arg++, texture_refs_);
-  kernel.setArg(arg++, images_);
-  kernel.setArg(arg++, texels_);
+#define XI_BIND_SCENE_BUFFER(type, name) kernel.setArg(arg++, name##_);
+int Renderer::bind_surface_buffers(cl::Kernel& kernel, int arg) const {
+  XI_SURFACE_BUFFERS(XI_BIND_SCENE_BUFFER)
   return arg;
 }
+
+int Renderer::bind_scene(cl::Kernel& kernel, int arg) const {
+  XI_SCENE_BUFFERS(XI_BIND_SCENE_BUFFER)
+  kernel.setArg(arg++, light_count_);
+  kernel.setArg(arg++, scene_.environment);
+  return arg;
+}
+#undef XI_BIND_SCENE_BUFFER
 
 void Renderer::bind_shade(cl::Kernel& kernel, const cl::Buffer& queue_in, const cl::Buffer& queue_out, int bounce,
                           const cl::Buffer& counters) const {
@@ -387,24 +374,11 @@ void Renderer::bind_shade(cl::Kernel& kernel, const cl::Buffer& queue_in, const 
   arg = bind_shadow_state(kernel, arg);
   kernel.setArg(arg++, counters);
   kernel.setArg(arg++, (uint32_t)bounce);
-  kernel.setArg(arg++, materials_);
-  kernel.setArg(arg++, tri_verts_);
-  kernel.setArg(arg++, tri_material_);
-  kernel.setArg(arg++, tri_normals_);
-  kernel.setArg(arg++, light_cdf_);
-  kernel.setArg(arg++, light_tri_);
-  kernel.setArg(arg++, tri_light_pdf_);
-  kernel.setArg(arg++, scene_.features.lights() ? (uint32_t)scene_.light_tri.size() : 0u);
+  arg = bind_scene(kernel, arg);
   kernel.setArg(arg++, sampler_params());
   kernel.setArg(arg++, kernels_.shading_word());
   kernel.setArg(arg++, (uint32_t)options_.max_depth);
   kernel.setArg(arg++, scene_.background);
-  arg = bind_textures(kernel, arg);
-  kernel.setArg(arg++, punctual_);
-  kernel.setArg(arg++, scene_.environment);
-  kernel.setArg(arg++, environment_texels_);
-  kernel.setArg(arg++, environment_cdf_);
-  kernel.setArg(arg++, tri_tangents_);
 }
 
 void Renderer::shade(const cl::Buffer& queue_in, const cl::Buffer& queue_out, int bounce, size_t global) {
@@ -418,9 +392,7 @@ void Renderer::shadow(int bounce, size_t global) {
   shadow_.setArg(arg++, (uint32_t)bounce);
   shadow_.setArg(arg++, nodes_);
   shadow_.setArg(arg++, tri_blocks_);
-  shadow_.setArg(arg++, materials_);
-  shadow_.setArg(arg++, tri_material_);
-  arg = bind_textures(shadow_, arg);
+  arg = bind_surface_buffers(shadow_, arg);
   shadow_.setArg(arg++, options_.seed);
   launch(shadow_, "shadow", bounce, global,
          XI_RAYS_PER_ITEM(XI_SHADOW_RAYS(kernels_.bvh_width, bounce, kernels_.ray_packets, kernels_.hybrid_packets),
@@ -429,10 +401,9 @@ void Renderer::shadow(int bounce, size_t global) {
 
 void Renderer::bind_accumulate(const WaveParams& wave) {
   int arg = bind_path_state(accumulate_);
-  accumulate_.setArg(arg++, film_sum_);
-  accumulate_.setArg(arg++, film_sum_sq_);
-  accumulate_.setArg(arg++, film_albedo_);
-  accumulate_.setArg(arg++, film_normal_);
+#define XI_BIND_FILM_BUFFER(name) accumulate_.setArg(arg++, film_##name##_);
+  XI_FILM_BUFFERS(XI_BIND_FILM_BUFFER)
+#undef XI_BIND_FILM_BUFFER
   accumulate_.setArg(arg++, counters_);
   accumulate_.setArg(arg++, pixel_list_);
   accumulate_.setArg(arg++, wave);
@@ -630,13 +601,9 @@ uint64_t Renderer::scene_hash() const {
       h.add(slice.data(), n);
     }
   };
-  add_device(tri_verts_);
-  add_device(tri_normals_);
-  add_device(tri_material_);
-  h.add(scene_.materials);
-  h.add(scene_.light_cdf);
-  h.add(scene_.light_tri);
-  add_device(tri_light_pdf_);
+  for (const cl::Buffer* b : {&tri_verts_, &tri_normals_, &tri_material_, &materials_, &light_cdf_, &light_tri_,
+                              &tri_light_pdf_})
+    add_device(*b);
   h.add(&scene_.camera, sizeof scene_.camera);
   h.add(&scene_.background, sizeof scene_.background);
   return h.h;
@@ -665,10 +632,9 @@ RenderState Renderer::state() const {
   st.extend_rays = extend_rays_;
   st.shadow_rays = shadow_rays_;
   st.nonfinite = nonfinite_samples();
-  st.sum = read(film_sum_);
-  st.sum_sq = read(film_sum_sq_);
-  st.albedo = read(film_albedo_);
-  st.normal = read(film_normal_);
+#define XI_READ_FILM_BUFFER(name) st.name = read(film_##name##_);
+  XI_FILM_BUFFERS(XI_READ_FILM_BUFFER)
+#undef XI_READ_FILM_BUFFER
   return st;
 }
 
@@ -677,10 +643,10 @@ void Renderer::restore(const RenderState& st) {
   if (st.spp_done < 0 || st.spp_done > options_.spp)
     throw Error("render state has " + std::to_string(st.spp_done) + " spp, the render " + std::to_string(options_.spp));
   cl::CommandQueue& q = device_.queue();
-  q.enqueueWriteBuffer(film_sum_, CL_TRUE, 0, sizeof(glm::vec4) * pixels_, st.sum.data());
-  q.enqueueWriteBuffer(film_sum_sq_, CL_TRUE, 0, sizeof(glm::vec4) * pixels_, st.sum_sq.data());
-  q.enqueueWriteBuffer(film_albedo_, CL_TRUE, 0, sizeof(glm::vec4) * pixels_, st.albedo.data());
-  q.enqueueWriteBuffer(film_normal_, CL_TRUE, 0, sizeof(glm::vec4) * pixels_, st.normal.data());
+#define XI_WRITE_FILM_BUFFER(name) \
+  q.enqueueWriteBuffer(film_##name##_, CL_TRUE, 0, sizeof(glm::vec4) * pixels_, st.name.data());
+  XI_FILM_BUFFERS(XI_WRITE_FILM_BUFFER)
+#undef XI_WRITE_FILM_BUFFER
   q.enqueueWriteBuffer(counters_, CL_TRUE, sizeof(uint32_t) * XI_COUNTER_NONFINITE, sizeof st.nonfinite,
                       &st.nonfinite);
   spp_done_ = st.spp_done;
