@@ -13,35 +13,22 @@
 #include <chrono>
 #include <cmath>
 #include <cstdio>
-#include <functional>
 #include <map>
-#include <random>
 #include <string>
 #include <vector>
 
 #include <glm/glm.hpp>
 
 #include "microfacet.h"
+#include "sphere_chi2.h"
 #include "stats.h"
 
 namespace {
 
+using namespace xi::sphere_chi2;
 using namespace xi::stats;
 
-constexpr double kPi = M_PI;
-constexpr double kTwoPi = 2.0 * M_PI;
 constexpr float kLast = 0x1.fffffep-1f;  // 1 − 2^-24, the largest ξ
-
-// ξ in [0, 1) from a fixed-seed Mersenne twister: 24 random bits, so never 1.
-struct Uniform {
-  std::mt19937 rng;
-  explicit Uniform(uint32_t seed) : rng(seed) {}
-  float operator()() { return (float)(rng() >> 8) * 0x1p-24f; }
-  glm::vec2 pair() {
-    float a = (*this)();
-    return {a, (*this)()};
-  }
-};
 
 glm::vec3 wo_at(double degrees) {
   double t = degrees * kPi / 180.0;
@@ -62,14 +49,6 @@ PbrLobes lobes(float roughness, float metallic, float transmission, float eta, g
 }
 
 bool finite(glm::vec3 v) { return std::isfinite(v.x) && std::isfinite(v.y) && std::isfinite(v.z); }
-double angle(double y, double x) {
-  double t = std::atan2(y, x);
-  return t < 0.0 ? t + kTwoPi : t;
-}
-glm::vec3 direction(double theta, double phi) {
-  double s = std::sin(theta);
-  return {(float)(s * std::cos(phi)), (float)(s * std::sin(phi)), (float)std::cos(theta)};
-}
 
 // ---------------------------------------------------------------------------------------------
 // 1. The visible-normal sampler, χ² of the h it returns.
@@ -180,82 +159,8 @@ TEST(MicrofacetChi2Power, WrongSamplersAreRejected) {
 // ---------------------------------------------------------------------------------------------
 // 2. The whole material: χ² of xi_pbr_sample's wi against xi_pbr_pdf over the sphere.
 //
-// Cells in (θ, φ) (solid angle sin θ dθ dφ) with wo at φ = 0: 24 × 32 even cells, the horizon
-// θ = π/2 on an edge, refined around the lobes' peaks (the mirror direction (θ_o, π) and the
-// refracted one (π − θ_t, π)) by edges at ±0.002 · 2^k (k = 0…5) in θ and the same lengths in φ
-// across the peak, so the lobes of roughness 0.05 (α = 0.0025) spread over a dozen cells each.
-struct SphereGrid {
-  std::vector<double> theta, phi;  // edges
-  std::vector<glm::dvec2> peaks;   // (θ, φ)
-  int cells() const { return (int)((theta.size() - 1) * (phi.size() - 1)); }
-};
-
-void sorted_edges(std::vector<double>& e, double lo, double hi) {
-  std::sort(e.begin(), e.end());
-  std::vector<double> out;
-  for (double x : e)
-    if (x >= lo && x <= hi && (out.empty() || x - out.back() > 1e-5)) out.push_back(x);
-  out.front() = lo, out.back() = hi;
-  e = out;
-}
-
-// nt (even, so the horizon is an edge) × np even cells before the refinement.
-SphereGrid sphere_grid(glm::vec3 wo, float eta, int nt, int np) {
-  SphereGrid g;
-  for (int i = 0; i <= nt; ++i) g.theta.push_back(kPi * i / nt);
-  for (int j = 0; j <= np; ++j) g.phi.push_back(kTwoPi * j / np);
-  double to = std::acos((double)wo.z), st = std::sin(to) / eta;
-  g.peaks.push_back({to, kPi});
-  if (st < 1.0) g.peaks.push_back({kPi - std::asin(st), kPi});
-  for (glm::dvec2 p : g.peaks)
-    for (int k = 0; k < 6; ++k) {
-      double d = 0.002 * (1 << k);
-      g.theta.push_back(p.x - d), g.theta.push_back(p.x + d);
-      if (std::sin(p.x) > 0.02) {
-        double dp = std::min(d / std::sin(p.x), 0.5);
-        g.phi.push_back(kPi - dp), g.phi.push_back(kPi + dp);
-      }
-    }
-  sorted_edges(g.theta, 0.0, kPi);
-  sorted_edges(g.phi, 0.0, kTwoPi);
-  return g;
-}
-
-int cell_of(const SphereGrid& g, glm::vec3 w) {
-  double t = std::acos(std::clamp((double)w.z, -1.0, 1.0)), p = angle(w.y, w.x);
-  int i = std::clamp((int)(std::upper_bound(g.theta.begin(), g.theta.end(), t) - g.theta.begin()) - 1, 0,
-                     (int)g.theta.size() - 2);
-  int j = std::clamp((int)(std::upper_bound(g.phi.begin(), g.phi.end(), p) - g.phi.begin()) - 1, 0,
-                     (int)g.phi.size() - 2);
-  return i * (int)(g.phi.size() - 1) + j;
-}
-
-// ∫ f(w) dω over each cell, f in solid angle. Cubature to 1e-5 of the cell's integral or 1e-8,
-// whichever is larger (at 2·10^5 samples, under 0.1 samples in a cell that expects 10^4 against a
-// noise of 100, 0.002 in one that expects 75 against 9): tighter tolerances chase the float pdf's
-// rounding, ~1e-4 relative in a lobe of α = 0.0025 where a float direction moves by 6e-8 rad. At
-// least 3 levels deep in the cells within 0.15 rad of a peak so no lobe hides between the nodes,
-// 1 elsewhere.
-std::vector<double> cell_integrals(const SphereGrid& g, const std::function<double(glm::vec3)>& f) {
-  auto integrand = [&](double t, double p) { return f(direction(t, p)) * std::sin(t); };
-  std::vector<double> out;
-  out.reserve(g.cells());
-  for (size_t i = 0; i + 1 < g.theta.size(); ++i)
-    for (size_t j = 0; j + 1 < g.phi.size(); ++j) {
-      double t0 = g.theta[i], t1 = g.theta[i + 1], p0 = g.phi[j], p1 = g.phi[j + 1];
-      bool near = false;
-      for (glm::dvec2 pk : g.peaks) {
-        double dt = std::max({0.0, t0 - pk.x, pk.x - t1});
-        double dp = std::max({0.0, p0 - pk.y, pk.y - p1});
-        near = near || (dt < 0.15 && (std::sin(pk.x) < 0.2 || dp * std::sin(pk.x) < 0.15));
-      }
-      int depth = near ? 3 : 1;
-      double rough = integrate_2d(integrand, t0, t1, p0, p1, 0.0, depth, depth);
-      out.push_back(integrate_2d(integrand, t0, t1, p0, p1, std::max(1e-7, 1e-4 * std::fabs(rough)), 10, depth));
-    }
-  return out;
-}
-
+// Cells of sphere_chi2.h: 24 × 32 even cells before the refinement around the mirror and refracted
+// directions.
 struct MaterialCase {
   float roughness, metallic, degrees, transmission, eta;
 };

@@ -116,11 +116,14 @@ static inline XI_INLINE BsdfSample xi_bsdf_sample(Bsdf b, uint shading, xfloat3 
   xmask glass = b.at_surface && b.type == XI_MATERIAL_DIELECTRIC;
   if (xi_uses(shading, XI_USE_DIELECTRIC) && XI_ANY(glass)) {
     xmask reflected;
-    s.wi = xi_select3(glass, xi_dielectric_sample(wo, b.n, b.ior, b.entering, u_lobe, &reflected), s.wi);
+    xfloat3 wi = xi_dielectric_sample(wo, b.n, b.ior, b.entering, u_lobe, &reflected);
+    s.wi = xi_select3(glass, wi, s.wi);
     s.lobe = glass ? (reflected ? (xuint)(XI_LOBE_REFLECTION | XI_LOBE_SPECULAR)
                                 : (xuint)(XI_LOBE_TRANSMISSION | XI_LOBE_SPECULAR))
                    : s.lobe;
-    s.valid = s.valid || glass;
+    // A shading normal may send a reflection below the surface or a refraction above it.
+    xfloat side = xi_dot3(wi, b.n_geo);
+    s.valid = s.valid || (glass && (reflected ? side > 0.0f : side < 0.0f));
   }
   xmask pbr = b.at_surface && b.type == XI_MATERIAL_PBR;
   if (xi_uses(shading, XI_USE_PBR) && XI_ANY(pbr)) {
