@@ -710,16 +710,13 @@ TEST_F(Kernel, ShadeFirstHitsFromTheCamera) {
     counters[XI_COUNTER_RAYS(0)] = count;
     cl::Buffer cb = buffer(counters);
     // (Kernel arguments do not keep buffers alive: each is named until the launch.)
-    cl::Buffer materials = buffer(cs.materials), verts = buffer(cs.tri_verts), tri_material = buffer(cs.tri_material),
-               normals = buffer(cs.tri_normals), light_cdf = buffer(cs.light_cdf), light_tri = buffer(cs.light_tri),
-               light_pdf = buffer(cs.tri_light_pdf), tri_uv = buffer(cs.tri_uv), refs = buffer(cs.texture_refs),
-               images = buffer(cs.images), texels = buffer(cs.texels), punctual = buffer(cs.punctual),
-               env_texels = buffer(cs.environment_texels), env_cdf = buffer(cs.environment_cdf),
-               tangents = buffer(cs.tri_tangents);
+#define XI_UPLOAD_SCENE_BUFFER(type, name) cl::Buffer name = buffer(cs.name);
+    XI_SCENE_BUFFERS(XI_UPLOAD_SCENE_BUFFER)
+#undef XI_UPLOAD_SCENE_BUFFER
     cl::Kernel k((lanes == 8 ? lanes8_ : program_)->program, "shade");
-    bind(k, b, queue_in, queue_out, shadow_org, shadow_dir, shadow_contrib, cb, 0u, materials, verts, tri_material,
-         normals, light_cdf, light_tri, light_pdf, (uint32_t)cs.light_tri.size(), xi_make_sampler_params(3, 16), shading_word_, 8u,
-         background, tri_uv, refs, images, texels, punctual, cs.environment, env_texels, env_cdf, tangents);
+    const uint32_t light_count = (uint32_t)cs.light_tri.size();
+    bind(k, b, queue_in, queue_out, shadow_org, shadow_dir, shadow_contrib, cb, 0u, XI_SCENE_BUFFERS(XI_ARG) light_count,
+         cs.environment, xi_make_sampler_params(3, 16), shading_word_, 8u, background);
     launch(k, (count + lanes - 1) / lanes);
     PathState out = download(b, slots);
     const uint32_t next = read<uint32_t>(cb, XI_COUNTER_COUNT(8))[XI_COUNTER_RAYS(1)];
@@ -826,10 +823,10 @@ TEST_F(Kernel, ShadowAddsOnlyUnoccluded) {
     cl::Kernel k = packets  ? cl::Kernel((packet == 16 ? ray_packets16_ : ray_packets8_)->program, "shadow")
                    : hybrid ? cl::Kernel((packet == 16 ? hybrid16_ : hybrid8_)->program, "shadow")
                             : kernel("shadow", width);
-    cl::Buffer materials = buffer(cs.materials), tri_material = buffer(cs.tri_material), tri_uv = buffer(cs.tri_uv),
-               refs = buffer(cs.texture_refs), images = buffer(cs.images), texels = buffer(cs.texels);
-    bind(k, b, org_b, dir_b, contrib_b, cb, bounce, nodes, blocks, materials, tri_material, tri_uv, refs, images, texels,
-         0u);
+#define XI_UPLOAD_SURFACE_BUFFER(type, name) cl::Buffer name = buffer(cs.name);
+    XI_SURFACE_BUFFERS(XI_UPLOAD_SURFACE_BUFFER)
+#undef XI_UPLOAD_SURFACE_BUFFER
+    bind(k, b, org_b, dir_b, contrib_b, cb, bounce, nodes, blocks, XI_SURFACE_BUFFERS(XI_ARG) 0u);
     // Over an upper bound, as the renderer launches.
     const int rays = XI_SHADOW_RAYS(width, bounce, packets ? 1 : 0, hybrid ? 1 : 0);
     EXPECT_EQ(rays, packets ? XI_RAYS_TOGETHER : hybrid ? XI_RAYS_HYBRID : XI_RAYS_ALONE);
