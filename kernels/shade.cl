@@ -35,7 +35,7 @@ static inline XI_INLINE PbrInputs xi_pbr_inputs(XI_SCENE_PARAMS, uint shading, x
                                                 xfloat2 uv1) {
   PbrInputs in;
   in.base_color = albedo;
-  xfloat3 f = xi_gather_xyz((__global const float4*)materials, 5u * mi + 3u, &in.normal_scale);
+  xfloat3 f = XI_GATHER_XYZ_FIELD(materials, mi, pbr, &in.normal_scale);
   in.metallic = f.x;
   in.roughness = f.y;
   in.transmission = f.z;
@@ -60,13 +60,13 @@ static inline XI_INLINE xfloat3 xi_pbr_normal(XI_SCENE_PARAMS, uint shading, xui
                                               xfloat b2, xfloat3 n, xfloat3 n_geo, xfloat3 wo, xfloat normal_scale,
                                               xfloat3 p0, xfloat3 p1, xfloat3 p2, xfloat2 uv0, xfloat2 uv1) {
   if (xi_uses(shading, XI_USE_TEXTURES)) {
-    xuint ref = xi_gather_uint((__global const uint*)materials, 20u * mi + 16u + XI_TEXTURE_NORMAL);
+    xuint ref = XI_GATHER_UINT_FIELD(materials, mi, textures[XI_TEXTURE_NORMAL]);
     xmask mapped = ref != XI_NO_TEXTURE;
     if (XI_ANY(mapped)) {
       xfloat a;
       xfloat3 t = xi_texture(texture_refs, images, texels, ref, uv0, uv1, &a);
       xuint r = mapped ? ref : (xuint)0u;
-      xuint set = xi_gather_uint((__global const uint*)texture_refs, 12u * r + 9u);
+      xuint set = XI_GATHER_UINT_FIELD(texture_refs, r, texcoord);
       xfloat w0, w1, w2;
       xfloat3 ta = xi_gather_xyz(tri_uv, 3u * tri, &w0), tb = xi_gather_xyz(tri_uv, 3u * tri + 1u, &w1),
               tc = xi_gather_xyz(tri_uv, 3u * tri + 2u, &w2);

@@ -26,12 +26,10 @@ typedef struct {
 
 #ifdef XI_DEVICE
 static inline XI_INLINE ShadingMaterial xi_gather_material(__global const MaterialData* materials, xuint i) {
-  // MaterialData is five float4s: albedo, emission, then type in the first word of the third.
-  __global const float4* f = (__global const float4*)materials;
   ShadingMaterial m;
-  m.albedo = xi_gather_xyz(f, 5u * i, &m.ior);
-  m.emission = xi_gather_xyz(f, 5u * i + 1u, &m.two_sided);
-  m.type = xi_gather_uint((__global const uint*)materials, 20u * i + 8u);
+  m.albedo = XI_GATHER_XYZ_FIELD(materials, i, albedo, &m.ior);
+  m.emission = XI_GATHER_XYZ_FIELD(materials, i, emission, &m.two_sided);
+  m.type = XI_GATHER_UINT_FIELD(materials, i, type);
   return m;
 }
 #endif

@@ -238,4 +238,12 @@ static inline xfloat xi_max3(xfloat3 v) { return fmax(v.x, fmax(v.y, v.z)); }
 // sqrt of a value that rounding may have pushed slightly below zero.
 static inline xfloat xi_safe_sqrt(xfloat x) { return sqrt(fmax(x, (xfloat)0.0f)); }
 
+// Field `field` of struct i of `buffer`, an array of layout.h's structs, in each lane: read at the
+// field's place in struct 0 with a stride of one struct, so no offset is counted by hand. (Every
+// such struct is a whole number of float4s.)
+#define XI_GATHER_UINT_FIELD(buffer, i, field) \
+  xi_gather_uint((__global const uint*)&(buffer)[0].field, (uint)(sizeof((buffer)[0]) / 4u) * (i))
+#define XI_GATHER_XYZ_FIELD(buffer, i, field, w) \
+  xi_gather_xyz((__global const float4*)&(buffer)[0].field, (uint)(sizeof((buffer)[0]) / 16u) * (i), (w))
+
 #endif

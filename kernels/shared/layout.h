@@ -192,7 +192,7 @@ typedef struct {
 // buffers too (shadow rays look up cut-out materials' alpha); shade reads them all.
 #define XI_SURFACE_BUFFERS(F)                                                                           \
   F(MaterialData, materials) F(uint, tri_material) F(float4, tri_uv) F(TextureRef, texture_refs)         \
-  F(uint, images) F(uint, texels)
+  F(ImageHeader, images) F(uint, texels)
 #define XI_SCENE_BUFFERS(F)                                                                           \
   XI_SURFACE_BUFFERS(F)                                                                               \
   F(float4, tri_verts) F(float4, tri_normals) F(float4, tri_tangents) F(float, light_cdf) F(uint, light_tri) \

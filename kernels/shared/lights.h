@@ -76,11 +76,11 @@ static inline LightSample xi_sample_triangle_light(__global const float* tri_lig
 // E / (π sin² of its angular radius)).
 static inline LightSample xi_sample_punctual(__global const PunctualLightData* lights, xuint index, xfloat3 org,
                                              xfloat2 u) {
-  __global const float4* f = (__global const float4*)lights;
   xfloat pick, cos_sun, type;
-  xfloat3 pos = xi_gather_xyz(f, 4u * index, &pick), dir = xi_gather_xyz(f, 4u * index + 1u, &cos_sun);
-  xfloat3 intensity = xi_gather_xyz(f, 4u * index + 2u, 0);
-  xfloat3 cone = xi_gather_xyz(f, 4u * index + 3u, &type);
+  xfloat3 pos = XI_GATHER_XYZ_FIELD(lights, index, position, &pick);
+  xfloat3 dir = XI_GATHER_XYZ_FIELD(lights, index, direction, &cos_sun);
+  xfloat3 intensity = XI_GATHER_XYZ_FIELD(lights, index, intensity, 0);
+  xfloat3 cone = XI_GATHER_XYZ_FIELD(lights, index, cone, &type);
   LightSample ls;
   xmask directional = type == (float)XI_LIGHT_DIRECTIONAL;
   xfloat3 to = xi_sub3(pos, org);

@@ -23,6 +23,23 @@
 #define XI_USE_MULTIPLE_SCATTERING 4096u  // the metal's multiple-scattering lobe (microfacet.h)
 #define XI_SAMPLER_SHIFT 16u     // the sampler (XI_SAMPLER_*) in the bits above
 
+// The scene's features, each declared once as F(the host's Features field, its bit, its name in
+// reports, 1 where --all-features compiles it in): the Features struct, the shading word and the
+// reports all come from this list. (Multiple scattering is a choice of model, not a feature a
+// scene may lack, so compiling every feature in leaves it as the scene has it.)
+#define XI_FEATURES(F)                                          \
+  F(mirror, XI_USE_MIRROR, "mirror", 1)                         \
+  F(dielectric, XI_USE_DIELECTRIC, "glass", 1)                  \
+  F(normals, XI_USE_NORMALS, "normals", 1)                      \
+  F(emitters, XI_USE_EMITTERS, "emitters", 1)                   \
+  F(lens, XI_USE_LENS, "lens", 1)                               \
+  F(pbr, XI_USE_PBR, "pbr", 1)                                  \
+  F(textures, XI_USE_TEXTURES, "textures", 1)                   \
+  F(environment, XI_USE_ENVIRONMENT, "environment", 1)          \
+  F(punctual, XI_USE_PUNCTUAL, "punctual", 1)                   \
+  F(alpha, XI_USE_ALPHA, "alpha", 1)                            \
+  F(multiple_scattering, XI_USE_MULTIPLE_SCATTERING, "multiple-scattering", 0)
+
 #if defined(XI_DEVICE) && (defined(XI_GENERIC) || defined(XI_SHADING))
 // The shading word in force: the program's own, or in the generic program the argument's.
 static inline uint xi_shading(uint argument) {

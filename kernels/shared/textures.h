@@ -76,23 +76,21 @@ static inline xfloat3 xi_texel(__global const uint* texels, xuint at, xmask srgb
 // The texture `ref` at texture coordinates uv0 (set 0) and uv1 (set 1), as the file gives them
 // (v down the image). Lanes whose ref is XI_NO_TEXTURE get (1, 1, 1) and alpha 1, so a factor
 // times the lookup is the factor alone.
-static inline xfloat3 xi_texture(__global const TextureRef* refs, __global const uint* headers,
+static inline xfloat3 xi_texture(__global const TextureRef* refs, __global const ImageHeader* images,
                                  __global const uint* texels, xuint ref, xfloat2 uv0, xfloat2 uv1, xfloat* alpha) {
   xmask has = ref != XI_NO_TEXTURE;
   *alpha = 1.0f;
   if (!XI_ANY(has)) return xi_splat3(make_float3(1.0f, 1.0f, 1.0f));
   xuint r = has ? ref : (xuint)0u;
-  __global const float4* rf = (__global const float4*)refs;
-  __global const uint* ru = (__global const uint*)refs;
   xfloat ou, ov;
-  xfloat3 tu = xi_gather_xyz(rf, 3u * r, &ou), tv = xi_gather_xyz(rf, 3u * r + 1u, &ov);
-  xuint image = xi_gather_uint(ru, 12u * r + 8u), set = xi_gather_uint(ru, 12u * r + 9u);
-  xuint wrap_s = xi_gather_uint(ru, 12u * r + 10u), wrap_t = xi_gather_uint(ru, 12u * r + 11u);
+  xfloat3 tu = XI_GATHER_XYZ_FIELD(refs, r, transform_u, &ou), tv = XI_GATHER_XYZ_FIELD(refs, r, transform_v, &ov);
+  xuint image = XI_GATHER_UINT_FIELD(refs, r, image), set = XI_GATHER_UINT_FIELD(refs, r, texcoord);
+  xuint wrap_s = XI_GATHER_UINT_FIELD(refs, r, wrap_s), wrap_t = XI_GATHER_UINT_FIELD(refs, r, wrap_t);
   xfloat u0 = set == 1u ? uv1.x : uv0.x, v0 = set == 1u ? uv1.y : uv0.y;
   xfloat u = tu.x * u0 + tu.y * v0 + tu.z, v = tv.x * u0 + tv.y * v0 + tv.z;
-  xuint offset = xi_gather_uint(headers, 4u * image), w = xi_gather_uint(headers, 4u * image + 1u),
-        h = xi_gather_uint(headers, 4u * image + 2u);
-  xmask srgb = xi_gather_uint(headers, 4u * image + 3u) == XI_IMAGE_SRGB8;
+  xuint offset = XI_GATHER_UINT_FIELD(images, image, offset), w = XI_GATHER_UINT_FIELD(images, image, width),
+        h = XI_GATHER_UINT_FIELD(images, image, height);
+  xmask srgb = XI_GATHER_UINT_FIELD(images, image, format) == XI_IMAGE_SRGB8;
   // Texel centres at half-integers: x in texel units, measured from the first centre.
   xfloat x = u * xi_to_float(w) - 0.5f, y = v * xi_to_float(h) - 0.5f;
   // Far outside [0, 1] a float has no fraction left and an int overflows: keep the coordinate
@@ -126,10 +124,10 @@ static inline void xi_hit_uv(__global const float4* tri_uv, xuint tri, xfloat b1
 
 // Material mi's texture in slot k (XI_TEXTURE_*) at the hit's texture coordinates.
 static inline xfloat3 xi_material_texture(__global const MaterialData* materials, __global const TextureRef* refs,
-                                          __global const uint* headers, __global const uint* texels, xuint mi, uint k,
+                                          __global const ImageHeader* images, __global const uint* texels, xuint mi, uint k,
                                           xfloat2 uv0, xfloat2 uv1, xfloat* alpha) {
-  xuint ref = xi_gather_uint((__global const uint*)materials, 20u * mi + 16u + k);
-  return xi_texture(refs, headers, texels, ref, uv0, uv1, alpha);
+  xuint ref = XI_GATHER_UINT_FIELD(materials, mi, textures[k]);
+  return xi_texture(refs, images, texels, ref, uv0, uv1, alpha);
 }
 
 // Whether a ray passes through material mi at a hit (glTF's alphaMode), given the alpha of its
@@ -137,15 +135,14 @@ static inline xfloat3 xi_material_texture(__global const MaterialData* materials
 // cutoff; BLEND lets the ray through with probability 1 - alpha (stochastic transparency:
 // unbiased), deciding by the uniform u.
 static inline xuint xi_alpha_mode(__global const MaterialData* materials, xuint mi) {
-  return xi_gather_uint((__global const uint*)materials, 20u * mi + 9u);
+  return XI_GATHER_UINT_FIELD(materials, mi, alpha_mode);
 }
 static inline xmask xi_passes_through(__global const MaterialData* materials, xuint mi, xfloat texture_alpha, xfloat u) {
-  __global const uint* words = (__global const uint*)materials;
   xuint mode = xi_alpha_mode(materials, mi);
   xmask cut = mode != XI_ALPHA_OPAQUE;
   if (!XI_ANY(cut)) return XI_FALSE;
-  xfloat cutoff = xi_as_float(xi_gather_uint(words, 20u * mi + 10u));
-  xfloat alpha = xi_as_float(xi_gather_uint(words, 20u * mi + 11u)) * texture_alpha;
+  xfloat cutoff = xi_as_float(XI_GATHER_UINT_FIELD(materials, mi, alpha_cutoff));
+  xfloat alpha = xi_as_float(XI_GATHER_UINT_FIELD(materials, mi, alpha)) * texture_alpha;
   return cut && (mode == XI_ALPHA_MASK ? alpha < cutoff : u >= alpha);
 }
 

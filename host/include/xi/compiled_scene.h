@@ -7,24 +7,18 @@
 
 #include "layout.h"
 #include "sampling.h"
+#include "shading.h"
 #include "xi/bvh.h"
 #include "xi/scene.h"
 
 namespace xi {
 
 // What a scene uses; each feature maps to one -D flag, so absent features compile no code.
+// What a scene uses, one flag per XI_FEATURES entry (shading.h: their meaning and bits).
 struct Features {
-  bool mirror = false;
-  bool dielectric = false;
-  bool normals = false;   // interpolated vertex normals
-  bool emitters = false;  // emissive triangles
-  bool lens = false;
-  bool pbr = false;       // the metallic-roughness material
-  bool textures = false;
-  bool environment = false;
-  bool punctual = false;  // point, spot, directional lights
-  bool alpha = false;     // alpha-masked or blended materials
-  bool multiple_scattering = false;  // the metal's multiple-scattering lobe (with pbr): a choice of model
+#define XI_FEATURE_FIELD(name, bit, word, in_all) bool name = false;
+  XI_FEATURES(XI_FEATURE_FIELD)
+#undef XI_FEATURE_FIELD
   bool lights() const { return emitters || environment || punctual; }
   static Features everything();
   std::string describe() const;  // e.g. "diffuse mirror emitters"

@@ -112,21 +112,20 @@ void add_environment(const Scene& scene, CompiledScene& cs, std::vector<double>&
 
 // Every kernel feature; multiple_scattering, a choice of model rather than a feature, is left false
 // here and taken from the scene (KernelConfig::make).
-Features Features::everything() { return Features{true, true, true, true, true, true, true, true, true, true}; }
+Features Features::everything() {
+  Features f;
+#define XI_ALL_FEATURES(name, bit, word, in_all) f.name = in_all;
+  XI_FEATURES(XI_ALL_FEATURES)
+#undef XI_ALL_FEATURES
+  return f;
+}
 
 std::string Features::describe() const {
   std::string s = "diffuse";
-  if (mirror) s += " mirror";
-  if (dielectric) s += " glass";
-  if (normals) s += " normals";
-  if (emitters) s += " emitters";
-  if (lens) s += " lens";
-  if (pbr) s += " pbr";
-  if (textures) s += " textures";
-  if (environment) s += " environment";
-  if (punctual) s += " punctual";
-  if (alpha) s += " alpha";
-  if (multiple_scattering) s += " multiple-scattering";
+#define XI_DESCRIBE_FEATURE(name, bit, word, in_all) \
+  if (name) s += " " word;
+  XI_FEATURES(XI_DESCRIBE_FEATURE)
+#undef XI_DESCRIBE_FEATURE
   return s;
 }
 

@@ -93,17 +93,10 @@ KernelConfig KernelConfig::make(const DeviceInfo& device, const CompiledScene& s
 
 uint32_t KernelConfig::shading_word() const {
   uint32_t word = (uint32_t)sampler << XI_SAMPLER_SHIFT;
-  if (features.mirror) word |= XI_USE_MIRROR;
-  if (features.dielectric) word |= XI_USE_DIELECTRIC;
-  if (features.normals) word |= XI_USE_NORMALS;
-  if (features.lens) word |= XI_USE_LENS;
-  if (features.pbr) word |= XI_USE_PBR;
-  if (features.textures) word |= XI_USE_TEXTURES;
-  if (features.environment) word |= XI_USE_ENVIRONMENT;
-  if (features.punctual) word |= XI_USE_PUNCTUAL;
-  if (features.alpha) word |= XI_USE_ALPHA;
-  if (features.multiple_scattering) word |= XI_USE_MULTIPLE_SCATTERING;
-  if (features.emitters) word |= XI_USE_EMITTERS;
+#define XI_FEATURE_BIT(name, bit, report, in_all) \
+  if (features.name) word |= bit;
+  XI_FEATURES(XI_FEATURE_BIT)
+#undef XI_FEATURE_BIT
   if (features.lights()) {
     if (strategy != Strategy::Bsdf) word |= XI_USE_NEE;  // (so BSDF sampling alone never reaches a punctual light)
     if (strategy == Strategy::Mis) word |= XI_USE_MIS;
