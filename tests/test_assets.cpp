@@ -345,7 +345,7 @@ TEST(AssetMaterials, MappingAndOneWarningPerKind) {
   EXPECT_NEAR(find("rough2").roughness, 0.2f, 1e-7);
   for (const char* name : {"glass", "chrome", "rough1", "rough2"}) {
     EXPECT_EQ(find(name).alpha_mode, xi::AlphaMode::Opaque) << name;
-    EXPECT_FALSE(find(name).base_color_texture.used()) << name;
+    EXPECT_FALSE(find(name).textures[XI_TEXTURE_BASE_COLOR].used()) << name;
   }
   EXPECT_TRUE(s.warnings.empty()) << s.warnings.at(0);
   // The emissive lamp glows but is no light for the choice of what lights the file: the sky does.

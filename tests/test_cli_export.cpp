@@ -101,8 +101,7 @@ class CliExport : public CliTest {
       EXPECT_EQ(ply.header.at(0), "ply");
       EXPECT_EQ(ply.header.at(1), "format binary_little_endian 1.0");
       const xi::Material& m = scene.materials.at(mesh.at("material_index").get<size_t>());
-      const bool textured = m.base_color_texture.used() || m.metallic_roughness_texture.used() ||
-                            m.normal_texture.used() || m.emissive_texture.used();
+      const bool textured = m.has_textures();
       EXPECT_EQ(mesh.at("texcoords").get<bool>(), textured);
       EXPECT_EQ(ply.floats, textured ? 8u : 6u);
       EXPECT_EQ(mesh.at("triangles").get<size_t>(), tris.size());
@@ -213,7 +212,8 @@ TEST_F(CliExport, TexturesMaterialsLightsAndEnvironment) {
     if (m.name == "tex")
       for (int r = 0; r < 3; ++r)
         for (int c = 0; c < 3; ++c)
-          EXPECT_FLOAT_EQ(slot.at("transform").at(3 * r + c).get<float>(), m.base_color_texture.transform[c][r]);
+          EXPECT_FLOAT_EQ(slot.at("transform").at(3 * r + c).get<float>(),
+                          m.textures[XI_TEXTURE_BASE_COLOR].transform[c][r]);
   const json& g = by_name.at("gold");
   EXPECT_EQ(g.at("type"), "pbr");
   EXPECT_FLOAT_EQ(g.at("metallic").get<float>(), 1.0f);

@@ -815,12 +815,12 @@ TEST(MaterialGltf, TexturedChromeFromFileAndDataUri) {
     EXPECT_EQ(m.metallic, 1.0f);
     EXPECT_EQ(m.roughness, 0.0f);
     EXPECT_EQ(m.albedo, glm::vec3(1.0f));
-    EXPECT_EQ(m.base_color_texture.image, 0);
-    EXPECT_EQ(m.base_color_texture.texcoord, 1);
-    EXPECT_EQ(m.base_color_texture.wrap_s, xi::Wrap::Mirror);
-    EXPECT_EQ(m.base_color_texture.wrap_t, xi::Wrap::Clamp);
+    EXPECT_EQ(m.textures[XI_TEXTURE_BASE_COLOR].image, 0);
+    EXPECT_EQ(m.textures[XI_TEXTURE_BASE_COLOR].texcoord, 1);
+    EXPECT_EQ(m.textures[XI_TEXTURE_BASE_COLOR].wrap_s, xi::Wrap::Mirror);
+    EXPECT_EQ(m.textures[XI_TEXTURE_BASE_COLOR].wrap_t, xi::Wrap::Clamp);
     for (const dvec2 uv : {dvec2(0.3, 0.9), dvec2(-1.2, 2.5)}) {
-      const glm::vec3 t = m.base_color_texture.transform * glm::vec3(glm::vec2(uv), 1.0f);
+      const glm::vec3 t = m.textures[XI_TEXTURE_BASE_COLOR].transform * glm::vec3(glm::vec2(uv), 1.0f);
       const dvec2 want = khr_transform(uv, offset, rotation, scale);
       EXPECT_NEAR(t.x, want.x, 1e-5);
       EXPECT_NEAR(t.y, want.y, 1e-5);
@@ -980,7 +980,7 @@ TEST(MaterialGltf, LightsMaskAndTransmission) {
   };
   EXPECT_EQ(find("cutout").alpha_mode, xi::AlphaMode::Mask);
   EXPECT_NEAR(find("cutout").alpha_cutoff, 0.4f, 1e-6);
-  EXPECT_TRUE(find("cutout").base_color_texture.used());
+  EXPECT_TRUE(find("cutout").textures[XI_TEXTURE_BASE_COLOR].used());
   EXPECT_EQ(find("glass").type, xi::MaterialType::Pbr);
   EXPECT_EQ(find("glass").transmission, 1.0f);
   EXPECT_NEAR(find("glass").ior, 1.4f, 1e-6);
@@ -1012,7 +1012,7 @@ TEST(MaterialGltf, AssimpTestModels) {
     EXPECT_GT(s.images[0].width, 0);
     ASSERT_FALSE(s.materials.empty());
     EXPECT_EQ(s.materials[0].type, xi::MaterialType::Pbr);
-    EXPECT_EQ(s.materials[0].base_color_texture.image, 0);
+    EXPECT_EQ(s.materials[0].textures[XI_TEXTURE_BASE_COLOR].image, 0);
     EXPECT_TRUE(s.environment.has_value()) << "no light in the file: the bundled sky";
   }
   for (size_t i = 1; i < boxes.size(); ++i) {
@@ -1037,9 +1037,9 @@ TEST(MaterialGltf, AssimpTestModels) {
     SCOPED_TRACE(name);
     const auto found = std::find_if(t.materials.begin(), t.materials.end(), [&](const xi::Material& mm) { return mm.name == name; });
     ASSERT_NE(found, t.materials.end());
-    ASSERT_TRUE(found->base_color_texture.used());
+    ASSERT_TRUE(found->textures[XI_TEXTURE_BASE_COLOR].used());
     for (const dvec2 uv : {dvec2(0.25, 0.5), dvec2(1.0, 0.0)}) {
-      const glm::vec3 got = found->base_color_texture.transform * glm::vec3(glm::vec2(uv), 1.0f);
+      const glm::vec3 got = found->textures[XI_TEXTURE_BASE_COLOR].transform * glm::vec3(glm::vec2(uv), 1.0f);
       const dvec2 want = khr_transform(uv, offset, rotation, scale);
       EXPECT_NEAR(got.x, want.x, 1e-5);
       EXPECT_NEAR(got.y, want.y, 1e-5);
@@ -1109,7 +1109,7 @@ TEST(MaterialGltf, BadTexturesFallBackToTheFactor) {
     EXPECT_EQ(count_containing(s.warnings, b.warning), 1) << (s.warnings.empty() ? "no warning" : s.warnings[0]);
     EXPECT_EQ(s.warnings.size(), 1u);
     EXPECT_TRUE(contains(s.warnings, "chrome")) << "the warning names the material";
-    EXPECT_FALSE(s.materials.at(0).base_color_texture.used());
+    EXPECT_FALSE(s.materials.at(0).textures[XI_TEXTURE_BASE_COLOR].used());
     EXPECT_LT(chrome_error(file, 16, [](dvec2) { return dvec3(0.6); }), 1e-4);
   }
   const json scene = {{"camera", camera_json({0, 0, 3}, {0, 0, 0}, {0, 1, 0}, 40)},

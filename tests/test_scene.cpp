@@ -898,8 +898,7 @@ TEST(ScenePbr, DefaultsOfEveryField) {
   EXPECT_EQ(m.normal_scale, 1.0f);
   EXPECT_FALSE(m.two_sided);
   EXPECT_FALSE(m.is_emitter());
-  for (const xi::TextureSlot* t : {&m.base_color_texture, &m.metallic_roughness_texture, &m.normal_texture, &m.emissive_texture})
-    EXPECT_FALSE(t->used());
+  for (const xi::TextureSlot& t : m.textures) EXPECT_FALSE(t.used());
   EXPECT_TRUE(s.images.empty());
   EXPECT_TRUE(s.lights.empty());
   EXPECT_FALSE(s.environment.has_value());
@@ -932,22 +931,22 @@ TEST(ScenePbr, EveryFieldIsRead) {
   EXPECT_FLOAT_EQ(m.normal_scale, 0.5f);
   // Colour images are decoded as sRGB, data as linear: the same file twice, each use once.
   ASSERT_EQ(s.images.size(), 3u);  // base.png (sRGB), mr.png, n.png: "b" reuses base.png as a colour
-  ASSERT_TRUE(m.base_color_texture.used());
-  EXPECT_TRUE(s.images[m.base_color_texture.image].srgb);
-  EXPECT_EQ(m.emissive_texture.image, m.base_color_texture.image);
-  EXPECT_FALSE(s.images[m.metallic_roughness_texture.image].srgb);
-  EXPECT_FALSE(s.images[m.normal_texture.image].srgb);
-  EXPECT_EQ(s.images[m.base_color_texture.image].width, 2);
-  EXPECT_EQ(m.base_color_texture.texcoord, 0);
-  EXPECT_EQ(m.base_color_texture.wrap_s, xi::Wrap::Repeat);
-  EXPECT_EQ(m.metallic_roughness_texture.texcoord, 1);
-  EXPECT_EQ(m.metallic_roughness_texture.wrap_s, xi::Wrap::Clamp);
-  EXPECT_EQ(m.metallic_roughness_texture.wrap_t, xi::Wrap::Clamp);
-  EXPECT_EQ(m.normal_texture.wrap_s, xi::Wrap::Mirror);
-  EXPECT_EQ(m.normal_texture.wrap_t, xi::Wrap::Clamp);
+  ASSERT_TRUE(m.textures[XI_TEXTURE_BASE_COLOR].used());
+  EXPECT_TRUE(s.images[m.textures[XI_TEXTURE_BASE_COLOR].image].srgb);
+  EXPECT_EQ(m.textures[XI_TEXTURE_EMISSIVE].image, m.textures[XI_TEXTURE_BASE_COLOR].image);
+  EXPECT_FALSE(s.images[m.textures[XI_TEXTURE_METALLIC_ROUGHNESS].image].srgb);
+  EXPECT_FALSE(s.images[m.textures[XI_TEXTURE_NORMAL].image].srgb);
+  EXPECT_EQ(s.images[m.textures[XI_TEXTURE_BASE_COLOR].image].width, 2);
+  EXPECT_EQ(m.textures[XI_TEXTURE_BASE_COLOR].texcoord, 0);
+  EXPECT_EQ(m.textures[XI_TEXTURE_BASE_COLOR].wrap_s, xi::Wrap::Repeat);
+  EXPECT_EQ(m.textures[XI_TEXTURE_METALLIC_ROUGHNESS].texcoord, 1);
+  EXPECT_EQ(m.textures[XI_TEXTURE_METALLIC_ROUGHNESS].wrap_s, xi::Wrap::Clamp);
+  EXPECT_EQ(m.textures[XI_TEXTURE_METALLIC_ROUGHNESS].wrap_t, xi::Wrap::Clamp);
+  EXPECT_EQ(m.textures[XI_TEXTURE_NORMAL].wrap_s, xi::Wrap::Mirror);
+  EXPECT_EQ(m.textures[XI_TEXTURE_NORMAL].wrap_t, xi::Wrap::Clamp);
   const xi::Material& b = material(s, "b");
   EXPECT_EQ(b.alpha_mode, xi::AlphaMode::Blend);
-  EXPECT_EQ(b.emissive_texture.image, m.base_color_texture.image);
+  EXPECT_EQ(b.textures[XI_TEXTURE_EMISSIVE].image, m.textures[XI_TEXTURE_BASE_COLOR].image);
   expect_vec(b.emission, {1, 1, 1}, 0.0f);  // an emissive texture alone: radiance 1 times the texture
 }
 
@@ -959,12 +958,12 @@ TEST(ScenePbr, DiffuseAlbedoMayBeAnImage) {
   const xi::Material& m = material(s, "m");
   EXPECT_EQ(m.type, xi::MaterialType::Diffuse);
   expect_vec(m.albedo, {1, 1, 1}, 0.0f);
-  ASSERT_TRUE(m.base_color_texture.used());
+  ASSERT_TRUE(m.textures[XI_TEXTURE_BASE_COLOR].used());
   ASSERT_EQ(s.images.size(), 1u);
   EXPECT_EQ(s.images[0].width, 3);
   EXPECT_TRUE(s.images[0].srgb);
-  EXPECT_EQ(material(s, "n").base_color_texture.image, 0);
-  expect_vec(material(s, "n").base_color_texture.transform[0], {2, 0, 0}, 0.0f);
+  EXPECT_EQ(material(s, "n").textures[XI_TEXTURE_BASE_COLOR].image, 0);
+  expect_vec(material(s, "n").textures[XI_TEXTURE_BASE_COLOR].transform[0], {2, 0, 0}, 0.0f);
 }
 
 TEST(ScenePbr, TextureTransformIsKhrTextureTransform) {
@@ -990,11 +989,12 @@ TEST(ScenePbr, TextureTransformIsKhrTextureTransform) {
   write_test_png(dir / "t.png");
   const xi::Scene s = parse(pbr_scene(R"("m": {"type": "pbr", "base_color_texture": {"file": "t.png",
       "offset": [0.25, -0.5], "rotation": 30, "scale": [2, 0.5]}})"), dir);
-  const xi::TextureSlot& slot = material(s, "m").base_color_texture;
+  const xi::TextureSlot& slot = material(s, "m").textures[XI_TEXTURE_BASE_COLOR];
   for (int c = 0; c < 3; ++c) expect_vec(slot.transform[c], direct.transform[c], 1e-6f);
   // Without a transform: the identity.
   const xi::Scene plain = parse(pbr_scene(R"("m": {"type": "pbr", "base_color_texture": "t.png"})"), dir);
-  for (int c = 0; c < 3; ++c) expect_vec(material(plain, "m").base_color_texture.transform[c], glm::mat3(1.0f)[c], 0.0f);
+  for (int c = 0; c < 3; ++c)
+    expect_vec(material(plain, "m").textures[XI_TEXTURE_BASE_COLOR].transform[c], glm::mat3(1.0f)[c], 0.0f);
 }
 
 TEST(SceneUv, QuadsAndTrianglesMapTheImage) {

@@ -98,11 +98,6 @@ nlohmann::json slot_json(const TextureSlot& s) {
           {"wrap_s", wrap_name(s.wrap_s)}, {"wrap_t", wrap_name(s.wrap_t)}, {"transform", m}};
 }
 
-bool has_textures(const Material& m) {
-  return m.base_color_texture.used() || m.metallic_roughness_texture.used() || m.normal_texture.used() ||
-         m.emissive_texture.used();
-}
-
 nlohmann::json material_json(const Material& m) {
   static const char* types[] = {"diffuse", "mirror", "glass", "pbr"};
   static const char* alpha_modes[] = {"opaque", "mask", "blend"};
@@ -112,11 +107,8 @@ nlohmann::json material_json(const Material& m) {
                       {"normal_scale", m.normal_scale}, {"alpha", m.alpha},
                       {"alpha_mode", alpha_modes[(uint32_t)m.alpha_mode]}, {"alpha_cutoff", m.alpha_cutoff}};
   nlohmann::json textures = nlohmann::json::object();
-  const std::pair<const char*, const TextureSlot*> slots[] = {
-      {"base_color_texture", &m.base_color_texture}, {"metallic_roughness_texture", &m.metallic_roughness_texture},
-      {"normal_texture", &m.normal_texture}, {"emissive_texture", &m.emissive_texture}};
-  for (const auto& [name, slot] : slots)
-    if (slot->used()) textures[name] = slot_json(*slot);
+  for (int k = 0; k < XI_TEXTURE_SLOTS; ++k)
+    if (m.textures[k].used()) textures[kTextureSlots[k].key] = slot_json(m.textures[k]);
   j["textures"] = textures;
   return j;
 }
@@ -181,7 +173,7 @@ int export_scene(const std::vector<std::string>& argv) {
     for (size_t m = 0; m < by_material.size(); ++m) {
       if (by_material[m].empty()) continue;
       const std::string file = "material-" + std::to_string(m) + ".ply";
-      const bool uv = has_textures(scene.materials[m]);
+      const bool uv = scene.materials[m].has_textures();
       write_file(out_dir / file, ply(by_material[m], scene.materials[m].name, uv));
       written.push_back(out_dir / file);
       meshes.push_back({{"file", file}, {"material", scene.materials[m].name}, {"material_index", m},

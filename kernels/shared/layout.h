@@ -15,6 +15,12 @@
 #define XI_ALPHA_BLEND 2u  // stochastic transparency: passed through with probability 1 - alpha
 
 #define XI_NO_TEXTURE 0xffffffffu
+// A material's texture slots (MaterialData::textures; xi::kTextureSlots names them on the host).
+#define XI_TEXTURE_BASE_COLOR 0
+#define XI_TEXTURE_METALLIC_ROUGHNESS 1
+#define XI_TEXTURE_NORMAL 2
+#define XI_TEXTURE_EMISSIVE 3
+#define XI_TEXTURE_SLOTS 4
 
 typedef struct {
   float4 albedo;     // rgb: diffuse albedo, mirror or glass tint, base colour (pbr); w: index of refraction
@@ -24,12 +30,8 @@ typedef struct {
   float alpha_cutoff;
   float alpha;       // the base colour's alpha factor
   float4 pbr;        // metallic, roughness (perceptual: GGX alpha = roughness²), transmission, normal map scale
-  uint textures[4];  // TextureRef index or XI_NO_TEXTURE: base colour, metallic-roughness, normal, emissive
+  uint textures[XI_TEXTURE_SLOTS];  // TextureRef index or XI_NO_TEXTURE, by XI_TEXTURE_*
 } MaterialData;
-#define XI_TEXTURE_BASE_COLOR 0
-#define XI_TEXTURE_METALLIC_ROUGHNESS 1
-#define XI_TEXTURE_NORMAL 2
-#define XI_TEXTURE_EMISSIVE 3
 
 // Textures: every image's texels in one buffer of uints (RGBA, 8 bits each, red in the low byte),
 // found through its header; a material refers to an image through a TextureRef, which adds the

@@ -366,9 +366,8 @@ struct Mutator {
     if (kind == 2) {
       m = {{"type", "diffuse"}, {"albedo", texture}};
     } else {
-      static const std::vector<std::string> slots = {"base_color_texture", "metallic_roughness_texture",
-                                                     "normal_texture", "emissive_texture"};
-      m = {{"type", "pbr"}, {rng.pick(slots), texture}, {"roughness", rng.below(2) ? 0.0 : 0.7}};
+      const char* slot = xi::kTextureSlots[rng.below(XI_TEXTURE_SLOTS)].key;
+      m = {{"type", "pbr"}, {slot, texture}, {"roughness", rng.below(2) ? 0.0 : 0.7}};
       if (rng.percent(30)) m["alpha_mode"] = rng.percent(50) ? "mask" : "blend";
       if (rng.percent(30)) m["transmission"] = 1;
     }

@@ -1,5 +1,6 @@
 // The scene as the user described it, in world units, before any device layout.
 #pragma once
+#include <array>
 #include <cstdint>
 #include <filesystem>
 #include <optional>
@@ -7,6 +8,8 @@
 #include <vector>
 
 #include <glm/glm.hpp>
+
+#include "layout.h"  // XI_TEXTURE_*: a material's texture slots
 
 namespace xi {
 
@@ -41,6 +44,19 @@ struct TextureSlot {
   bool used() const { return image >= 0; }
 };
 
+// The texture slots, indexed by XI_TEXTURE_*: the key a scene file and `xi export` use for each,
+// and whether its image is colour (sRGB) or data.
+struct TextureSlotInfo {
+  const char* key;
+  bool srgb;
+};
+inline constexpr TextureSlotInfo kTextureSlots[XI_TEXTURE_SLOTS] = {
+    {"base_color_texture", true},           // diffuse too
+    {"metallic_roughness_texture", false},  // G: roughness, B: metallic
+    {"normal_texture", false},              // tangent space
+    {"emissive_texture", true},
+};
+
 struct Material {
   std::string name;
   MaterialType type = MaterialType::Diffuse;
@@ -56,10 +72,12 @@ struct Material {
   float alpha = 1.0f;        // the base colour's alpha factor
   AlphaMode alpha_mode = AlphaMode::Opaque;
   float alpha_cutoff = 0.5f;
-  TextureSlot base_color_texture;          // diffuse too
-  TextureSlot metallic_roughness_texture;  // G: roughness, B: metallic
-  TextureSlot normal_texture;              // tangent space
-  TextureSlot emissive_texture;
+  std::array<TextureSlot, XI_TEXTURE_SLOTS> textures;  // indexed by XI_TEXTURE_* (kTextureSlots)
+  bool has_textures() const {
+    for (const TextureSlot& t : textures)
+      if (t.used()) return true;
+    return false;
+  }
   bool is_emitter() const {
     return emission.x > 0.0f || emission.y > 0.0f || emission.z > 0.0f;
   }

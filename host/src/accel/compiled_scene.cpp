@@ -144,16 +144,15 @@ CompiledScene compile_scene(const Scene& scene, int bvh_width, bool spatial_spli
     md.alpha_cutoff = m.alpha_cutoff;
     md.alpha = m.alpha;
     md.pbr = glm::vec4(m.metallic, m.roughness, m.transmission, m.normal_scale);
-    const TextureSlot* slots[4] = {&m.base_color_texture, &m.metallic_roughness_texture, &m.normal_texture,
-                                   &m.emissive_texture};
-    for (int k = 0; k < 4; ++k) {
+    for (int k = 0; k < XI_TEXTURE_SLOTS; ++k) {
+      const TextureSlot& slot = m.textures[k];
       md.textures[k] = XI_NO_TEXTURE;
-      if (!slots[k]->used()) continue;
-      if (slots[k]->image >= (int)scene.images.size())
-        throw Error("material '" + m.name + "' names texture image " + std::to_string(slots[k]->image) +
+      if (!slot.used()) continue;
+      if (slot.image >= (int)scene.images.size())
+        throw Error("material '" + m.name + "' names texture image " + std::to_string(slot.image) +
                         ", which does not exist", scene.source);
       md.textures[k] = (uint32_t)cs.texture_refs.size();
-      cs.texture_refs.push_back(texture_ref(*slots[k]));
+      cs.texture_refs.push_back(texture_ref(slot));
     }
     cs.materials.push_back(md);
     cs.features.mirror |= m.type == MaterialType::Mirror;

@@ -110,11 +110,15 @@ class Reader {
     out.alpha = std::clamp(float(base[3]), 0.0f, 1.0f);
     out.metallic = std::clamp(float(number(p, "metallicFactor", 1.0)), 0.0f, 1.0f);
     out.roughness = std::clamp(float(number(p, "roughnessFactor", 1.0)), 0.0f, 1.0f);
-    out.base_color_texture = texture(member(p, "baseColorTexture"), true, out.name);
-    out.metallic_roughness_texture = texture(member(p, "metallicRoughnessTexture"), false, out.name);
-    out.normal_texture = texture(member(m, "normalTexture"), false, out.name);
-    if (out.normal_texture.used()) out.normal_scale = float(number(m["normalTexture"], "scale", 1.0));
-    out.emissive_texture = texture(member(m, "emissiveTexture"), true, out.name);
+    // Slot k from glTF's texture info `key` in `parent`.
+    auto read_slot = [&](int k, const json& parent, const char* key) {
+      out.textures[k] = texture(member(parent, key), kTextureSlots[k].srgb, out.name);
+    };
+    read_slot(XI_TEXTURE_BASE_COLOR, p, "baseColorTexture");
+    read_slot(XI_TEXTURE_METALLIC_ROUGHNESS, p, "metallicRoughnessTexture");
+    read_slot(XI_TEXTURE_NORMAL, m, "normalTexture");
+    if (out.textures[XI_TEXTURE_NORMAL].used()) out.normal_scale = float(number(m["normalTexture"], "scale", 1.0));
+    read_slot(XI_TEXTURE_EMISSIVE, m, "emissiveTexture");
     if (member(m, "occlusionTexture"))
       warn_.add("occlusionTexture is not used: the path tracer computes occlusion itself");
 
@@ -161,7 +165,7 @@ class Reader {
       out.albedo = glm::clamp(glm::vec3(diffuse[0], diffuse[1], diffuse[2]), 0.0f, 1.0f);
       out.metallic = 0.0f;
       out.roughness = std::clamp(1.0f - float(number(sg, "glossinessFactor", 1.0)), 0.0f, 1.0f);
-      out.base_color_texture = texture(member(sg, "diffuseTexture"), true, out.name);
+      read_slot(XI_TEXTURE_BASE_COLOR, sg, "diffuseTexture");
     }
     return out;
   }

@@ -9,6 +9,7 @@
 #include <iterator>
 #include <fstream>
 #include <map>
+#include <span>
 #include <sstream>
 #include <string_view>
 #include <thread>
@@ -75,6 +76,9 @@ class Node {
 
   // An object whose keys all come from `allowed`: an unknown key is most likely a typo.
   void expect_object(std::initializer_list<std::string_view> allowed) const {
+    expect_object(std::span(allowed.begin(), allowed.size()));
+  }
+  void expect_object(std::span<const std::string_view> allowed) const {
     if (!j_.is_object()) fail("expected an object");
     for (const auto& item : j_.items())
       if (std::find(allowed.begin(), allowed.end(), item.key()) == allowed.end())
@@ -270,9 +274,10 @@ TextureSlot read_texture(const Node& n, bool srgb, ImageFiles& images) {
 
 // glTF 2.0's metallic-roughness material (type "pbr").
 void read_pbr(const Node& n, Material& m, ImageFiles& images) {
-  n.expect_object({"type", "base_color", "base_color_texture", "metallic", "roughness", "metallic_roughness_texture",
-                   "ior", "transmission", "normal_texture", "normal_scale", "radiance", "emissive_texture",
-                   "two_sided", "alpha", "alpha_mode", "alpha_cutoff"});
+  std::vector<std::string_view> keys = {"type", "base_color", "metallic", "roughness", "ior", "transmission",
+                                        "normal_scale", "radiance", "two_sided", "alpha", "alpha_mode", "alpha_cutoff"};
+  for (const TextureSlotInfo& slot : kTextureSlots) keys.push_back(slot.key);
+  n.expect_object(keys);
   m.type = MaterialType::Pbr;
   m.albedo = n.rgb("base_color", glm::vec3(1.0f), 1.0f);
   m.metallic = n.number_in("metallic", 0.0f, 0.0f, 1.0f);
@@ -286,16 +291,17 @@ void read_pbr(const Node& n, Material& m, ImageFiles& images) {
   if (n.has("alpha_cutoff") && m.alpha_mode != AlphaMode::Mask)
     n.at("alpha_cutoff").fail("alpha_cutoff applies to alpha_mode \"mask\" only");
   m.alpha_cutoff = n.number_in("alpha_cutoff", 0.5f, 0.0f, 1.0f);
-  if (n.has("base_color_texture")) m.base_color_texture = read_texture(n.at("base_color_texture"), true, images);
-  if (n.has("metallic_roughness_texture"))
-    m.metallic_roughness_texture = read_texture(n.at("metallic_roughness_texture"), false, images);
-  if (n.has("normal_texture")) m.normal_texture = read_texture(n.at("normal_texture"), false, images);
-  if (n.has("normal_scale") && !n.has("normal_texture"))
-    n.at("normal_scale").fail("normal_scale needs a normal_texture");
-  m.normal_scale = n.number_in("normal_scale", 1.0f, -1e3f, 1e3f);
-  if (n.has("emissive_texture")) m.emissive_texture = read_texture(n.at("emissive_texture"), true, images);
+  for (int k = 0; k < XI_TEXTURE_SLOTS; ++k) {
+    const TextureSlotInfo& slot = kTextureSlots[k];
+    if (n.has(slot.key)) m.textures[k] = read_texture(n.at(slot.key), slot.srgb, images);
+    if (k == XI_TEXTURE_NORMAL) {  // here, before the emissive texture: the order errors are reported in
+      if (n.has("normal_scale") && !m.textures[k].used())
+        n.at("normal_scale").fail("normal_scale needs a normal_texture");
+      m.normal_scale = n.number_in("normal_scale", 1.0f, -1e3f, 1e3f);
+    }
+  }
   // The emissive texture is multiplied by the radiance: white unless given.
-  m.emission = n.rgb("radiance", glm::vec3(m.emissive_texture.used() ? 1.0f : 0.0f), kInf);
+  m.emission = n.rgb("radiance", glm::vec3(m.textures[XI_TEXTURE_EMISSIVE].used() ? 1.0f : 0.0f), kInf);
 }
 
 Material read_material(const Node& n, const std::string& name, ImageFiles& images) {
@@ -309,7 +315,7 @@ Material read_material(const Node& n, const std::string& name, ImageFiles& image
     const bool emitter = type == "emitter";
     if (n.has("albedo") && !n.at("albedo").raw().is_array()) {  // an image: the albedo is the texture's
       m.albedo = glm::vec3(1.0f);
-      m.base_color_texture = read_texture(n.at("albedo"), true, images);
+      m.textures[XI_TEXTURE_BASE_COLOR] = read_texture(n.at("albedo"), true, images);
     } else {
       m.albedo = emitter ? n.rgb("albedo", glm::vec3(0.0f), 1.0f) : n.at("albedo").rgb(1.0f);
     }
@@ -550,8 +556,8 @@ void read_asset_shape(const Node& n, const fs::path& base_dir, Scene& s) {
   const int first_image = int(s.images.size());
   for (Material& m : g.materials) {
     m.name = file.string() + ":" + m.name;
-    for (TextureSlot* slot : {&m.base_color_texture, &m.metallic_roughness_texture, &m.normal_texture, &m.emissive_texture})
-      if (slot->used()) slot->image += first_image;
+    for (TextureSlot& slot : m.textures)
+      if (slot.used()) slot.image += first_image;
     s.materials.push_back(std::move(m));
   }
   s.images.insert(s.images.end(), g.images.begin(), g.images.end());
