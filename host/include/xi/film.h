@@ -55,13 +55,10 @@ struct RenderState {
 #define XI_FILM_MEMBER(name) &RenderState::name,
 inline constexpr std::vector<glm::vec4> RenderState::*kFilmBuffers[] = {XI_FILM_BUFFERS(XI_FILM_MEMBER)};
 #undef XI_FILM_MEMBER
-inline std::array<std::vector<glm::vec4>*, std::size(kFilmBuffers)> film_buffers(RenderState& st) {
-  std::array<std::vector<glm::vec4>*, std::size(kFilmBuffers)> out;
-  for (size_t i = 0; i < out.size(); ++i) out[i] = &(st.*kFilmBuffers[i]);
-  return out;
-}
-inline std::array<const std::vector<glm::vec4>*, std::size(kFilmBuffers)> film_buffers(const RenderState& st) {
-  std::array<const std::vector<glm::vec4>*, std::size(kFilmBuffers)> out;
+// Pointers to a state's film buffers (const where the state is), in the same order.
+template <class State>
+auto film_buffers(State& st) {
+  std::array<decltype(&st.sum), std::size(kFilmBuffers)> out;
   for (size_t i = 0; i < out.size(); ++i) out[i] = &(st.*kFilmBuffers[i]);
   return out;
 }

@@ -5,10 +5,6 @@
 #include "xi/error.h"
 
 namespace xi {
-namespace {
-
-
-}  // namespace
 
 void check_film_pixels(const RenderState& st, size_t pixels, const char* what) {
   for (auto buffer : kFilmBuffers)

@@ -351,7 +351,8 @@ void Renderer::extend(const cl::Buffer& queue, int bounce, size_t global) {
                           kernels_.packet_width));
 }
 
-// Texture coordinates, texture records, image headers and texels, in that order (shade, shadow).
+// The scene's buffers in their lists' order: the surface buffers (shadow), all of them with the
+// light count and the environment (shade).
 #define XI_BIND_SCENE_BUFFER(type, name) kernel.setArg(arg++, name##_);
 int Renderer::bind_surface_buffers(cl::Kernel& kernel, int arg) const {
   XI_SURFACE_BUFFERS(XI_BIND_SCENE_BUFFER)
