@@ -24,8 +24,10 @@
 
 #include <nlohmann/json.hpp>
 
+#include "cli.h"
 #include "cli_test.h"
 #include "xi/device.h"
+#include "xi/error.h"
 #include "xi/image.h"
 #include "xi/renderer.h"
 #include "xi/scene.h"
@@ -678,6 +680,55 @@ TEST_F(CliCommands, CommandHelpPrintsItsOwnOptions) {
   }
   EXPECT_EQ(files(), before);
   expect_user_error(run_xi({"frobnicate", "--help"}), {"unknown command", "frobnicate"}, before);
+}
+
+// Each command's flag table is the whole of its flags: its part of the usage text shows every flag
+// in it (with its value's placeholder), its parser takes every one and refuses any other command's
+// flag or an unknown one, and `xi help` prints the text made from the tables.
+TEST_F(CliCommands, FlagTablesAreTheUsageAndTheParser) {
+  namespace cli = xi::cli;
+  const auto refuses = [](const std::vector<std::string>& argv, const cli::Command& command, const std::string& error) {
+    try {
+      const cli::Args args(argv, command);
+    } catch (const xi::Error& e) {
+      return e.message() == error;
+    }
+    return false;
+  };
+  const std::string usage = cli::usage_text();
+  EXPECT_EQ(run_xi({"help"}).out, usage);
+  std::set<std::string> every_flag = {"--no-such-flag"};
+  for (const cli::Command* command : cli::commands())
+    for (const cli::Flag& flag : command->flags) every_flag.insert(flag.name);
+  for (const cli::Command* command : cli::commands()) {
+    SCOPED_TRACE(command->name);
+    const std::string own = cli::command_usage(command->name);
+    EXPECT_NE(usage.find(own), std::string::npos);
+    // the command's line, then one per flag and note (a description's further lines are indented more)
+    size_t entries = 0;
+    std::istringstream lines(own);
+    for (std::string line; std::getline(lines, line);) entries += line.find_first_not_of(' ') < 24;
+    EXPECT_EQ(entries, 1 + command->flags.size() + command->notes.size()) << own;
+    std::set<std::string> own_flags;
+    for (const cli::Flag& flag : command->flags) {
+      SCOPED_TRACE(flag.name);
+      own_flags.insert(flag.name);
+      const std::string shown = std::string("\n      ") + flag.name + (flag.value ? std::string(" ") + flag.value : "") + " ";
+      EXPECT_NE(own.find(shown), std::string::npos) << own;
+      const cli::Args args(flag.value ? std::vector<std::string>{flag.name, "x"} : std::vector<std::string>{flag.name},
+                           *command);
+      EXPECT_TRUE(args.has(flag.name));
+      EXPECT_EQ(args.get(flag.name), flag.value ? "x" : "1");
+      EXPECT_TRUE(args.positional().empty());
+      if (flag.value) EXPECT_TRUE(refuses({flag.name}, *command, "missing value"));
+    }
+    for (const std::string& other : every_flag) {
+      if (own_flags.count(other)) continue;
+      EXPECT_TRUE(refuses({other}, *command, "unknown option '" + other + "'")) << other;
+      // asking about a flag the table lacks is a mistake in xi, not in what the user typed
+      EXPECT_THROW(cli::Args({}, *command).has(other), std::logic_error) << other;
+    }
+  }
 }
 
 TEST_F(CliCommands, VersionPrintsTheProjectVersion) {

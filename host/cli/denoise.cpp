@@ -166,8 +166,26 @@ void write_contents(const fs::path& path, const ExrContents& in, const Image& de
 
 }  // namespace
 
+const Command kDenoise = {
+    .name = "denoise",
+    .operands = "IN.exr OUT.exr",
+    .about = "denoise a render with Intel Open Image Denoise 2 (OIDN), guided\n"
+             "by its albedo and normal layers (each denoised first); OUT keeps\n"
+             "every layer and attribute, the colour read going to layer noisy.\n"
+             "OIDN is loaded at run time: `bash scripts/install-deps.sh --denoise`\n"
+             "installs it, or XI_OIDN_PATH names its folder",
+    .flags = {
+        {"--device", "D",
+         "denoise on OIDN's GPU device that is this OpenCL device, if\n"
+         "it has one (default: $XI_DEVICE; else OIDN's CPU device)"},
+        {"--denoise-quality", "Q", "as for render"},
+        {"--denoise-prefilter", "P", "as for render"},
+    },
+    .run = denoise,
+};
+
 int denoise(const std::vector<std::string>& argv) {
-  Args args(argv, {"--device", "--denoise-quality", "--denoise-prefilter"}, {});
+  Args args(argv, kDenoise);
   if (args.positional().size() != 2) throw Error("expected IN.exr OUT.exr", "xi denoise");
   const fs::path in_path = args.positional()[0], out_path = args.positional()[1];
   if (out_path.extension() != ".exr") throw Error("the output must be an .exr file", out_path.string());

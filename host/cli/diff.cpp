@@ -8,8 +8,21 @@
 
 namespace xi::cli {
 
+const Command kDiff = {
+    .name = "diff",
+    .operands = "IMAGE.exr REFERENCE.exr",
+    .about = "error of an image against a reference",
+    .flags = {
+        {"--metric", "NAME", "mse | rmse | relmse | mae | mrse (default: all)"},
+        {"--crop", "x0,y0,x1,y1", "only pixels x0 <= x < x1, y0 <= y < y1"},
+        {"--heatmap", "OUT.png", "write the per-pixel error in false colour"},
+        {"--layer", "NAME", "compare an EXR layer (e.g. variance) instead of RGB"},
+    },
+    .run = diff,
+};
+
 int diff(const std::vector<std::string>& argv) {
-  Args args(argv, {"--metric", "--crop", "--heatmap", "--layer"}, {});
+  Args args(argv, kDiff);
   if (args.positional().size() != 2) throw Error("expected IMAGE.exr REFERENCE.exr", "xi diff");
   Image image = read_exr(args.positional()[0], args.get("--layer"));
   Image reference = read_exr(args.positional()[1], args.get("--layer"));

@@ -137,8 +137,19 @@ void write_file(const fs::path& path, const std::string& bytes) {
 
 }  // namespace
 
+const Command kExport = {
+    .name = "export",
+    .operands = "SCENE OUT_DIR",
+    .about = "write the scene's triangles as xi renders them, in world space, for\n"
+             "other renderers: one binary PLY per material (x y z nx ny nz; its\n"
+             "flat triangles first, each with its face normal at its three\n"
+             "vertices) and manifest.json naming each file's material and its\n"
+             "count of flat triangles; OUT_DIR is made if its parent exists",
+    .run = export_scene,
+};
+
 int export_scene(const std::vector<std::string>& argv) {
-  Args args(argv, {}, {});
+  Args args(argv, kExport);
   if (args.positional().size() != 2) throw Error("expected SCENE OUT_DIR", "xi export");
   const fs::path scene_path = args.positional()[0], out_dir = args.positional()[1];
 

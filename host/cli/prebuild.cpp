@@ -9,8 +9,20 @@
 
 namespace xi::cli {
 
+const Command kPrebuild = {
+    .name = "prebuild",
+    .about = "build the kernels any scene's first image can start with (the\n"
+             "generic shading program), so that a new scene waits for no build",
+    .flags = {
+        {"--device", "D", "OpenCL device (as for render)"},
+        {"--lanes", "N", "as for render (default: the device's)"},
+        {"--bvh-width", "N", "as for render (default: the device's)"},
+    },
+    .run = prebuild,
+};
+
 int prebuild(const std::vector<std::string>& argv) {
-  Args args(argv, {"--device", "--lanes", "--bvh-width"}, {});
+  Args args(argv, kPrebuild);
   if (!args.positional().empty()) throw Error("expected no file", args.positional()[0]);
   RenderOptions options;
   options.lanes = args.get_int("--lanes", 0, 1, 16);  // 0: the device's default

@@ -26,6 +26,124 @@
 #include "team.h"
 
 namespace xi::cli {
+
+// `xi render`: its usage and its flags. The setup steps below give each flag its effect, reading it
+// by name (Args refuses a name this table lacks); the effects are not in the table because many
+// defaults come from the scene, and the order of the steps decides which error a user sees first.
+const Command kRender = {
+    .name = "render",
+    .operands = "[SCENE]",
+    .about = "render a .json scene (default: the bundled Cornell box), or any other\n"
+             "file through Assimp with its cameras and lights: every format Assimp\n"
+             "reads (.gltf .glb .obj .ply .fbx .dae .3ds .blend ...; an unknown\n"
+             "extension's error lists them all)",
+    .flags = {
+        {"-o", "OUT.exr|OUT.png",
+         "output: the EXR (linear, float) and the 8-bit sRGB PNG beside it\n"
+         "(through --view), whichever of the two is named"},
+        {"--view", "V",
+         "how the PNG shows the linear image: standard (clipped to [0, 1]),\n"
+         "neutral (Khronos PBR Neutral, as glTF viewers show) or agx (AgX,\n"
+         "Blender's default view, approximated); default: neutral for an\n"
+         "asset file, standard for a JSON scene; the EXR stays linear"},
+        {"--exposure", "E", "scale the linear values by E > 0 before the view (PNG only)"},
+        {"--camera", "NAME|INDEX",
+         "an asset file's camera (default: its first perspective camera;\n"
+         "without one, its bounding sphere framed from --orbit)"},
+        {"--orbit", "YAW,PITCH",
+         "an asset file without a camera: the direction it is framed from,\n"
+         "in degrees (default 0,15: the front, 15 above); yaw turns about +y\n"
+         "toward +x, pitch is above the horizontal, -90 < PITCH < 90"},
+        {"--spp", "N", "samples per pixel"},
+        {"--seed", "S", "random seed"},
+        {"--max-depth", "K", "maximum bounces (1 = direct light only)"},
+        {"--resolution", "WxH", "override the scene's film size"},
+        {"--env", "FILE|none",
+         "an equirectangular environment map around the scene, replacing\n"
+         "the scene's (none: no map, the scene's background)"},
+        {"--env-strength", "S", "scale the environment's radiance by S >= 0 (default: the scene's, 1)"},
+        {"--env-rotate", "DEG", "turn the environment about +y (default: the scene's, 0)"},
+        {"--background", "R,G,B|V",
+         "a constant background radiance, in place of any environment (an\n"
+         "asset file without lights is otherwise lit by the bundled sky)"},
+        {"--sampler", "NAME",
+         "random | grid | stratified | sobol (default: the scene's, else\n"
+         "sobol); random and sobol are progressive: any prefix of a\n"
+         "render is a render; grid and stratified patterns need every spp,\n"
+         "so --time and --snapshot-every refuse them"},
+        {"--strategy", "NAME", "mis | nee | bsdf (light transport)"},
+        {"--noise-threshold", "T",
+         "adaptive sampling: a pixel stops once the relative standard error\n"
+         "of its mean is below T (e.g. 0.02), --spp being the most it takes;\n"
+         "random and sobol samplers only"},
+        {"--min-spp", "N", "samples every pixel takes before it may stop (default 16)"},
+        {"--device", "D",
+         "OpenCL device: index or name substring (see `xi devices`); under\n"
+         "mpirun a list D0,D1,... gives local rank i item i mod its length"},
+        {"--threads", "N", "CPU threads PoCL renders on (default: one per core)"},
+        {"--local-size", "N", "work-group size, at most 1024 (default 64; 0: the largest the kernel allows)"},
+        {"--lanes", "N",
+         "paths per generate and shade work item, 1, 8 or 16 (default: 16\n"
+         "on a CPU with 512-bit vectors, 8 on another CPU, 1 on a GPU)"},
+        {"--bvh-width", "N",
+         "children per BVH node, 4 or 8 (default: 8 on a CPU, 4 on a\n"
+         "GPU)"},
+        {"--kernels", "K",
+         "auto | scene | generic: which program shades; auto: the scene's\n"
+         "own if built before, else the generic one (see `xi prebuild`) while\n"
+         "the scene's own builds, taking over when ready; the image is the same"},
+        {"--ray-packets", "M",
+         "auto | on | hybrid | off: bounce and shadow rays through an 8-wide\n"
+         "BVH in packets, as camera rays go (on), the first bounce's in\n"
+         "hybrid packets (hybrid), or alone (off); default auto: on for\n"
+         "trees of at most 8 nodes, else hybrid"},
+        {"--packet-width", "N",
+         "rays per packet, 8 or 16 (default: 16 on a CPU with 512-bit\n"
+         "vectors, else 8)"},
+        {"--no-spatial-splits", nullptr,
+         "a BVH whose triangles are never split between subtrees: a\n"
+         "faster build, slower rays where long triangles overlap"},
+        {"--paths-in-flight", "N",
+         "most (pixel, sample) paths in one wave (default: sized for the\n"
+         "device, 2^20 on a CPU, 2^25 on a GPU, within 1/4 of its memory)"},
+        {"--samples-per-pass", "N",
+         "most spp one pass adds (default: what the paths in flight hold;\n"
+         "1 with --convergence)"},
+        {"--all-features", nullptr, "compile every kernel feature, not just what the scene uses"},
+        {"--profile", nullptr, "print per-bounce and per-stage timing tables"},
+        {"--trace", "OUT.json", "write every kernel launch as a Chrome trace (Perfetto)"},
+        {"--reference", "REF.exr", "measure the error against REF after the render"},
+        {"--convergence", "OUT.csv", "with --reference: the error after every pass"},
+        {"--quiet", nullptr, "no progress bar and no summary"},
+        {"--time", "SECONDS", "stop after the pass that crosses this much render time"},
+        {"--snapshot-every", "N", "write the image so far every N passes"},
+        {"--denoise", nullptr,
+         "denoise the image (and snapshots) with Intel Open Image Denoise,\n"
+         "as `xi denoise` does: R,G,B denoised, the raw mean in layer noisy"},
+        {"--denoise-quality", "Q", "high (default), balanced or fast: OIDN's filter quality"},
+        {"--denoise-prefilter", "P",
+         "accurate (default: albedo and normal denoised first), fast\n"
+         "(denoised at fast quality) or none (used as rendered)"},
+        {"--checkpoint", "FILE",
+         "save the render's state to FILE every --checkpoint-every\n"
+         "seconds (default 60) and when stopped early; removed once\n"
+         "the render completes"},
+        {"--checkpoint-every", "S", "seconds between the checkpoints --checkpoint saves (default 60)"},
+        {"--resume", "FILE",
+         "continue from a checkpoint (same scene, spp, seed, sampler,\n"
+         "strategy, depth, kernels, device); keeps checkpointing to FILE"},
+    },
+    .notes = {
+        {"Ctrl-C or SIGTERM",
+         "finish the pass in flight, write the image with the spp done,\n"
+         "exit 130 or 143; a second signal stops at once, writing nothing"},
+        {"mpirun -np N xi render ...",
+         "N processes, rank r rendering rows r, r+N, ...; rank 0 writes\n"
+         "the image, bitwise the one-process image (built with MPI)"},
+    },
+    .run = render,
+};
+
 namespace {
 
 std::filesystem::path default_scene() { return bundled_scene_file("cornell-box.json"); }
@@ -221,17 +339,6 @@ std::string device_selector(const Args& args, const Team& team) {
 
 // ---- Setup: each step checks what the user typed before the slow work starts. ----
 
-Args parse_render_args(const std::vector<std::string>& argv) {
-  return Args(argv,
-              {"-o", "--spp", "--seed", "--device", "--max-depth", "--resolution", "--sampler", "--strategy",
-               "--local-size", "--lanes", "--bvh-width", "--ray-packets", "--packet-width", "--kernels", "--reference",
-               "--convergence", "--trace", "--paths-in-flight", "--samples-per-pass",
-               "--time", "--snapshot-every", "--checkpoint", "--checkpoint-every", "--resume", "--camera", "--env",
-               "--env-strength", "--env-rotate", "--background", "--threads", "--noise-threshold", "--min-spp",
-               "--denoise-quality", "--denoise-prefilter", "--view", "--exposure", "--orbit"},
-              {"--profile", "--quiet", "--all-features", "--no-spatial-splits", "--denoise"});
-}
-
 // --orbit YAW,PITCH: two numbers, in degrees (load_asset checks the pitch's range).
 Orbit parse_orbit(const std::string& text) {
   const size_t comma = text.find(',');
@@ -414,7 +521,7 @@ void limit_cpu_threads(Job& job, const Args& args) {
 }
 
 void prepare(Job& job, const std::vector<std::string>& argv, const Team& team) {
-  const Args args = parse_render_args(argv);
+  const Args args(argv, kRender);
   limit_cpu_threads(job, args);
   load_job_scene(job, args, team);
   read_render_options(job, args, team);
@@ -829,7 +936,7 @@ int render(const std::vector<std::string>& argv) {
 }
 
 int devices(const std::vector<std::string>& argv) {
-  Args args(argv, {}, {});
+  Args args(argv, kDevices);
   auto list = list_devices();
   if (list.empty()) throw Error("no OpenCL device found", "is an OpenCL driver installed? PoCL: apt-get install pocl-opencl-icd");
   std::printf("%-3s %-44s %-12s %-6s %5s  %s\n", "#", "device", "type", "units", "", "OpenCL C / platform");
@@ -838,5 +945,7 @@ int devices(const std::vector<std::string>& argv) {
                 d.opencl_c_version.c_str(), d.platform.c_str());
   return 0;
 }
+
+const Command kDevices = {.name = "devices", .about = "list OpenCL platforms and devices", .run = devices};
 
 }  // namespace xi::cli

@@ -23,8 +23,24 @@ PngView read_png_view(const Args& args, View fallback) {
   return v;
 }
 
+const Command kTonemap = {
+    .name = "tonemap",
+    .operands = "IMAGE.exr OUT.png",
+    .about = "the 8-bit sRGB PNG that `xi render` writes beside its EXR",
+    .flags = {
+        {"--view", "V",
+         "standard (default), neutral or agx, as for render (whose\n"
+         "default for an asset file is neutral)"},
+        {"--exposure", "E", "scale the linear values by E > 0 first (default 1)"},
+        {"--layer", "NAME",
+         "an EXR layer (e.g. albedo) instead of RGB; spp: samples per\n"
+         "pixel of an adaptive render, the most-sampled pixel white"},
+    },
+    .run = tonemap,
+};
+
 int tonemap(const std::vector<std::string>& argv) {
-  Args args(argv, {"--exposure", "--layer", "--view"}, {});
+  Args args(argv, kTonemap);
   if (args.positional().size() != 2) throw Error("expected IMAGE.exr OUT.png", "xi tonemap");
   const std::filesystem::path out = args.positional()[1];
   if (out.extension() != ".png") throw Error("the output must be a .png file", out.string());

@@ -104,8 +104,24 @@ Image draw(int map, const WarpedSamples& w) {
 
 }  // namespace
 
+const Command kWarp = {
+    .name = "warp",
+    .about = "draw a sample set warped by a map (as PNG) or write it as CSV",
+    .flags = {
+        {"--map", "NAME",
+         "square | sphere | hemisphere | cosine-hemisphere | disc |\n"
+         "concentric-disc | triangle | disc-naive"},
+        {"--sampler", "NAME", "random | grid | stratified | sobol (default stratified)"},
+        {"-n", "N", "number of points (default 1024)"},
+        {"--seed", "S", "random seed"},
+        {"--device", "D", "OpenCL device (as for render)"},
+        {"-o", "FILE.png|FILE.csv", "output: a picture, or one x,y,z line per point"},
+    },
+    .run = warp,
+};
+
 int warp(const std::vector<std::string>& argv) {
-  Args args(argv, {"--map", "--sampler", "-n", "-o", "--seed", "--device"}, {});
+  Args args(argv, kWarp);
   if (!args.positional().empty()) throw Error("unexpected argument '" + args.positional()[0] + "'", "xi warp");
   int map = parse_warp_map(args.get("--map", "square"));
   int sampler = parse_sampler(args.get("--sampler", "stratified"));
