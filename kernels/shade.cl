@@ -133,6 +133,12 @@ static inline XI_INLINE Bsdf xi_surface_bsdf(XI_SCENE_PARAMS, uint shading, Shad
   b.pbr.base_color = m.albedo;
   b.pbr.metallic = b.pbr.alpha = b.pbr.transmission = 0.0f;
   b.pbr.multiple_scattering = xi_uses(shading, XI_USE_MULTIPLE_SCATTERING) ? 1.0f : 0.0f;
+  b.pbr.albedo_scaling = xi_uses(shading, XI_USE_ALBEDO_SCALING) ? 1.0f : 0.0f;
+  b.pbr.specular_color = make_xfloat3((xfloat)1.0f, (xfloat)1.0f, (xfloat)1.0f);
+  b.pbr.specular = 1.0f;
+  b.pbr.coat = b.pbr.coat_alpha = 0.0f;
+  b.pbr.sheen_color = make_xfloat3((xfloat)0.0f, (xfloat)0.0f, (xfloat)0.0f);
+  b.pbr.sheen_alpha = 0.0f;
   b.pbr.eta = 1.5f;
   b.frame_t = b.frame_b = b.n;
   if (xi_uses(shading, XI_USE_PBR)) {
@@ -148,11 +154,33 @@ static inline XI_INLINE Bsdf xi_surface_bsdf(XI_SCENE_PARAMS, uint shading, Shad
       b.pbr.alpha = in.roughness * in.roughness;
       b.pbr.eta = front ? m.ior : 1.0f / m.ior;
       b.pbr.transmission = in.transmission;
+      if (xi_uses(shading, XI_USE_SPECULAR)) b.pbr.specular_color = XI_GATHER_XYZ_FIELD(materials, mi, specular, &b.pbr.specular);
+      if (xi_uses(shading, XI_USE_CLEARCOAT)) {
+        xfloat3 coat = XI_GATHER_XYZ_FIELD(materials, mi, coat, 0);
+        b.pbr.coat = pbr ? coat.x : (xfloat)0.0f;
+        b.pbr.coat_alpha = coat.y * coat.y;
+      }
+      if (xi_uses(shading, XI_USE_SHEEN)) {
+        xfloat roughness;
+        xfloat3 sheen = XI_GATHER_XYZ_FIELD(materials, mi, sheen, &roughness);
+        b.pbr.sheen_color = xi_select3(pbr, sheen, b.pbr.sheen_color);
+        b.pbr.sheen_alpha = roughness * roughness;
+      }
       m.albedo = xi_select3(pbr, in.base_color, m.albedo);
     }
   }
   b.tint = m.albedo;
   return b;
+}
+
+// Beer–Lambert over the segment a ray travelled inside the volume of material medium − 1: beta
+// times exp(−σa t); a ray that escaped from inside (a mesh that is not closed) is absorbed wherever
+// σa > 0.
+static inline xfloat3 xi_volume_transmittance(__global const MaterialData* materials, xuint medium, xfloat t,
+                                              xfloat3 beta) {
+  xfloat3 sigma = XI_GATHER_XYZ_FIELD(materials, medium != 0u ? medium - 1u : (xuint)0u, absorption, 0);
+  xfloat d = t < 0.0f ? (xfloat)1e30f : t;
+  return make_xfloat3(beta.x * exp(-sigma.x * d), beta.y * exp(-sigma.y * d), beta.z * exp(-sigma.z * d));
 }
 
 // Whether an escaped ray gathers light: from an environment map or a background that is not black.
@@ -192,6 +220,13 @@ static inline XI_INLINE ShadeResult xi_shade_paths(XI_PATH_PARAMS xuint slot, xm
   xfloat prev_pdf;  // 0 after a camera ray or a specular bounce
   xfloat3 beta = xi_gather_xyz(throughput, slot, &prev_pdf);
   xfloat3 L = xi_gather_xyz(radiance, slot, 0);
+  xuint medium = 0u;  // the volume the ray crossed: its material + 1, 0 for none
+  if (xi_uses(shading, XI_USE_VOLUME)) {
+    xfloat medium_bits;
+    xi_gather_xyz(ray_dir, slot, &medium_bits);
+    medium = active ? xi_as_uint(medium_bits) : (xuint)0u;
+    if (XI_ANY(medium != 0u)) beta = xi_select3(medium != 0u, xi_volume_transmittance(materials, medium, h.x, beta), beta);
+  }
 
   if (xi_uses(shading, XI_USE_ENVIRONMENT) && env.width > 0u) {
     // The environment, MIS-weighted against light sampling where the ray was a BSDF sample.
@@ -327,8 +362,16 @@ static inline XI_INLINE ShadeResult xi_shade_paths(XI_PATH_PARAMS xuint slot, xm
     pdf = passes ? prev_pdf : pdf;
   }
 
+  xfloat medium_out = 0.0f;
+  if (xi_uses(shading, XI_USE_VOLUME)) {
+    // A refraction into a volume's mesh enters its medium and one out of it returns to the outside
+    // (volumes do not nest); reflections, thin surfaces and cut-outs keep the medium the ray is in.
+    xmask transmitted = at_surface && (bs.lobe & (xuint)XI_LOBE_TRANSMISSION) != 0u;
+    xmask bounds = transmitted && xi_max3(XI_GATHER_XYZ_FIELD(materials, mi, absorption, 0)) > 0.0f;
+    medium_out = xi_as_float(bounds ? (front ? mi + 1u : (xuint)0u) : medium);
+  }
   xi_scatter4(ray_org, slot, xi_offset_ray_origin(p, p_error, bsdf.n_geo, wi), (xfloat)0.0f, goes_on);
-  xi_scatter4(ray_dir, slot, wi, (xfloat)0.0f, goes_on);
+  xi_scatter4(ray_dir, slot, wi, medium_out, goes_on);
   xi_scatter4(throughput, slot, beta, pdf, goes_on);
   r.next_ray = goes_on;
   return r;

@@ -187,6 +187,38 @@ TEST_F(CliRender, MatchesTheLibrary) {
   EXPECT_EQ(differ, 0u);
 }
 
+// --layering overrides the scene's render.layering: a white rough dielectric under a white sky
+// (one bounce) reflects all of it with albedo scaling (within its tables' 1%) and loses some with
+// the Fresnel mix, which must come out darker by more than 5 standard errors.
+TEST_F(CliRender, LayeringFlagChoosesTheModel) {
+  xi_test::write_text(work_ / "white.json", R"({"camera": {"position": [0, 0, 3], "look_at": [0, 0, 0], "up": [0, 1, 0], "fov": 20},
+    "film": {"width": 8, "height": 8}, "background": [1, 1, 1], "render": {"max_depth": 1},
+    "materials": {"w": {"type": "pbr", "base_color": [1, 1, 1], "roughness": 0.5}},
+    "shapes": [{"type": "quad", "material": "w", "vertices": [[-2, -2, 0], [2, -2, 0], [2, 2, 0], [-2, 2, 0]]}]})");
+  auto mean = [&](const std::string& layering, double* se) {
+    const std::string out = (layering.empty() ? "default" : layering) + ".exr";
+    std::vector<std::string> args = {"render", "white.json", "--spp", "256", "--sampler", "random", "-o", out, "--quiet"};
+    if (!layering.empty()) args.insert(args.end(), {"--layering", layering});
+    const Outcome r = run_xi(args);
+    EXPECT_EQ(r.code, 0) << r.err;
+    const xi::Image img = xi::read_exr(work_ / out);
+    double sum = 0.0, var = 0.0;
+    for (int y = 0; y < img.height; ++y)
+      for (int x = 0; x < img.width; ++x) sum += img.at(x, y).y;
+    const size_t n = size_t(img.width) * img.height;
+    for (int y = 0; y < img.height; ++y)
+      for (int x = 0; x < img.width; ++x) var += std::pow(img.at(x, y).y - sum / n, 2.0);
+    *se = std::sqrt(var / (n - 1) / n);
+    return sum / n;
+  };
+  double se_default, se_scaled, se_mix;
+  const double by_default = mean("", &se_default), scaled = mean("albedo-scaling", &se_scaled),
+               mix = mean("fresnel-mix", &se_mix);
+  EXPECT_EQ(by_default, scaled);
+  EXPECT_NEAR(scaled, 1.0, 0.01 + 4.0 * se_scaled);
+  EXPECT_LT(mix, scaled - 5.0 * std::hypot(se_mix, se_scaled));
+}
+
 // ---------------------------------------------------------------------------------------------
 // Devices.
 
@@ -577,6 +609,8 @@ TEST_F(CliBadInput, BadSpp) {
 }
 
 TEST_F(CliBadInput, BadLanes) { expect_each_refused("--lanes", {"0", "3", "9", "17", "-1", "abc"}); }
+
+TEST_F(CliBadInput, BadLayering) { expect_each_refused("--layering", {"kulla", "Albedo-Scaling", "mix"}); }
 
 TEST_F(CliBadInput, BadBvhWidth) { expect_each_refused("--bvh-width", {"0", "5", "16", "-4", "wide"}); }
 

@@ -309,6 +309,61 @@ TEST(Scene, MultipleScatteringSwitch) {
                      "/render/multiple_scattering");
 }
 
+// "render": {"layering": ...}: albedo scaling by default, a feature only where a pbr material is;
+// "fresnel-mix" turns it off; an unknown name is refused, naming the key and the names it takes.
+TEST(Scene, LayeringChoice) {
+  const std::string pbr = R"("materials": {"white": {"type": "pbr", "base_color": [0.5, 0.5, 0.5], "roughness": 0.5}})";
+  auto features = [&](const std::string& render, const std::string& materials) {
+    std::string text = scene_text(kQuad, materials);
+    if (!render.empty()) text = "{" + render + ", " + text.substr(1);
+    return xi::compile_scene(parse(text)).features;
+  };
+  EXPECT_TRUE(features("", pbr).albedo_scaling);
+  EXPECT_NE(features("", pbr).describe().find("albedo-scaling"), std::string::npos);
+  EXPECT_TRUE(features(R"("render": {"layering": "albedo-scaling"})", pbr).albedo_scaling);
+  EXPECT_FALSE(features(R"("render": {"layering": "fresnel-mix"})", pbr).albedo_scaling);
+  EXPECT_FALSE(features("", kMaterials).albedo_scaling);  // no pbr material: no layer
+  EXPECT_EQ(parse(scene_text(kQuad)).render.layering, xi::Layering::AlbedoScaling);
+  expect_parse_error("{\"render\": {\"layering\": \"kulla\"}, " + scene_text(kQuad).substr(1),
+                     "/render/layering");
+  try {
+    parse("{\"render\": {\"layering\": \"kulla\"}, " + scene_text(kQuad).substr(1));
+  } catch (const xi::Error& e) {
+    EXPECT_NE(std::string(e.what()).find("albedo-scaling or fresnel-mix"), std::string::npos) << e.what();
+  }
+  EXPECT_EQ(xi::parse_layering(xi::layering_name(xi::Layering::FresnelMix)), xi::Layering::FresnelMix);
+}
+
+// A pbr material's layers in JSON: specular, clear coat, sheen and volume keys, their defaults (none
+// of them), each turning on its kernel feature; out-of-range values and a volume without
+// transmission are refused, naming the key.
+TEST(Scene, PbrLayers) {
+  const std::string layered = R"("materials": {"white": {"type": "pbr", "base_color": [0.5, 0.5, 0.5],
+      "transmission": 1, "specular": 0.5, "specular_color": [1, 0.5, 2], "clearcoat": 0.8, "clearcoat_roughness": 0.1,
+      "sheen_color": [0.2, 0.3, 0.4], "sheen_roughness": 0.6, "attenuation_color": [0.5, 0.5, 0.25],
+      "attenuation_distance": 2}})";
+  const xi::Scene s = parse(scene_text(kQuad, layered));
+  const xi::Material& m = s.materials.at(0);
+  EXPECT_EQ(m.specular, 0.5f);
+  EXPECT_EQ(m.specular_color, glm::vec3(1.0f, 0.5f, 2.0f));
+  EXPECT_FLOAT_EQ(m.clearcoat, 0.8f);
+  EXPECT_FLOAT_EQ(m.clearcoat_roughness, 0.1f);
+  EXPECT_EQ(m.sheen_color, glm::vec3(0.2f, 0.3f, 0.4f));
+  EXPECT_FLOAT_EQ(m.sheen_roughness, 0.6f);
+  EXPECT_NEAR(m.volume_absorption().z, std::log(4.0) / 2.0, 1e-6);
+  const xi::Features f = xi::compile_scene(s).features;
+  EXPECT_TRUE(f.specular && f.clearcoat && f.sheen && f.volume);
+  const xi::Features plain = xi::compile_scene(parse(scene_text(kQuad, R"("materials": {"white": {"type": "pbr"}})"))).features;
+  EXPECT_FALSE(plain.specular || plain.clearcoat || plain.sheen || plain.volume);
+  auto with = [&](const std::string& keys) {
+    return scene_text(kQuad, R"("materials": {"white": {"type": "pbr", )" + keys + "}}");
+  };
+  expect_parse_error(with(R"("sheen_roughness": 2)"), "/materials/white/sheen_roughness");
+  expect_parse_error(with(R"("clearcoat": -1)"), "/materials/white/clearcoat");
+  expect_parse_error(with(R"("attenuation_distance": 0, "transmission": 1)"), "/materials/white/attenuation_distance");
+  expect_parse_error(with(R"("attenuation_color": [0.5, 0.5, 0.5])"), "needs transmission");
+}
+
 TEST(SceneErrors, MalformedJson) {
   expect_parse_error(R"({"camera": {"position": [0, 0,, 0]}})", "line 1, column 31");
   expect_parse_error(R"({"camera": {"position": [0, 0,, 0]}})", "test.json: byte 31");

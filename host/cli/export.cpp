@@ -105,7 +105,11 @@ nlohmann::json material_json(const Material& m) {
                       {"emission", vec(m.emission)}, {"two_sided", m.two_sided}, {"ior", m.ior},
                       {"metallic", m.metallic}, {"roughness", m.roughness}, {"transmission", m.transmission},
                       {"normal_scale", m.normal_scale}, {"alpha", m.alpha},
-                      {"alpha_mode", alpha_modes[(uint32_t)m.alpha_mode]}, {"alpha_cutoff", m.alpha_cutoff}};
+                      {"alpha_mode", alpha_modes[(uint32_t)m.alpha_mode]}, {"alpha_cutoff", m.alpha_cutoff},
+                      {"specular", m.specular}, {"specular_color", vec(m.specular_color)},
+                      {"clearcoat", m.clearcoat}, {"clearcoat_roughness", m.clearcoat_roughness},
+                      {"sheen_color", vec(m.sheen_color)}, {"sheen_roughness", m.sheen_roughness},
+                      {"absorption", vec(m.volume_absorption())}};
   nlohmann::json textures = nlohmann::json::object();
   for (int k = 0; k < XI_TEXTURE_SLOTS; ++k)
     if (m.textures[k].used()) textures[kTextureSlots[k].key] = slot_json(m.textures[k]);

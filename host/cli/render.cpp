@@ -72,6 +72,11 @@ const Command kRender = {
          "render is a render; grid and stratified patterns need every spp,\n"
          "so --time and --snapshot-every refuse them"},
         {"--strategy", "NAME", "mis | nee | bsdf (light transport)"},
+        {"--layering", "NAME",
+         "albedo-scaling | fresnel-mix: how a metallic-roughness material's\n"
+         "specular layer dims its base (default: the scene's, else\n"
+         "albedo-scaling, as Blender's Principled BSDF; fresnel-mix: by the\n"
+         "Fresnel transmittance both ways, reciprocal but losing energy)"},
         {"--noise-threshold", "T",
          "adaptive sampling: a pixel stops once the relative standard error\n"
          "of its mean is below T (e.g. 0.02), --spp being the most it takes;\n"
@@ -398,6 +403,13 @@ RenderOptions::ShadingProgram parse_shading_program(const std::string& kernels) 
 
 // The sampling and kernel options; the scene's render settings are the defaults.
 void read_render_options(Job& job, const Args& args, const Team& team) {
+  if (args.has("--layering")) {
+    try {
+      job.scene.render.layering = parse_layering(args.get("--layering"));
+    } catch (const Error& e) {
+      throw Error(e.message(), "--layering");
+    }
+  }
   const Scene& scene = job.scene;
   RenderOptions& opt = job.opt;
   opt.spp = args.get_int("--spp", scene.render.spp, 1, 1 << 20);

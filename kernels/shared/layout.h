@@ -31,6 +31,10 @@ typedef struct {
   float alpha;       // the base colour's alpha factor
   float4 pbr;        // metallic, roughness (perceptual: GGX alpha = roughness²), transmission, normal map scale
   uint textures[XI_TEXTURE_SLOTS];  // TextureRef index or XI_NO_TEXTURE, by XI_TEXTURE_*
+  float4 specular;   // KHR_materials_specular (pbr): rgb the f0 tint, w the layer's strength (1, 1: none)
+  float4 coat;       // KHR_materials_clearcoat (pbr): x weight (0: none), y roughness (perceptual); zw unused
+  float4 absorption; // KHR_materials_volume (pbr): rgb σa per unit length of the volume inside (0: none)
+  float4 sheen;      // KHR_materials_sheen (pbr): rgb colour (0: none), w roughness (perceptual)
 } MaterialData;
 
 // Textures: every image's texels in one buffer of uints (RGBA, 8 bits each, red in the low byte),
@@ -173,7 +177,7 @@ typedef struct {
 // of them first (XI_PATH_PARAMS) in this order, and the host creates and binds them from this list.
 #define XI_PATH_STATE(F)                                                    \
   F(float4, ray_org)    /* xyz: ray origin */                               \
-  F(float4, ray_dir)    /* xyz: unit direction */                           \
+  F(float4, ray_dir)    /* xyz: unit direction; w: as_float(the volume's material + 1, 0: none) */ \
   F(float4, hit)        /* t (< 0: miss), barycentric u, v, as_float(tri) */ \
   F(float4, throughput) /* rgb; w: solid-angle pdf of the last BSDF sample, 0 if specular */ \
   F(float4, radiance)   /* rgb gathered so far */                           \

@@ -59,9 +59,10 @@ static inline xfloat3 xi_bsdf_to_local(Bsdf b, xfloat3 w) {
 static inline XI_INLINE xmask xi_bsdf_has_non_delta(Bsdf b, uint shading) {
   xmask some = b.at_surface && b.type == XI_MATERIAL_DIFFUSE && xi_max3(b.tint) > 0.0f;
   if (xi_uses(shading, XI_USE_PBR))
-    // A metal whose lobes are all delta has nothing for a light sample to reach.
+    // A metal whose lobes are all delta (its coat's too) has nothing for a light sample to reach.
     some = some || (b.at_surface && b.type == XI_MATERIAL_PBR &&
-                    !(b.pbr.alpha < XI_DELTA_ALPHA && b.pbr.metallic >= 1.0f));
+                    (!(b.pbr.alpha < XI_DELTA_ALPHA && b.pbr.metallic >= 1.0f) ||
+                     (b.pbr.coat > 0.0f && b.pbr.coat_alpha >= XI_DELTA_ALPHA) || xi_max3(b.pbr.sheen_color) > 0.0f));
   return some;
 }
 

@@ -7,7 +7,7 @@
 //   f = mix(dielectric, metal, metallic)
 //   metal      = spec(h) · Schlick(f0 = base_color, wo·h)
 //   dielectric = spec(h) · F(wo·h)                                        the specular layer
-//              + (1 − transmission) · (1 − F(wo.z)) (1 − F(wi.z)) · base_color / π
+//              + (1 − transmission) · (1 − E_spec(wo.z)) · base_color / π    the base (layering below)
 //              + transmission · base_color · (1 − F(wo·h_t)) · btdf(h_t)
 //   spec(h) = D(h) G2 / (4 |wo.z| |wi.z|), h = normalize(wo + wi)           reflection (wi.z > 0)
 //   btdf(h) = η² |wi·h| |wo·h| D(h) G2 / (|wo.z| |wi.z| (wo·h + η wi·h)²)  Walter et al. 2007, with
@@ -18,11 +18,18 @@
 // reflection and the rough transmission share D, G2 and the microfacet's F, so together they keep
 // at most the energy that arrives (F + (1 − F) per microfacet, G2 ≤ G1).
 //
-// Departure from the spec: its fresnel_mix weighs the Lambertian base by 1 − F(wo·h) with h the
-// half vector of wo and wi, which does not conserve energy (at grazing wo the smooth layer already
-// reflects nearly everything while the base below is barely dimmed: albedo up to ~1.8). The base is
-// weighed by (1 − F(wo.z)) (1 − F(wi.z)) instead: reciprocal, and the layer and base together stay
-// below 1 (tests/test_microfacet.cpp, the white furnace).
+// The layering of the dielectric specular over the base (PbrLobes.albedo_scaling):
+// - albedo scaling (1, the default; Blender's Principled BSDF and OpenPBR do the same): the base
+//   receives what the specular layer does not reflect towards wo, (1 − E_spec(wo.z)), with
+//   E_spec(mu) = ∫ spec·F·cos θi the layer's directional albedo, looked up (ggx_albedo.h:
+//   f0 E + (1 − f0) E_s for Schlick's F). A white base under the layer then reflects exactly what
+//   arrives, at every roughness and ior. Like those models it weighs by wo alone: not reciprocal,
+//   which a path traced from the camera does not need.
+// - the Fresnel mix (0): the base weighed by (1 − F(wo.z)) (1 − F(wi.z)), reciprocal, but it
+//   loses the light the rough layer neither reflects nor passes (up to a few percent at high
+//   roughness). (The spec's own fresnel_mix, 1 − F(wo·h) with h the half vector of wo and wi, does
+//   not conserve energy at all: at grazing wo the smooth layer already reflects nearly everything
+//   while the base below is barely dimmed, albedo up to ~1.8.)
 //
 // Multiple scattering (Kulla and Conty, "Revisiting Physically Based Shading at Imageworks", 2017):
 // single-scattering GGX loses the light that bounces between microfacets, up to 69% of it for a
@@ -47,6 +54,7 @@
 #define XI_MICROFACET_H
 #include "bsdf.h"
 #include "ggx_albedo.h"
+#include "sheen_albedo.h"
 #include "lanes.h"
 #include "warps.h"
 
@@ -60,6 +68,13 @@ typedef struct {
   xfloat eta;           // n on the far side of the surface / n on wo's side (ior entering, 1/ior leaving)
   xfloat transmission;  // [0, 1] (KHR_materials_transmission)
   xfloat multiple_scattering;  // 1: the metal's multiple scattering restored (above); 0: single scattering
+  xfloat albedo_scaling;       // 1: the base weighed by the layer's albedo (above); 0: the Fresnel mix
+  xfloat3 specular_color;      // KHR_materials_specular: the dielectric f0's tint (1: none)
+  xfloat specular;             // KHR_materials_specular: the dielectric layer's strength (1: none)
+  xfloat coat;                 // KHR_materials_clearcoat: the coat's weight (0: none)
+  xfloat coat_alpha;           // the coat's GGX alpha
+  xfloat3 sheen_color;         // KHR_materials_sheen (0: none)
+  xfloat sheen_alpha;          // the sheen's alpha, roughness²
 } PbrLobes;
 
 // --- GGX
@@ -142,17 +157,18 @@ static inline xuint xi_ggx_albedo_row(xfloat r, xfloat* fy) {
   *fy = y - y0;
   return convert_xuint(y0);
 }
-// E(mu, r): the table interpolated linearly in both, clamped.
-static inline xfloat xi_ggx_albedo(xfloat mu, xfloat r) {
+// A (mu, r) table (ggx_albedo.h's E or E_s, sheen_albedo.h's) interpolated linearly in both, clamped.
+static inline xfloat xi_albedo_lookup(__constant const float* table, xfloat mu, xfloat r) {
   const float n = (float)XI_GGX_ALBEDO_SIZE;
   xfloat x = clamp(mu * n - 0.5f, 0.0f, n - 1.0f), x0 = fmin(floor(x), (xfloat)(n - 2.0f)), fx = x - x0, fy;
   xuint i = xi_ggx_albedo_row(r, &fy) * XI_GGX_ALBEDO_SIZE + convert_xuint(x0);
-  xfloat a = xi_gather_table(xi_ggx_albedo_table, i), b = xi_gather_table(xi_ggx_albedo_table, i + 1u);
-  xfloat c = xi_gather_table(xi_ggx_albedo_table, i + XI_GGX_ALBEDO_SIZE);
-  xfloat d = xi_gather_table(xi_ggx_albedo_table, i + XI_GGX_ALBEDO_SIZE + 1u);
+  xfloat a = xi_gather_table(table, i), b = xi_gather_table(table, i + 1u);
+  xfloat c = xi_gather_table(table, i + XI_GGX_ALBEDO_SIZE);
+  xfloat d = xi_gather_table(table, i + XI_GGX_ALBEDO_SIZE + 1u);
   xfloat lo = a + (b - a) * fx, hi = c + (d - c) * fx;
   return lo + (hi - lo) * fy;
 }
+static inline xfloat xi_ggx_albedo(xfloat mu, xfloat r) { return xi_albedo_lookup(xi_ggx_albedo_table, mu, r); }
 // E_avg(r), interpolated likewise.
 static inline xfloat xi_ggx_albedo_average(xfloat r) {
   xfloat fy;
@@ -181,41 +197,164 @@ static inline xfloat3 xi_ggx_multiple_scattering(PbrLobes m, xfloat mu_o, xfloat
   return xi_scale3(f_ms, lost * (1.0f - xi_ggx_albedo(mu_i, r)) / (XI_PI * fmax(1.0f - e_avg, (xfloat)1e-6f)));
 }
 
+// --- the dielectric layer over the base
+
+// The dielectric layer's Fresnel at a microfacet cosine cos_o, with KHR_materials_specular:
+// Schlick from F0 = min(f0 · specular_color, 1) · specular to F90 = specular, that is
+// specular · (f0' + (1 − f0') w) with f0' = min(f0 · specular_color, 1) and w the Schlick term of
+// xi_schlick_dielectric (1 under total internal reflection). Without the extension (both 1) it is
+// xi_schlick_dielectric's value in every channel.
+static inline xfloat3 xi_dielectric_fresnel(PbrLobes m, xfloat cos_o) {
+  xfloat r = (m.eta - 1.0f) / (m.eta + 1.0f), f0 = r * r;
+  xfloat c = clamp(cos_o, (xfloat)0.0f, (xfloat)1.0f);
+  xfloat sin2_t = (1.0f - c * c) / (m.eta * m.eta);
+  xfloat cs = m.eta < 1.0f ? xi_safe_sqrt(1.0f - sin2_t) : c;
+  xfloat q = 1.0f - cs, q2 = q * q, w = q2 * q2 * q;
+  xmask tir = sin2_t >= 1.0f;
+  xfloat fx = fmin(f0 * m.specular_color.x, (xfloat)1.0f), fy = fmin(f0 * m.specular_color.y, (xfloat)1.0f),
+         fz = fmin(f0 * m.specular_color.z, (xfloat)1.0f);
+  return xi_scale3(make_xfloat3(tir ? (xfloat)1.0f : fx + (1.0f - fx) * w, tir ? (xfloat)1.0f : fy + (1.0f - fy) * w,
+                                tir ? (xfloat)1.0f : fz + (1.0f - fz) * w),
+                   m.specular);
+}
+
+// Where the layer's albedo is known: a smooth layer reflects its Fresnel at wo.z (total internal
+// reflection included); a rough one, met from outside (eta ≥ 1), f0' E + (1 − f0') E_s. A rough
+// layer met from inside a denser medium (a surface seen from behind) keeps the Fresnel mix.
+static inline xmask xi_layer_albedo_known(PbrLobes m) { return m.alpha < XI_DELTA_ALPHA || m.eta >= 1.0f; }
+
+// E_spec(mu): the dielectric specular layer's directional albedo at wo.z = mu, where known (its
+// largest channel, as Blender's Principled BSDF dims the base by).
+static inline xfloat xi_dielectric_layer_albedo(PbrLobes m, xfloat mu) {
+  xfloat smooth = xi_max3(xi_dielectric_fresnel(m, mu));
+  if (!XI_ANY(m.alpha >= XI_DELTA_ALPHA)) return smooth;
+  xfloat q = (m.eta - 1.0f) / (m.eta + 1.0f), r = sqrt(fmax(m.alpha, (xfloat)0.0f));
+  xfloat f0 = fmin(q * q * xi_max3(m.specular_color), (xfloat)1.0f);
+  xfloat e = xi_ggx_albedo(mu, r), e_s = xi_albedo_lookup(xi_ggx_albedo_schlick_table, mu, r);
+  return m.alpha >= XI_DELTA_ALPHA ? m.specular * (f0 * e + (1.0f - f0) * e_s) : smooth;
+}
+
+// What the layer passes down to the base towards wo (wo.z = mu_o): 1 − E_spec(mu_o) with albedo
+// scaling where the layer's albedo is known, 1 − F(mu_o) in the Fresnel mix.
+static inline xfloat xi_base_share(PbrLobes m, xfloat mu_o) {
+  xfloat mixed = 1.0f - xi_max3(xi_dielectric_fresnel(m, mu_o));
+  xmask scaled = m.albedo_scaling > 0.0f && xi_layer_albedo_known(m);
+  if (!XI_ANY(scaled)) return mixed;
+  return scaled ? 1.0f - xi_dielectric_layer_albedo(m, mu_o) : mixed;
+}
+
+// The diffuse base's weight between wo and wi (no base colour, transmission or metallic weight):
+// the Fresnel mix passes the light through the layer both ways.
+static inline xfloat xi_base_weight(PbrLobes m, xfloat mu_o, xfloat mu_i) {
+  xmask scaled = m.albedo_scaling > 0.0f && xi_layer_albedo_known(m);
+  return xi_base_share(m, mu_o) * (scaled ? (xfloat)1.0f : 1.0f - xi_max3(xi_dielectric_fresnel(m, mu_i)));
+}
+
+// --- the clear coat (KHR_materials_clearcoat)
+//
+// A dielectric of ior 1.5 over everything else, weighted by coat, with its own roughness and the
+// base's shading normal:
+//   f = coat · D_c(h) G2_c F_c(wo·h) / (4 |wo.z| |wi.z|) + share_c(wo.z) · f_below
+// share_c = 1 − coat · E_c(wo.z) with albedo scaling (the coat's albedo from the tables, as above),
+// 1 − coat · F_c(wo.z) in the Fresnel mix (the spec's own layering). A coat met from behind is the
+// same coat: it stays on the outside.
+#define XI_COAT_ETA 1.5f
+
+static inline xfloat xi_coat_albedo(PbrLobes m, xfloat mu) {
+  xfloat smooth = xi_schlick_dielectric(mu, (xfloat)XI_COAT_ETA);
+  if (!XI_ANY(m.coat_alpha >= XI_DELTA_ALPHA && m.albedo_scaling > 0.0f)) return smooth;
+  const float q = (XI_COAT_ETA - 1.0f) / (XI_COAT_ETA + 1.0f), f0 = q * q;
+  xfloat r = sqrt(fmax(m.coat_alpha, (xfloat)0.0f));
+  xfloat rough = f0 * xi_ggx_albedo(mu, r) + (1.0f - f0) * xi_albedo_lookup(xi_ggx_albedo_schlick_table, mu, r);
+  return m.coat_alpha >= XI_DELTA_ALPHA && m.albedo_scaling > 0.0f ? rough : smooth;
+}
+static inline xfloat xi_coat_share(PbrLobes m, xfloat mu_o) {
+  if (!XI_ANY(m.coat > 0.0f)) return 1.0f;
+  return 1.0f - m.coat * xi_coat_albedo(m, mu_o);
+}
+
+// --- the sheen (KHR_materials_sheen)
+//
+// A layer of fibres over the base (below the coat): the "Charlie" distribution of Estevez and Kulla
+// (2017), D(h) = (2 + 1/α) sin^(1/α)θh / 2π, with Ashikhmin's visibility 1 / (4 (μi + μo − μi μo)),
+// as the glTF spec's sample implementation; divided by max(1, E_sh(wo.z)), its directional albedo
+// (sheen_albedo.h), which Ashikhmin's visibility lets pass 1 at grazing angles for low roughness.
+//   f = sheen_color · D V / max(1, E_sh(μo)) + (1 − max(sheen_color) min(1, E_sh(μo))) · f_below
+// It is sampled with the cosine distribution, as the diffuse base.
+#define XI_SHEEN_ALPHA_MIN 0.01f  // scripts/make-sheen-albedo.py's ALPHA_MIN
+
+static inline xfloat xi_sheen_albedo(PbrLobes m, xfloat mu) {
+  return xi_albedo_lookup(xi_sheen_albedo_table, mu, sqrt(fmax(m.sheen_alpha, (xfloat)XI_SHEEN_ALPHA_MIN)));
+}
+// What the sheen leaves to the layers below towards wo.
+static inline xfloat xi_sheen_share(PbrLobes m, xfloat mu_o) {
+  if (!XI_ANY(xi_max3(m.sheen_color) > 0.0f)) return 1.0f;
+  return 1.0f - xi_max3(m.sheen_color) * fmin(xi_sheen_albedo(m, mu_o), (xfloat)1.0f);
+}
+// f of the sheen (no colour) for wi above, h = normalize(wo + wi).
+static inline xfloat xi_sheen_f(PbrLobes m, xfloat3 h, xfloat mu_o, xfloat mu_i) {
+  xfloat a = fmax(m.sheen_alpha, (xfloat)XI_SHEEN_ALPHA_MIN);
+  xfloat sin2 = fmax(1.0f - h.z * h.z, (xfloat)0.0f);
+  xfloat d = (2.0f + 1.0f / a) * pow(sin2, 0.5f / a) * (0.5f * XI_INV_PI);
+  xfloat v = 1.0f / (4.0f * fmax(mu_i + mu_o - mu_i * mu_o, (xfloat)XI_MIN_COS));
+  return d * v / fmax(xi_sheen_albedo(m, mu_o), (xfloat)1.0f);
+}
+
 // --- the material
 
-// Probabilities of the lobes xi_pbr_sample chooses: reflection (specular layer and metal), diffuse
-// (the cosine-distributed lobes: the diffuse base and the metal's multiple scattering),
-// transmission, from estimates of their albedos at wo. Each is positive wherever its lobe can be
-// nonzero: reflection always (Schlick tends to 1 at grazing microfacets), transmission wherever
-// transmission and base colour are, even under total internal reflection at wo.z, where tilted
-// microfacets still refract; diffuse vanishes exactly where both its terms do.
-static inline void xi_pbr_lobe_probabilities(PbrLobes m, xfloat3 wo, xfloat* pr, xfloat* pd, xfloat* pt) {
-  xfloat fo = xi_schlick_dielectric(wo.z, m.eta);
+// Probabilities of the lobes xi_pbr_sample chooses: the coat, reflection (specular layer and
+// metal), diffuse (the cosine-distributed lobes: the diffuse base, the metal's multiple scattering
+// and the sheen), transmission, from estimates of their albedos at wo. Each is positive wherever its
+// lobe can be nonzero: the coat wherever it is, reflection always (Schlick tends to 1 at grazing
+// microfacets), transmission wherever transmission and base colour are, even under total internal
+// reflection at wo.z, where tilted microfacets still refract; diffuse vanishes exactly where both
+// its terms do.
+typedef struct {
+  xfloat coat, reflect, diffuse, transmit;
+} PbrLobeChoice;
+
+static inline PbrLobeChoice xi_pbr_lobe_probabilities(PbrLobes m, xfloat3 wo) {
+  xfloat3 fo3 = xi_dielectric_fresnel(m, wo.z);
+  xfloat fo = xi_max3(fo3);
   xfloat lum = fmax(xi_luminance(m.base_color), (xfloat)0.0f);
   xfloat dielectric = 1.0f - m.metallic;
   xfloat wr = fmax(m.metallic * xi_luminance(xi_schlick_color(m.base_color, wo.z)) + dielectric * fo, (xfloat)0.02f);
   xfloat3 ms_albedo;
   xi_ggx_multiple_scattering(m, wo.z, wo.z, &ms_albedo);
   // The diffuse base and the metal's multiple scattering share the cosine distribution.
-  xfloat wd = dielectric * (1.0f - m.transmission) * (1.0f - fo) * lum + m.metallic * xi_luminance(ms_albedo);
+  xfloat wd = dielectric * (1.0f - m.transmission) * xi_base_share(m, wo.z) * lum + m.metallic * xi_luminance(ms_albedo);
   xfloat wt = dielectric * m.transmission * fmax(1.0f - fo, (xfloat)0.1f) * lum;
-  xfloat inv = 1.0f / (wr + wd + wt);
-  *pr = wr * inv;
-  *pd = wd * inv;
-  *pt = wt * inv;
+  if (XI_ANY(xi_max3(m.sheen_color) > 0.0f)) {
+    xfloat share = xi_sheen_share(m, wo.z);
+    wr *= share, wd *= share, wt *= share;
+    wd += 1.0f - share;  // the sheen's albedo, cosine-sampled with the base
+  }
+  xfloat wc = 0.0f;
+  if (XI_ANY(m.coat > 0.0f)) {
+    xfloat share = xi_coat_share(m, wo.z);
+    wr *= share, wd *= share, wt *= share;
+    wc = m.coat > 0.0f ? fmax(m.coat * xi_schlick_dielectric(wo.z, (xfloat)XI_COAT_ETA), (xfloat)0.02f) : (xfloat)0.0f;
+  }
+  xfloat inv = 1.0f / (wc + wr + wd + wt);
+  PbrLobeChoice p;
+  p.coat = wc * inv;
+  p.reflect = wr * inv;
+  p.diffuse = wd * inv;
+  p.transmit = wt * inv;
+  return p;
 }
 
 // f (no cosine) of the non-delta lobes and the solid-angle density with which xi_pbr_sample
 // produces wi (non-delta lobes, probabilities of xi_pbr_lobe_probabilities).
 static inline xfloat3 xi_pbr_eval_pdf(PbrLobes m, xfloat3 wo, xfloat3 wi, xfloat* pdf) {
-  xfloat pr, pd, pt;
-  xi_pbr_lobe_probabilities(m, wo, &pr, &pd, &pt);
+  PbrLobeChoice p = xi_pbr_lobe_probabilities(m, wo);
   xmask rough = m.alpha >= XI_DELTA_ALPHA;
   xfloat a = fmax(m.alpha, (xfloat)XI_DELTA_ALPHA);
   xfloat zo = fmax(wo.z, (xfloat)XI_MIN_COS), zi = fmax(fabs(wi.z), (xfloat)XI_MIN_COS);
   xmask above = wi.z > 0.0f, below = wi.z < 0.0f;
   xfloat g2 = xi_ggx_g2(wo, wi, a);
   xfloat dielectric = 1.0f - m.metallic;
+  xfloat3 zero = make_xfloat3((xfloat)0.0f, (xfloat)0.0f, (xfloat)0.0f);
 
   // Reflection: h = normalize(wo + wi), wo·h = wi·h > 0 for wi above.
   xfloat3 hr = xi_add3(wo, wi);
@@ -223,22 +362,20 @@ static inline xfloat3 xi_pbr_eval_pdf(PbrLobes m, xfloat3 wo, xfloat3 wi, xfloat
   xfloat cr = fmax(xi_dot3(wo, hr), (xfloat)XI_MIN_COS);
   xfloat spec = xi_ggx_d(hr, a) * g2 / (4.0f * zo * zi);
   xfloat3 fmetal = xi_schlick_color(m.base_color, cr);
-  xfloat fdiel = xi_schlick_dielectric(cr, m.eta);
-  xfloat3 f_spec = xi_scale3(xi_add3(xi_scale3(fmetal, m.metallic), make_xfloat3(dielectric * fdiel, dielectric * fdiel, dielectric * fdiel)), spec);
+  xfloat3 fdiel = xi_dielectric_fresnel(m, cr);
+  xfloat3 f_spec = xi_scale3(xi_add3(xi_scale3(fmetal, m.metallic), xi_scale3(fdiel, dielectric)), spec);
   xfloat pdf_r = xi_ggx_visible_pdf(wo, hr, a) / (4.0f * cr);
   xmask refl = above && rough;
 
   // Diffuse.
-  xfloat kd = dielectric * (1.0f - m.transmission) * (1.0f - xi_schlick_dielectric(wo.z, m.eta)) *
-              (1.0f - xi_schlick_dielectric(wi.z, m.eta)) * XI_INV_PI;
+  xfloat kd = dielectric * (1.0f - m.transmission) * xi_base_weight(m, wo.z, wi.z) * XI_INV_PI;
   xfloat3 ms_albedo;
   xfloat3 f_diff = xi_add3(xi_scale3(m.base_color, kd),
                            xi_scale3(xi_ggx_multiple_scattering(m, wo.z, wi.z, &ms_albedo), m.metallic));
   xfloat pdf_d = fmax(wi.z, (xfloat)0.0f) * XI_INV_PI;
 
   // Transmission: h = normalize(wo + η wi) turned to +z; wo and wi must lie on opposite sides of it.
-  // (Where no path has transmission, pt and f_trans are 0: nothing to compute.)
-  xfloat3 zero = make_xfloat3((xfloat)0.0f, (xfloat)0.0f, (xfloat)0.0f);
+  // (Where no path has transmission, p.transmit and f_trans are 0: nothing to compute.)
   xmask trans = XI_FALSE;
   xfloat3 f_trans = zero;
   xfloat pdf_t = 0.0f;
@@ -249,13 +386,32 @@ static inline xfloat3 xi_pbr_eval_pdf(PbrLobes m, xfloat3 wo, xfloat3 wi, xfloat
     xfloat cot = xi_dot3(wo, ht), cit = xi_dot3(wi, ht);
     trans = below && rough && cot > 0.0f && cit < 0.0f && len2 > 1e-12f;
     xfloat jac = m.eta * m.eta * fabs(cit) / fmax(len2, (xfloat)1e-12f);  // dω_h / dω_i, the denominator (wo·h + η wi·h)² = len2
-    xfloat bt = (1.0f - xi_schlick_dielectric(cot, m.eta)) * fabs(cot) * xi_ggx_d(ht, a) * g2 * jac / (zo * zi);
-    f_trans = xi_scale3(m.base_color, dielectric * m.transmission * bt);
+    xfloat bt = fabs(cot) * xi_ggx_d(ht, a) * g2 * jac / (zo * zi);
+    xfloat3 passed = xi_sub3(make_xfloat3((xfloat)1.0f, (xfloat)1.0f, (xfloat)1.0f), xi_dielectric_fresnel(m, cot));
+    f_trans = xi_scale3(xi_mul3(m.base_color, passed), dielectric * m.transmission * bt);
     pdf_t = xi_ggx_visible_pdf(wo, ht, a) * jac;
   }
 
-  *pdf = (refl ? pr * pdf_r : (xfloat)0.0f) + (above ? pd * pdf_d : (xfloat)0.0f) + (trans ? pt * pdf_t : (xfloat)0.0f);
-  return xi_add3(xi_add3(xi_select3(refl, f_spec, zero), xi_select3(above, f_diff, zero)), xi_select3(trans, f_trans, zero));
+  *pdf = (refl ? p.reflect * pdf_r : (xfloat)0.0f) + (above ? p.diffuse * pdf_d : (xfloat)0.0f) +
+         (trans ? p.transmit * pdf_t : (xfloat)0.0f);
+  xfloat3 f = xi_add3(xi_add3(xi_select3(refl, f_spec, zero), xi_select3(above, f_diff, zero)), xi_select3(trans, f_trans, zero));
+
+  // The sheen over the base, the coat over it all.
+  if (XI_ANY(xi_max3(m.sheen_color) > 0.0f)) {
+    xfloat fs = above ? xi_sheen_f(m, hr, zo, zi) : (xfloat)0.0f;
+    f = xi_add3(xi_scale3(f, xi_sheen_share(m, wo.z)), xi_scale3(m.sheen_color, fs));
+  }
+  if (XI_ANY(m.coat > 0.0f)) {
+    xfloat ac = fmax(m.coat_alpha, (xfloat)XI_DELTA_ALPHA);
+    xmask coat_rough = above && m.coat > 0.0f && m.coat_alpha >= XI_DELTA_ALPHA;
+    xfloat f_coat = m.coat * xi_ggx_d(hr, ac) * xi_ggx_g2(wo, wi, ac) * xi_schlick_dielectric(cr, (xfloat)XI_COAT_ETA) /
+                    (4.0f * zo * zi);
+    f = xi_add3(xi_scale3(f, xi_coat_share(m, wo.z)), make_xfloat3(coat_rough ? f_coat : (xfloat)0.0f,
+                                                                   coat_rough ? f_coat : (xfloat)0.0f,
+                                                                   coat_rough ? f_coat : (xfloat)0.0f));
+    *pdf += coat_rough ? p.coat * xi_ggx_visible_pdf(wo, hr, ac) / (4.0f * cr) : (xfloat)0.0f;
+  }
+  return f;
 }
 
 static inline xfloat3 xi_pbr_eval(PbrLobes m, xfloat3 wo, xfloat3 wi) {
@@ -268,26 +424,29 @@ static inline xfloat xi_pbr_pdf(PbrLobes m, xfloat3 wo, xfloat3 wi) {
   return pdf;
 }
 
-// Samples wi: u_lobe picks a lobe, u the direction within it (visible normals for reflection and
-// transmission, the cosine hemisphere for diffuse). Returns the weight f·|wi.z| / pdf with f the
-// whole non-delta BSDF and pdf = xi_pbr_pdf (one-sample MIS over the lobes), and *pdf. A delta
-// lobe returns its own weight (Fresnel and tint over its probability) with *pdf = 0 and *delta
-// set. A sample that leaves its lobe's side of the surface (reflection below, transmission above)
-// or meets total internal reflection returns weight 0 and *pdf = 0. *lobe: the XI_LOBE_* bits of
-// the lobe chosen (material.h).
+// Samples wi: u_lobe picks a lobe, u the direction within it (visible normals for the coat,
+// reflection and transmission, the cosine hemisphere for diffuse). Returns the weight
+// f·|wi.z| / pdf with f the whole non-delta BSDF and pdf = xi_pbr_pdf (one-sample MIS over the
+// lobes), and *pdf. A delta lobe returns its own weight (Fresnel and tint over its probability)
+// with *pdf = 0 and *delta set. A sample that leaves its lobe's side of the surface (reflection
+// below, transmission above) or meets total internal reflection returns weight 0 and *pdf = 0.
+// *lobe: the XI_LOBE_* bits of the lobe chosen (material.h).
 static inline xfloat3 xi_pbr_sample_lobe(PbrLobes m, xfloat3 wo, xfloat u_lobe, xfloat2 u, xfloat3* wi, xfloat* pdf,
                                          xmask* delta, xuint* lobe) {
-  xfloat pr, pd, pt;
-  xi_pbr_lobe_probabilities(m, wo, &pr, &pd, &pt);
-  xmask pick_r = u_lobe < pr || (pd <= 0.0f && pt <= 0.0f);
-  xmask pick_t = !pick_r && pt > 0.0f && (u_lobe >= pr + pd || pd <= 0.0f);
-  xmask pick_d = !pick_r && !pick_t;
+  PbrLobeChoice p = xi_pbr_lobe_probabilities(m, wo);
+  xfloat pr = p.reflect, pd = p.diffuse, pt = p.transmit, pc = p.coat;
+  xmask pick_c = u_lobe < pc;
+  xmask pick_r = !pick_c && (u_lobe < pc + pr || (pd <= 0.0f && pt <= 0.0f));
+  xmask pick_t = !pick_c && !pick_r && pt > 0.0f && (u_lobe >= pc + pr + pd || pd <= 0.0f);
+  xmask pick_d = !pick_c && !pick_r && !pick_t;
   xmask smooth = m.alpha < XI_DELTA_ALPHA;
   xfloat3 n = make_xfloat3((xfloat)0.0f, (xfloat)0.0f, (xfloat)1.0f);
 
-  // Rough lobes.
+  // Rough lobes (the coat's normal only where some path has a coat).
   xfloat3 h = xi_ggx_sample_visible(wo, m.alpha, u);
-  xfloat3 hs = xi_select3(smooth, n, h);  // the smooth lobes reflect and refract about n
+  xmask coat_smooth = m.coat_alpha < XI_DELTA_ALPHA;
+  if (XI_ANY(pick_c)) h = xi_select3(pick_c, xi_ggx_sample_visible(wo, m.coat_alpha, u), h);
+  xfloat3 hs = xi_select3(pick_c ? coat_smooth : smooth, n, h);  // the smooth lobes reflect and refract about n
   xfloat3 wr = xi_reflect(wo, hs);
   // Refraction only where some path has transmission (pt, and with it pick_t and weight_t, are 0
   // elsewhere).
@@ -298,27 +457,33 @@ static inline xfloat3 xi_pbr_sample_lobe(PbrLobes m, xfloat3 wo, xfloat u_lobe, 
     wt = xi_normalize3(wt);
   }
   xfloat3 wd = xi_square_to_cosine_hemisphere(u);
-  xfloat3 w = xi_select3(pick_r, wr, xi_select3(pick_t, wt, wd));
+  xfloat3 w = xi_select3(pick_r || pick_c, wr, xi_select3(pick_t, wt, wd));
   xmask valid = pick_t ? (refracts && w.z < 0.0f) : w.z > 0.0f;
-  xfloat p;
-  xfloat3 f = xi_pbr_eval_pdf(m, wo, w, &p);
-  valid = valid && p > 0.0f;
+  xfloat pw;
+  xfloat3 f = xi_pbr_eval_pdf(m, wo, w, &pw);
+  valid = valid && pw > 0.0f;
   xfloat3 zero = make_xfloat3((xfloat)0.0f, (xfloat)0.0f, (xfloat)0.0f);
-  xfloat3 weight = xi_select3(valid, xi_scale3(f, fabs(w.z) / (valid ? p : (xfloat)1.0f)), zero);
+  xfloat3 weight = xi_select3(valid, xi_scale3(f, fabs(w.z) / (valid ? pw : (xfloat)1.0f)), zero);
 
-  // Delta lobes: the mirror and smooth refraction with the Fresnel terms at wo.z.
-  xmask is_delta = smooth && !pick_d;
-  xfloat fo = xi_schlick_dielectric(wo.z, m.eta);
+  // Delta lobes: the coat's mirror, the base's mirror and smooth refraction with the Fresnel terms
+  // at wo.z (the base's dimmed by the coat's share).
+  xmask is_delta = pick_c ? coat_smooth : smooth && !pick_d;
+  xfloat3 fo = xi_dielectric_fresnel(m, wo.z);
   xfloat dielectric = 1.0f - m.metallic;
-  xfloat3 mirror = xi_add3(xi_scale3(xi_schlick_color(m.base_color, wo.z), m.metallic),
-                           make_xfloat3(dielectric * fo, dielectric * fo, dielectric * fo));
-  xfloat3 weight_r = xi_scale3(mirror, 1.0f / fmax(pr, (xfloat)1e-30f));
-  xfloat3 weight_t = xi_scale3(m.base_color, (refracts ? dielectric * m.transmission * (1.0f - fo) : (xfloat)0.0f) /
-                                                 fmax(pt, (xfloat)1e-30f));
+  xfloat share = xi_coat_share(m, wo.z) * xi_sheen_share(m, wo.z);
+  xfloat3 mirror = xi_add3(xi_scale3(xi_schlick_color(m.base_color, wo.z), m.metallic), xi_scale3(fo, dielectric));
+  xfloat3 weight_r = xi_scale3(mirror, share / fmax(pr, (xfloat)1e-30f));
+  xfloat3 passed = xi_sub3(make_xfloat3((xfloat)1.0f, (xfloat)1.0f, (xfloat)1.0f), fo);
+  xfloat3 weight_t = xi_scale3(xi_mul3(m.base_color, passed),
+                               (refracts ? share * dielectric * m.transmission : (xfloat)0.0f) / fmax(pt, (xfloat)1e-30f));
   xfloat3 weight_delta = xi_select3(pick_r, weight_r, weight_t);
+  if (XI_ANY(m.coat > 0.0f)) {
+    xfloat c = m.coat * xi_schlick_dielectric(wo.z, (xfloat)XI_COAT_ETA) / fmax(pc, (xfloat)1e-30f);
+    weight_delta = xi_select3(pick_c, make_xfloat3(c, c, c), weight_delta);
+  }
 
   *wi = w;
-  *pdf = is_delta || !valid ? (xfloat)0.0f : p;
+  *pdf = is_delta || !valid ? (xfloat)0.0f : pw;
   *delta = is_delta;
   xuint side = pick_t ? (xuint)XI_LOBE_TRANSMISSION : (xuint)XI_LOBE_REFLECTION;
   *lobe = side | (is_delta ? (xuint)XI_LOBE_SPECULAR : pick_d ? (xuint)XI_LOBE_DIFFUSE : (xuint)XI_LOBE_GLOSSY);

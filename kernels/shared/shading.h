@@ -21,12 +21,18 @@
 #define XI_USE_PUNCTUAL 1024u    // point, spot and directional lights
 #define XI_USE_ALPHA 2048u       // cut-out (alpha mask) and stochastically transparent surfaces
 #define XI_USE_MULTIPLE_SCATTERING 4096u  // the metal's multiple-scattering lobe (microfacet.h)
-#define XI_SAMPLER_SHIFT 16u     // the sampler (XI_SAMPLER_*) in the bits above
+#define XI_USE_ALBEDO_SCALING 8192u       // the dielectric layer's albedo scaling of the base (microfacet.h)
+#define XI_USE_SPECULAR 16384u            // KHR_materials_specular: a tinted or weakened dielectric layer
+#define XI_USE_CLEARCOAT 32768u           // KHR_materials_clearcoat
+#define XI_USE_VOLUME 65536u              // KHR_materials_volume: absorption inside transmissive meshes
+#define XI_USE_SHEEN 131072u              // KHR_materials_sheen
+// (Feature bits stay below the sampler's: kernel_config.cpp checks that they do.)
+#define XI_SAMPLER_SHIFT 24u     // the sampler (XI_SAMPLER_*) in the bits above
 
 // The scene's features, each declared once as F(the host's Features field, its bit, its name in
 // reports, 1 where --all-features compiles it in): the Features struct, the shading word and the
-// reports all come from this list. (Multiple scattering is a choice of model, not a feature a
-// scene may lack, so compiling every feature in leaves it as the scene has it.)
+// reports all come from this list. (Multiple scattering and albedo scaling are choices of model,
+// not features a scene may lack, so compiling every feature in leaves them as the scene has them.)
 #define XI_FEATURES(F)                                          \
   F(mirror, XI_USE_MIRROR, "mirror", 1)                         \
   F(dielectric, XI_USE_DIELECTRIC, "glass", 1)                  \
@@ -38,7 +44,12 @@
   F(environment, XI_USE_ENVIRONMENT, "environment", 1)          \
   F(punctual, XI_USE_PUNCTUAL, "punctual", 1)                   \
   F(alpha, XI_USE_ALPHA, "alpha", 1)                            \
-  F(multiple_scattering, XI_USE_MULTIPLE_SCATTERING, "multiple-scattering", 0)
+  F(specular, XI_USE_SPECULAR, "specular", 1)                   \
+  F(clearcoat, XI_USE_CLEARCOAT, "clearcoat", 1)                \
+  F(volume, XI_USE_VOLUME, "volume", 1)                         \
+  F(sheen, XI_USE_SHEEN, "sheen", 1)                            \
+  F(multiple_scattering, XI_USE_MULTIPLE_SCATTERING, "multiple-scattering", 0) \
+  F(albedo_scaling, XI_USE_ALBEDO_SCALING, "albedo-scaling", 0)
 
 #if defined(XI_DEVICE) && (defined(XI_GENERIC) || defined(XI_SHADING))
 // The shading word in force: the program's own, or in the generic program the argument's.

@@ -1,8 +1,10 @@
 // The scene as the user described it, in world units, before any device layout.
 #pragma once
 #include <array>
+#include <cmath>
 #include <cstdint>
 #include <filesystem>
+#include <limits>
 #include <optional>
 #include <string>
 #include <vector>
@@ -69,6 +71,24 @@ struct Material {
   float roughness = 1.0f;    // perceptual: the microfacet distribution's alpha is roughness²
   float transmission = 0.0f;
   float normal_scale = 1.0f;
+  // KHR_materials_specular: the dielectric layer's f0 tint and strength (its F0 and F90).
+  glm::vec3 specular_color{1.0f};
+  float specular = 1.0f;
+  // KHR_materials_clearcoat: a dielectric coat (ior 1.5) over the material, its weight and roughness.
+  float clearcoat = 0.0f;
+  float clearcoat_roughness = 0.0f;
+  // KHR_materials_sheen: fibres over the material, their colour (0: none) and roughness.
+  glm::vec3 sheen_color{0.0f};
+  float sheen_roughness = 0.0f;
+  // KHR_materials_volume: a transmissive mesh's inside absorbs, Beer–Lambert: light that travels
+  // attenuation_distance in it keeps attenuation_color of itself (infinite distance: clear).
+  glm::vec3 attenuation_color{1.0f};
+  float attenuation_distance = std::numeric_limits<float>::infinity();
+  // σa per unit length, −ln(attenuation_color) / attenuation_distance (0: no volume).
+  glm::vec3 volume_absorption() const {
+    if (type != MaterialType::Pbr || transmission <= 0.0f || !std::isfinite(attenuation_distance)) return glm::vec3(0.0f);
+    return -glm::log(glm::max(attenuation_color, glm::vec3(1e-6f))) / attenuation_distance;
+  }
   float alpha = 1.0f;        // the base colour's alpha factor
   AlphaMode alpha_mode = AlphaMode::Opaque;
   float alpha_cutoff = 0.5f;
@@ -118,6 +138,12 @@ struct Environment {
   float rotation_degrees = 0.0f;
 };
 
+// AlbedoScaling: the base gets what the specular layer does not reflect (as Blender's Principled
+// BSDF and OpenPBR); FresnelMix: the base weighed by the Fresnel transmittance both ways.
+enum class Layering { AlbedoScaling, FresnelMix };
+Layering parse_layering(const std::string& name);  // "albedo-scaling" or "fresnel-mix"; throws Error
+const char* layering_name(Layering layering);
+
 // Defaults for `xi render`; command-line flags override them.
 struct RenderSettings {
   int spp = 64;
@@ -127,6 +153,8 @@ struct RenderSettings {
   // The metal's multiple scattering restored (microfacet.h, Kulla–Conty); false: single-scattering
   // GGX, as Mitsuba 3's and pbrt-v4's conductors.
   bool multiple_scattering = true;
+  // How the metallic-roughness material's dielectric layer weighs the diffuse base (microfacet.h).
+  Layering layering = Layering::AlbedoScaling;
 };
 
 struct Scene {

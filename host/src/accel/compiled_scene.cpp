@@ -11,8 +11,9 @@
 #include "xi/error.h"
 
 // shade's xi_gather_material (bsdf.h) reads a material as three float4s with the type first in the third.
-static_assert(sizeof(MaterialData) == 80 && offsetof(MaterialData, type) == 32 && offsetof(MaterialData, pbr) == 48 &&
-                  offsetof(MaterialData, textures) == 64,
+static_assert(sizeof(MaterialData) == 144 && offsetof(MaterialData, sheen) == 128 && offsetof(MaterialData, type) == 32 && offsetof(MaterialData, pbr) == 48 &&
+                  offsetof(MaterialData, textures) == 64 && offsetof(MaterialData, specular) == 80 &&
+                  offsetof(MaterialData, coat) == 96 && offsetof(MaterialData, absorption) == 112,
               "MaterialData layout");
 static_assert(sizeof(TextureRef) == 48 && sizeof(EnvironmentData) == 80 && sizeof(PunctualLightData) == 64, "layout");
 
@@ -110,8 +111,8 @@ void add_environment(const Scene& scene, CompiledScene& cs, std::vector<double>&
 
 }  // namespace
 
-// Every kernel feature; multiple_scattering, a choice of model rather than a feature, is left false
-// here and taken from the scene (KernelConfig::make).
+// Every kernel feature; multiple_scattering and albedo_scaling, choices of model rather than
+// features, are left false here and taken from the scene (KernelConfig::make).
 Features Features::everything() {
   Features f;
 #define XI_ALL_FEATURES(name, bit, word, in_all) f.name = in_all;
@@ -144,6 +145,10 @@ CompiledScene compile_scene(const Scene& scene, int bvh_width, bool spatial_spli
     md.alpha_cutoff = m.alpha_cutoff;
     md.alpha = m.alpha;
     md.pbr = glm::vec4(m.metallic, m.roughness, m.transmission, m.normal_scale);
+    md.specular = glm::vec4(m.specular_color, m.specular);
+    md.coat = glm::vec4(m.clearcoat, m.clearcoat_roughness, 0.0f, 0.0f);
+    md.absorption = glm::vec4(m.volume_absorption(), 0.0f);
+    md.sheen = glm::vec4(m.sheen_color, m.sheen_roughness);
     for (int k = 0; k < XI_TEXTURE_SLOTS; ++k) {
       const TextureSlot& slot = m.textures[k];
       md.textures[k] = XI_NO_TEXTURE;
@@ -158,10 +163,15 @@ CompiledScene compile_scene(const Scene& scene, int bvh_width, bool spatial_spli
     cs.features.mirror |= m.type == MaterialType::Mirror;
     cs.features.dielectric |= m.type == MaterialType::Dielectric;
     cs.features.pbr |= m.type == MaterialType::Pbr;
+    cs.features.specular |= m.type == MaterialType::Pbr && (m.specular != 1.0f || m.specular_color != glm::vec3(1.0f));
+    cs.features.clearcoat |= m.type == MaterialType::Pbr && m.clearcoat > 0.0f;
+    cs.features.volume |= m.type == MaterialType::Pbr && m.volume_absorption() != glm::vec3(0.0f);
+    cs.features.sheen |= m.type == MaterialType::Pbr && m.sheen_color != glm::vec3(0.0f);
     cs.features.alpha |= m.cuts_out();
   }
   cs.features.textures = !cs.texture_refs.empty();
   cs.features.multiple_scattering = cs.features.pbr && scene.render.multiple_scattering;
+  cs.features.albedo_scaling = cs.features.pbr && scene.render.layering == Layering::AlbedoScaling;
   upload_images(scene, cs);
 
   // Always 3 normals per triangle: an --all-features build reads them even when no triangle has

@@ -64,6 +64,7 @@ KernelConfig KernelConfig::make(const DeviceInfo& device, const CompiledScene& s
   KernelConfig c;
   c.features = options.all_features ? Features::everything() : scene.features;
   c.features.multiple_scattering = scene.features.multiple_scattering;
+  c.features.albedo_scaling = scene.features.albedo_scaling;
   c.sampler = options.sampler;
   c.strategy = options.strategy;
   c.cpu_device = is_cpu(device);
@@ -93,7 +94,8 @@ KernelConfig KernelConfig::make(const DeviceInfo& device, const CompiledScene& s
 
 uint32_t KernelConfig::shading_word() const {
   uint32_t word = (uint32_t)sampler << XI_SAMPLER_SHIFT;
-#define XI_FEATURE_BIT(name, bit, report, in_all) \
+#define XI_FEATURE_BIT(name, bit, report, in_all)                                           \
+  static_assert((bit) < (1u << XI_SAMPLER_SHIFT), "feature " report "'s bit overlaps the sampler's"); \
   if (features.name) word |= bit;
   XI_FEATURES(XI_FEATURE_BIT)
 #undef XI_FEATURE_BIT

@@ -138,20 +138,47 @@ class Reader {
         warn_.add("transmissionTexture is not modelled: its materials use their transmission factor");
     }
 
+    if (const json* e = extension(m, "KHR_materials_specular")) {
+      out.specular = std::clamp(float(number(*e, "specularFactor", 1.0)), 0.0f, 1.0f);
+      const auto colour = numbers(*e, "specularColorFactor", {1, 1, 1});
+      out.specular_color = glm::clamp(glm::vec3(colour[0], colour[1], colour[2]), 0.0f, 1e3f);
+      if (member(*e, "specularTexture") || member(*e, "specularColorTexture"))
+        warn_.add("specular textures (KHR_materials_specular) are not modelled: their materials use the factors");
+    }
+    if (const json* e = extension(m, "KHR_materials_volume")) {
+      // A thickness of 0 makes the surface thin-walled: no volume inside.
+      if (number(*e, "thicknessFactor", 0.0) > 0.0) {
+        const auto colour = numbers(*e, "attenuationColor", {1, 1, 1});
+        out.attenuation_color = glm::clamp(glm::vec3(colour[0], colour[1], colour[2]), 0.0f, 1.0f);
+        const double distance = number(*e, "attenuationDistance", std::numeric_limits<double>::infinity());
+        if (distance > 0.0) out.attenuation_distance = float(distance);
+      }
+    }
+    if (const json* e = extension(m, "KHR_materials_sheen")) {
+      const auto colour = numbers(*e, "sheenColorFactor", {0, 0, 0});
+      out.sheen_color = glm::clamp(glm::vec3(colour[0], colour[1], colour[2]), 0.0f, 1.0f);
+      out.sheen_roughness = std::clamp(float(number(*e, "sheenRoughnessFactor", 0.0)), 0.0f, 1.0f);
+      if (member(*e, "sheenColorTexture") || member(*e, "sheenRoughnessTexture"))
+        warn_.add("sheen textures are not modelled: their materials use the sheen factors");
+    }
+    if (const json* e = extension(m, "KHR_materials_clearcoat")) {
+      out.clearcoat = std::clamp(float(number(*e, "clearcoatFactor", 0.0)), 0.0f, 1.0f);
+      out.clearcoat_roughness = std::clamp(float(number(*e, "clearcoatRoughnessFactor", 0.0)), 0.0f, 1.0f);
+      if (member(*e, "clearcoatTexture") || member(*e, "clearcoatRoughnessTexture"))
+        warn_.add("clearcoat textures are not modelled: their materials use the clearcoat factors");
+      if (member(*e, "clearcoatNormalTexture"))
+        warn_.add("clearcoatNormalTexture is not modelled: the coat shares the base's shading normal");
+    }
+
     const std::string mode = member(m, "alphaMode") && m["alphaMode"].is_string() ? m["alphaMode"].get<std::string>() : "OPAQUE";
     out.alpha_mode = mode == "MASK" ? AlphaMode::Mask : mode == "BLEND" ? AlphaMode::Blend : AlphaMode::Opaque;
     out.alpha_cutoff = float(number(m, "alphaCutoff", 0.5));
 
     static const std::map<std::string, std::string> unmodelled = {
-        {"KHR_materials_clearcoat", "clearcoat is not modelled: the base layer alone is rendered"},
-        {"KHR_materials_sheen", "sheen is not modelled: the base layer alone is rendered"},
-        {"KHR_materials_specular", "KHR_materials_specular is not modelled: the dielectric layer's reflectance follows the ior"},
-        {"KHR_materials_volume", "volumes (KHR_materials_volume) are not modelled: transmission has no absorption"},
         {"KHR_materials_iridescence", "iridescence is not modelled: the base layer alone is rendered"},
         {"KHR_materials_anisotropy", "anisotropy is not modelled: rendered isotropic"},
-        {"KHR_materials_pbrSpecularGlossiness", "specular-glossiness materials are not modelled: rendered as metallic-roughness from their factors"},
         {"KHR_materials_unlit", "unlit materials are not modelled: rendered as lit metallic-roughness"},
-        {"KHR_materials_dispersion", "dispersion is not modelled: one ior for every wavelength"},
+        {"KHR_materials_dispersion", "dispersion needs spectral rendering, which xi does not do: one ior for every wavelength"},
         {"KHR_materials_diffuse_transmission", "diffuse transmission is not modelled: the surface is opaque"},
     };
     if (const json* e = member(m, "extensions"); e && e->is_object())
@@ -159,13 +186,23 @@ class Reader {
         const auto found = unmodelled.find(item.key());
         if (found != unmodelled.end()) warn_.add(found->second);
       }
-    if (extension(m, "KHR_materials_pbrSpecularGlossiness") && !pbr) {
-      const json& sg = *extension(m, "KHR_materials_pbrSpecularGlossiness");
-      const auto diffuse = numbers(sg, "diffuseFactor", {1, 1, 1, 1});
+    // Specular-glossiness, preferred to the metallic-roughness fallback beside it (as the extension
+    // asks, and Blender's importer does): the diffuse colour under a dielectric layer whose F0 is
+    // the specular colour (KHR_materials_specular's tint over the ior's f0), roughness 1 − glossiness.
+    if (const json* sg = extension(m, "KHR_materials_pbrSpecularGlossiness")) {
+      const auto diffuse = numbers(*sg, "diffuseFactor", {1, 1, 1, 1});
       out.albedo = glm::clamp(glm::vec3(diffuse[0], diffuse[1], diffuse[2]), 0.0f, 1.0f);
+      out.alpha = std::clamp(float(diffuse[3]), 0.0f, 1.0f);
       out.metallic = 0.0f;
-      out.roughness = std::clamp(1.0f - float(number(sg, "glossinessFactor", 1.0)), 0.0f, 1.0f);
-      read_slot(XI_TEXTURE_BASE_COLOR, sg, "diffuseTexture");
+      out.roughness = std::clamp(1.0f - float(number(*sg, "glossinessFactor", 1.0)), 0.0f, 1.0f);
+      const auto specular = numbers(*sg, "specularFactor", {1, 1, 1});
+      const float q = (out.ior - 1.0f) / (out.ior + 1.0f), f0 = q * q;
+      out.specular = 1.0f;
+      out.specular_color = glm::clamp(glm::vec3(specular[0], specular[1], specular[2]), 0.0f, 1.0f) / f0;
+      out.textures[XI_TEXTURE_METALLIC_ROUGHNESS] = {};
+      read_slot(XI_TEXTURE_BASE_COLOR, *sg, "diffuseTexture");
+      if (member(*sg, "specularGlossinessTexture"))
+        warn_.add("specularGlossinessTexture is not modelled: specular-glossiness materials use their factors");
     }
     return out;
   }

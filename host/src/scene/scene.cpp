@@ -275,7 +275,9 @@ TextureSlot read_texture(const Node& n, bool srgb, ImageFiles& images) {
 // glTF 2.0's metallic-roughness material (type "pbr").
 void read_pbr(const Node& n, Material& m, ImageFiles& images) {
   std::vector<std::string_view> keys = {"type", "base_color", "metallic", "roughness", "ior", "transmission",
-                                        "normal_scale", "radiance", "two_sided", "alpha", "alpha_mode", "alpha_cutoff"};
+                                        "normal_scale", "radiance", "two_sided", "alpha", "alpha_mode", "alpha_cutoff",
+                                        "specular", "specular_color", "clearcoat", "clearcoat_roughness",
+                                        "attenuation_color", "attenuation_distance", "sheen_color", "sheen_roughness"};
   for (const TextureSlotInfo& slot : kTextureSlots) keys.push_back(slot.key);
   n.expect_object(keys);
   m.type = MaterialType::Pbr;
@@ -284,6 +286,17 @@ void read_pbr(const Node& n, Material& m, ImageFiles& images) {
   m.roughness = n.number_in("roughness", 0.5f, 0.0f, 1.0f);
   m.ior = n.number_in("ior", 1.5f, 1.0f, 4.0f);
   m.transmission = n.number_in("transmission", 0.0f, 0.0f, 1.0f);
+  m.specular = n.number_in("specular", 1.0f, 0.0f, 1.0f);
+  m.specular_color = n.rgb("specular_color", glm::vec3(1.0f), 1e3f);
+  m.clearcoat = n.number_in("clearcoat", 0.0f, 0.0f, 1.0f);
+  m.clearcoat_roughness = n.number_in("clearcoat_roughness", 0.0f, 0.0f, 1.0f);
+  m.sheen_color = n.rgb("sheen_color", glm::vec3(0.0f), 1.0f);
+  m.sheen_roughness = n.number_in("sheen_roughness", 0.0f, 0.0f, 1.0f);
+  m.attenuation_color = n.rgb("attenuation_color", glm::vec3(1.0f), 1.0f);
+  m.attenuation_distance = n.number_in("attenuation_distance", m.attenuation_distance, 1e-30f, kInf);
+  if ((n.has("attenuation_color") || n.has("attenuation_distance")) && m.transmission <= 0.0f)
+    n.at(n.has("attenuation_color") ? "attenuation_color" : "attenuation_distance")
+        .fail("a volume's absorption needs transmission > 0 (light must get in)");
   m.two_sided = n.boolean("two_sided", false);
   m.alpha = n.number_in("alpha", 1.0f, 0.0f, 1.0f);
   const std::string mode = n.choice("alpha_mode", "opaque", {"opaque", "mask", "blend"});
@@ -628,6 +641,16 @@ Environment read_environment(const Node& n, const fs::path& base_dir) {
 
 }  // namespace
 
+Layering parse_layering(const std::string& name) {
+  if (name == layering_name(Layering::AlbedoScaling)) return Layering::AlbedoScaling;
+  if (name == layering_name(Layering::FresnelMix)) return Layering::FresnelMix;
+  throw Error("unknown layering '" + name + "' (expected albedo-scaling or fresnel-mix)");
+}
+
+const char* layering_name(Layering layering) {
+  return layering == Layering::AlbedoScaling ? "albedo-scaling" : "fresnel-mix";
+}
+
 fs::path bundled_scene_file(const std::string& name) {
   std::error_code ec;
   const fs::path exe = fs::read_symlink("/proc/self/exe", ec).parent_path();
@@ -682,11 +705,18 @@ Scene parse_scene(const std::string& json_text, const std::string& source_name, 
   }
   if (root.has("render")) {
     const Node r = root.at("render");
-    r.expect_object({"spp", "max_depth", "seed", "sampler", "multiple_scattering"});
+    r.expect_object({"spp", "max_depth", "seed", "sampler", "multiple_scattering", "layering"});
     s.render.spp = int(r.integer("spp", s.render.spp, 1, INT32_MAX));
     s.render.max_depth = int(r.integer("max_depth", s.render.max_depth, 1, 64));
     s.render.seed = uint32_t(r.integer("seed", s.render.seed, 0, INT32_MAX));  // 31 bits: the EXR attribute is a signed int
     s.render.multiple_scattering = r.boolean("multiple_scattering", s.render.multiple_scattering);
+    if (r.has("layering")) {
+      try {
+        s.render.layering = parse_layering(r.at("layering").string());
+      } catch (const Error& e) {
+        r.at("layering").fail(e.message());
+      }
+    }
     if (r.has("sampler")) {
       s.render.sampler = r.at("sampler").string();
       if (s.render.sampler != "random" && s.render.sampler != "grid" && s.render.sampler != "stratified" &&
