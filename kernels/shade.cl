@@ -167,6 +167,7 @@ static inline XI_INLINE Bsdf xi_surface_bsdf(XI_SCENE_PARAMS, uint shading, Shad
         b.pbr.sheen_alpha = roughness * roughness;
       }
       m.albedo = xi_select3(pbr, in.base_color, m.albedo);
+      b.pbr_at = xi_bsdf_at_wo(b, wo);
     }
   }
   b.tint = m.albedo;

@@ -244,6 +244,7 @@ Surface surface(const Case& c, bool at_surface = true) {
   double t = c.degrees * kPi / 180.0;
   s.wo_local = glm::vec3((float)std::sin(t), 0.0f, (float)std::cos(t));
   s.wo = glm::normalize(s.to_world(s.wo_local));
+  b.pbr_at = xi_bsdf_at_wo(b, s.wo);
   return s;
 }
 
@@ -432,7 +433,11 @@ TEST(BsdfReciprocity, ReflectionIsSymmetric) {
     Uniform xi(0x5ee0u + (uint32_t)i);
     for (int k = 0; k < 500; ++k) {
       glm::vec3 a = random_above(s, xi), b = random_above(s, xi);
-      glm::vec3 fab = f_of(xi_bsdf_eval(s.b, s.shading, a, b)), fba = f_of(xi_bsdf_eval(s.b, s.shading, b, a));
+      // The BSDF as shade builds it at a hit seen from a, and at one seen from b.
+      Bsdf from_a = s.b, from_b = s.b;
+      from_a.pbr_at = xi_bsdf_at_wo(s.b, a);
+      from_b.pbr_at = xi_bsdf_at_wo(s.b, b);
+      glm::vec3 fab = f_of(xi_bsdf_eval(from_a, s.shading, a, b)), fba = f_of(xi_bsdf_eval(from_b, s.shading, b, a));
       ASSERT_TRUE(finite(fab) && finite(fba)) << describe(c);
       ASSERT_TRUE(close(fab, fba, 1e-4f, 1e-6f))
           << describe(c) << ": f(a, b) " << str(fab) << ", f(b, a) " << str(fba) << ", a " << str(a) << ", b "

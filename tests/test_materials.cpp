@@ -1297,3 +1297,30 @@ TEST(MaterialGltf, LayerExtensions) {
   EXPECT_TRUE(f.clearcoat && f.specular && f.volume && f.sheen);
   EXPECT_FALSE(xi::compile_scene(xi::load_asset(kModels / "BoxTextured-glTF/BoxTextured.gltf")).features.clearcoat);
 }
+
+// Transmission is tinted by √base_color at each crossing: through the slab of MaterialVolume (ior 1,
+// no absorption) a background of 1 comes out as the base colour itself, within the Šidák z
+// standard errors plus 1e-4. Must-fail: the base colour at each crossing (its square) is rejected
+// in the channels below 1.
+TEST(MaterialVolume, BaseColourTintsOncePerObject) {
+  const fs::path dir = temp_dir();
+  const dvec3 base(0.25, 0.5, 1.0);
+  const int W = 16, H = 16;
+  const json pbr = {{"type", "pbr"}, {"base_color", {base.x, base.y, base.z}}, {"metallic", 0}, {"roughness", 0},
+                    {"ior", 1.0}, {"transmission", 1}};
+  const json scene = {{"camera", camera_json({0, 0, 3}, {0, 0, 0}, {0, 1, 0}, 10)},
+                      {"film", {{"width", W}, {"height", H}}},
+                      {"background", {1, 1, 1}},
+                      {"materials", {{"slab", pbr}}},
+                      {"shapes", {{{"type", "quad"}, {"material", "slab"}, {"vertices", {{-2, -2, 0}, {2, -2, 0}, {2, 2, 0}, {-2, 2, 0}}}},
+                                  {{"type", "quad"}, {"material", "slab"}, {"vertices", {{-2, -2, -0.5}, {-2, 2, -0.5}, {2, 2, -0.5}, {2, -2, -0.5}}}}}}};
+  const xi::test::Shot shot = xi::test::render_shot(load_json(dir, scene), options(256, 7, XI_SAMPLER_RANDOM, 4));
+  ASSERT_EQ(shot.nonfinite, 0u);
+  const double z = xi::stats::sidak_critical_z(0.01, 3);
+  for (int ch = 0; ch < 3; ++ch) {
+    const xi::test::MeanSe got = xi::test::block_mean(shot, W / 2 - 2, H / 2 - 2, W / 2 + 2, H / 2 + 2, ch);
+    const double tol = z * got.se + 1e-4;
+    EXPECT_NEAR(got.mean, base[ch], tol) << "channel " << ch;
+    if (base[ch] < 1.0) EXPECT_GT(std::abs(got.mean - base[ch] * base[ch]), tol) << "channel " << ch;
+  }
+}

@@ -10,8 +10,9 @@
 //                                         weight), pdf (0 for a delta lobe), the lobe it came from,
 //                                         and whether the path may follow it
 //
-// Directions are unit world-space vectors pointing away from the surface. A material whose shading
-// word bit is off is never evaluated: its lanes get f = 0 and samples that end the path.
+// Directions are unit world-space vectors pointing away from the surface; wo is the hit's, for which
+// the Bsdf was built (b.pbr_at). A material whose shading word bit is off is never evaluated: its
+// lanes get f = 0 and samples that end the path.
 // Written on lane types (lanes.h), so the host's tests call the same code.
 #ifndef XI_MATERIAL_H
 #define XI_MATERIAL_H
@@ -33,6 +34,7 @@ typedef struct {
   xfloat3 n_geo;     // geometric normal, on wo's side: no lobe may cross it
   xfloat3 frame_t, frame_b;  // the metallic-roughness lobes' frame: (frame_t, frame_b, n)
   PbrLobes pbr;
+  PbrAtWo pbr_at;  // what the metallic-roughness lobes do towards this hit's wo: xi_bsdf_at_wo
 } Bsdf;
 
 // f = colour · scale. Kept apart so that a path's throughput is multiplied by the colour first and
@@ -54,6 +56,10 @@ typedef struct {
 static inline xfloat3 xi_bsdf_to_local(Bsdf b, xfloat3 w) {
   return make_xfloat3(xi_dot3(w, b.frame_t), xi_dot3(w, b.frame_b), xi_dot3(w, b.n));
 }
+
+// What b's metallic-roughness lobes do towards wo, the direction every eval and sample at this hit
+// shares: computed once, where the Bsdf is built.
+static inline PbrAtWo xi_bsdf_at_wo(Bsdf b, xfloat3 wo) { return xi_pbr_at(b.pbr, xi_bsdf_to_local(b, wo)); }
 
 // Whether a light sample can reach a lobe of b: b has a lobe that is not a delta.
 static inline XI_INLINE xmask xi_bsdf_has_non_delta(Bsdf b, uint shading) {
@@ -80,7 +86,7 @@ static inline XI_INLINE BsdfValue xi_bsdf_eval(Bsdf b, uint shading, xfloat3 wo,
       // Reflection above n, transmission below it.
       xfloat3 wi_local = make_xfloat3(xi_dot3(wi, b.frame_t), xi_dot3(wi, b.frame_b), cos_i);
       xfloat pdf;
-      xfloat3 f = xi_pbr_eval_pdf(b.pbr, xi_bsdf_to_local(b, wo), wi_local, &pdf);
+      xfloat3 f = xi_pbr_eval_pdf_at(b.pbr, b.pbr_at, xi_bsdf_to_local(b, wo), wi_local, &pdf);
       v.colour = xi_select3(pbr, f, v.colour);
       v.pdf = pbr ? pdf : v.pdf;
     }
@@ -132,7 +138,8 @@ static inline XI_INLINE BsdfSample xi_bsdf_sample(Bsdf b, uint shading, xfloat3 
     xfloat pdf;
     xmask delta;
     xuint lobe;
-    xfloat3 weight = xi_pbr_sample_lobe(b.pbr, xi_bsdf_to_local(b, wo), u_lobe, u, &wi_local, &pdf, &delta, &lobe);
+    xfloat3 weight =
+        xi_pbr_sample_lobe_at(b.pbr, b.pbr_at, xi_bsdf_to_local(b, wo), u_lobe, u, &wi_local, &pdf, &delta, &lobe);
     xfloat3 wi = xi_add3(xi_add3(xi_scale3(b.frame_t, wi_local.x), xi_scale3(b.frame_b, wi_local.y)),
                          xi_scale3(b.n, wi_local.z));
     s.wi = xi_select3(pbr, wi, s.wi);

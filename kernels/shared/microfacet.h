@@ -8,7 +8,7 @@
 //   metal      = spec(h) · Schlick(f0 = base_color, wo·h)
 //   dielectric = spec(h) · F(wo·h)                                        the specular layer
 //              + (1 − transmission) · (1 − E_spec(wo.z)) · base_color / π    the base (layering below)
-//              + transmission · base_color · (1 − F(wo·h_t)) · btdf(h_t)
+//              + transmission · √base_color · (1 − F(wo·h_t)) · btdf(h_t)
 //   spec(h) = D(h) G2 / (4 |wo.z| |wi.z|), h = normalize(wo + wi)           reflection (wi.z > 0)
 //   btdf(h) = η² |wi·h| |wo·h| D(h) G2 / (|wo.z| |wi.z| (wo·h + η wi·h)²)  Walter et al. 2007, with
 //             h = normalize(wo + η wi) turned to +z                       transmission (wi.z < 0)
@@ -40,6 +40,10 @@
 // weighted mean (tables in ggx_albedo.h), F_avg = f0 + (1 − f0) / 21 Schlick's mean: a white metal
 // then reflects all it receives. It is sampled with the diffuse lobe's cosine distribution. The
 // dielectric layer and transmission are left single-scattering.
+//
+// Transmission is tinted by √base_color at each crossing, so that light through a closed object
+// (in and out) is tinted by the base colour once, as through the spec's thin-walled surface and in
+// Blender's Principled BSDF.
 //
 // Light transport convention: the BTDF carries no 1/η² radiance scaling (f·|cos|/pdf of a refracted
 // sample is (1 − F) G2/G1, the same in both directions). For camera paths in a scene whose camera
@@ -197,6 +201,12 @@ static inline xfloat3 xi_ggx_multiple_scattering(PbrLobes m, xfloat mu_o, xfloat
   return xi_scale3(f_ms, lost * (1.0f - xi_ggx_albedo(mu_i, r)) / (XI_PI * fmax(1.0f - e_avg, (xfloat)1e-6f)));
 }
 
+// The tint of one crossing by transmission (the convention above).
+static inline xfloat3 xi_transmission_tint(PbrLobes m) {
+  return make_xfloat3(sqrt(fmax(m.base_color.x, (xfloat)0.0f)), sqrt(fmax(m.base_color.y, (xfloat)0.0f)),
+                      sqrt(fmax(m.base_color.z, (xfloat)0.0f)));
+}
+
 // --- the dielectric layer over the base
 
 // The dielectric layer's Fresnel at a microfacet cosine cos_o, with KHR_materials_specular:
@@ -243,11 +253,11 @@ static inline xfloat xi_base_share(PbrLobes m, xfloat mu_o) {
   return scaled ? 1.0f - xi_dielectric_layer_albedo(m, mu_o) : mixed;
 }
 
-// The diffuse base's weight between wo and wi (no base colour, transmission or metallic weight):
-// the Fresnel mix passes the light through the layer both ways.
-static inline xfloat xi_base_weight(PbrLobes m, xfloat mu_o, xfloat mu_i) {
+// The diffuse base's weight between wo and wi (no base colour, transmission or metallic weight),
+// from its share towards wo: the Fresnel mix passes the light through the layer both ways.
+static inline xfloat xi_base_weight(PbrLobes m, xfloat base_share, xfloat mu_i) {
   xmask scaled = m.albedo_scaling > 0.0f && xi_layer_albedo_known(m);
-  return xi_base_share(m, mu_o) * (scaled ? (xfloat)1.0f : 1.0f - xi_max3(xi_dielectric_fresnel(m, mu_i)));
+  return base_share * (scaled ? (xfloat)1.0f : 1.0f - xi_max3(xi_dielectric_fresnel(m, mu_i)));
 }
 
 // --- the clear coat (KHR_materials_clearcoat)
@@ -286,68 +296,74 @@ static inline xfloat xi_coat_share(PbrLobes m, xfloat mu_o) {
 static inline xfloat xi_sheen_albedo(PbrLobes m, xfloat mu) {
   return xi_albedo_lookup(xi_sheen_albedo_table, mu, sqrt(fmax(m.sheen_alpha, (xfloat)XI_SHEEN_ALPHA_MIN)));
 }
-// What the sheen leaves to the layers below towards wo.
-static inline xfloat xi_sheen_share(PbrLobes m, xfloat mu_o) {
-  if (!XI_ANY(xi_max3(m.sheen_color) > 0.0f)) return 1.0f;
-  return 1.0f - xi_max3(m.sheen_color) * fmin(xi_sheen_albedo(m, mu_o), (xfloat)1.0f);
-}
-// f of the sheen (no colour) for wi above, h = normalize(wo + wi).
-static inline xfloat xi_sheen_f(PbrLobes m, xfloat3 h, xfloat mu_o, xfloat mu_i) {
+// f of the sheen (no colour) for wi above, h = normalize(wo + wi), given E_sh(wo.z).
+static inline xfloat xi_sheen_f(PbrLobes m, xfloat sheen_albedo_o, xfloat3 h, xfloat mu_o, xfloat mu_i) {
   xfloat a = fmax(m.sheen_alpha, (xfloat)XI_SHEEN_ALPHA_MIN);
   xfloat sin2 = fmax(1.0f - h.z * h.z, (xfloat)0.0f);
   xfloat d = (2.0f + 1.0f / a) * pow(sin2, 0.5f / a) * (0.5f * XI_INV_PI);
   xfloat v = 1.0f / (4.0f * fmax(mu_i + mu_o - mu_i * mu_o, (xfloat)XI_MIN_COS));
-  return d * v / fmax(xi_sheen_albedo(m, mu_o), (xfloat)1.0f);
+  return d * v / fmax(sheen_albedo_o, (xfloat)1.0f);
 }
 
 // --- the material
 
-// Probabilities of the lobes xi_pbr_sample chooses: the coat, reflection (specular layer and
-// metal), diffuse (the cosine-distributed lobes: the diffuse base, the metal's multiple scattering
-// and the sheen), transmission, from estimates of their albedos at wo. Each is positive wherever its
-// lobe can be nonzero: the coat wherever it is, reflection always (Schlick tends to 1 at grazing
+// What the material does towards one wo, which eval and sample both need (each a few table
+// lookups), computed once per hit by xi_pbr_at: what each layer passes to those below, and the
+// probabilities of the lobes xi_pbr_sample chooses: the coat, reflection (specular layer and metal),
+// diffuse (the cosine-distributed lobes: the diffuse base, the metal's multiple scattering and the
+// sheen), transmission, from estimates of their albedos at wo. Each is positive wherever its lobe
+// can be nonzero: the coat wherever it is, reflection always (Schlick tends to 1 at grazing
 // microfacets), transmission wherever transmission and base colour are, even under total internal
 // reflection at wo.z, where tilted microfacets still refract; diffuse vanishes exactly where both
 // its terms do.
 typedef struct {
-  xfloat coat, reflect, diffuse, transmit;
-} PbrLobeChoice;
+  xfloat coat, reflect, diffuse, transmit;  // the lobes' probabilities
+  xfloat base_share;    // xi_base_share(wo.z)
+  xfloat sheen_albedo;  // E_sh(wo.z) (where there is a sheen)
+  xfloat sheen_share;   // what the sheen passes below: 1 − max(sheen_color) min(1, E_sh(wo.z))
+  xfloat coat_share;    // xi_coat_share(wo.z)
+} PbrAtWo;
 
-static inline PbrLobeChoice xi_pbr_lobe_probabilities(PbrLobes m, xfloat3 wo) {
-  xfloat3 fo3 = xi_dielectric_fresnel(m, wo.z);
-  xfloat fo = xi_max3(fo3);
+static inline PbrAtWo xi_pbr_at(PbrLobes m, xfloat3 wo) {
+  PbrAtWo at;
+  at.base_share = xi_base_share(m, wo.z);
+  at.sheen_albedo = 0.0f;
+  at.sheen_share = 1.0f;
+  if (XI_ANY(xi_max3(m.sheen_color) > 0.0f)) {
+    at.sheen_albedo = xi_sheen_albedo(m, wo.z);
+    at.sheen_share = 1.0f - xi_max3(m.sheen_color) * fmin(at.sheen_albedo, (xfloat)1.0f);
+  }
+  at.coat_share = xi_coat_share(m, wo.z);
+
+  xfloat fo = xi_max3(xi_dielectric_fresnel(m, wo.z));
   xfloat lum = fmax(xi_luminance(m.base_color), (xfloat)0.0f);
   xfloat dielectric = 1.0f - m.metallic;
   xfloat wr = fmax(m.metallic * xi_luminance(xi_schlick_color(m.base_color, wo.z)) + dielectric * fo, (xfloat)0.02f);
   xfloat3 ms_albedo;
   xi_ggx_multiple_scattering(m, wo.z, wo.z, &ms_albedo);
   // The diffuse base and the metal's multiple scattering share the cosine distribution.
-  xfloat wd = dielectric * (1.0f - m.transmission) * xi_base_share(m, wo.z) * lum + m.metallic * xi_luminance(ms_albedo);
+  xfloat wd = dielectric * (1.0f - m.transmission) * at.base_share * lum + m.metallic * xi_luminance(ms_albedo);
   xfloat wt = dielectric * m.transmission * fmax(1.0f - fo, (xfloat)0.1f) * lum;
   if (XI_ANY(xi_max3(m.sheen_color) > 0.0f)) {
-    xfloat share = xi_sheen_share(m, wo.z);
-    wr *= share, wd *= share, wt *= share;
-    wd += 1.0f - share;  // the sheen's albedo, cosine-sampled with the base
+    wr *= at.sheen_share, wd *= at.sheen_share, wt *= at.sheen_share;
+    wd += 1.0f - at.sheen_share;  // the sheen's albedo, cosine-sampled with the base
   }
   xfloat wc = 0.0f;
   if (XI_ANY(m.coat > 0.0f)) {
-    xfloat share = xi_coat_share(m, wo.z);
-    wr *= share, wd *= share, wt *= share;
+    wr *= at.coat_share, wd *= at.coat_share, wt *= at.coat_share;
     wc = m.coat > 0.0f ? fmax(m.coat * xi_schlick_dielectric(wo.z, (xfloat)XI_COAT_ETA), (xfloat)0.02f) : (xfloat)0.0f;
   }
   xfloat inv = 1.0f / (wc + wr + wd + wt);
-  PbrLobeChoice p;
-  p.coat = wc * inv;
-  p.reflect = wr * inv;
-  p.diffuse = wd * inv;
-  p.transmit = wt * inv;
-  return p;
+  at.coat = wc * inv;
+  at.reflect = wr * inv;
+  at.diffuse = wd * inv;
+  at.transmit = wt * inv;
+  return at;
 }
 
 // f (no cosine) of the non-delta lobes and the solid-angle density with which xi_pbr_sample
-// produces wi (non-delta lobes, probabilities of xi_pbr_lobe_probabilities).
-static inline xfloat3 xi_pbr_eval_pdf(PbrLobes m, xfloat3 wo, xfloat3 wi, xfloat* pdf) {
-  PbrLobeChoice p = xi_pbr_lobe_probabilities(m, wo);
+// produces wi (non-delta lobes, the probabilities of `at` = xi_pbr_at(m, wo)).
+static inline xfloat3 xi_pbr_eval_pdf_at(PbrLobes m, PbrAtWo p, xfloat3 wo, xfloat3 wi, xfloat* pdf) {
   xmask rough = m.alpha >= XI_DELTA_ALPHA;
   xfloat a = fmax(m.alpha, (xfloat)XI_DELTA_ALPHA);
   xfloat zo = fmax(wo.z, (xfloat)XI_MIN_COS), zi = fmax(fabs(wi.z), (xfloat)XI_MIN_COS);
@@ -368,7 +384,7 @@ static inline xfloat3 xi_pbr_eval_pdf(PbrLobes m, xfloat3 wo, xfloat3 wi, xfloat
   xmask refl = above && rough;
 
   // Diffuse.
-  xfloat kd = dielectric * (1.0f - m.transmission) * xi_base_weight(m, wo.z, wi.z) * XI_INV_PI;
+  xfloat kd = dielectric * (1.0f - m.transmission) * xi_base_weight(m, p.base_share, wi.z) * XI_INV_PI;
   xfloat3 ms_albedo;
   xfloat3 f_diff = xi_add3(xi_scale3(m.base_color, kd),
                            xi_scale3(xi_ggx_multiple_scattering(m, wo.z, wi.z, &ms_albedo), m.metallic));
@@ -388,7 +404,7 @@ static inline xfloat3 xi_pbr_eval_pdf(PbrLobes m, xfloat3 wo, xfloat3 wi, xfloat
     xfloat jac = m.eta * m.eta * fabs(cit) / fmax(len2, (xfloat)1e-12f);  // dω_h / dω_i, the denominator (wo·h + η wi·h)² = len2
     xfloat bt = fabs(cot) * xi_ggx_d(ht, a) * g2 * jac / (zo * zi);
     xfloat3 passed = xi_sub3(make_xfloat3((xfloat)1.0f, (xfloat)1.0f, (xfloat)1.0f), xi_dielectric_fresnel(m, cot));
-    f_trans = xi_scale3(xi_mul3(m.base_color, passed), dielectric * m.transmission * bt);
+    f_trans = xi_scale3(xi_mul3(xi_transmission_tint(m), passed), dielectric * m.transmission * bt);
     pdf_t = xi_ggx_visible_pdf(wo, ht, a) * jac;
   }
 
@@ -398,15 +414,15 @@ static inline xfloat3 xi_pbr_eval_pdf(PbrLobes m, xfloat3 wo, xfloat3 wi, xfloat
 
   // The sheen over the base, the coat over it all.
   if (XI_ANY(xi_max3(m.sheen_color) > 0.0f)) {
-    xfloat fs = above ? xi_sheen_f(m, hr, zo, zi) : (xfloat)0.0f;
-    f = xi_add3(xi_scale3(f, xi_sheen_share(m, wo.z)), xi_scale3(m.sheen_color, fs));
+    xfloat fs = above ? xi_sheen_f(m, p.sheen_albedo, hr, zo, zi) : (xfloat)0.0f;
+    f = xi_add3(xi_scale3(f, p.sheen_share), xi_scale3(m.sheen_color, fs));
   }
   if (XI_ANY(m.coat > 0.0f)) {
     xfloat ac = fmax(m.coat_alpha, (xfloat)XI_DELTA_ALPHA);
     xmask coat_rough = above && m.coat > 0.0f && m.coat_alpha >= XI_DELTA_ALPHA;
     xfloat f_coat = m.coat * xi_ggx_d(hr, ac) * xi_ggx_g2(wo, wi, ac) * xi_schlick_dielectric(cr, (xfloat)XI_COAT_ETA) /
                     (4.0f * zo * zi);
-    f = xi_add3(xi_scale3(f, xi_coat_share(m, wo.z)), make_xfloat3(coat_rough ? f_coat : (xfloat)0.0f,
+    f = xi_add3(xi_scale3(f, p.coat_share), make_xfloat3(coat_rough ? f_coat : (xfloat)0.0f,
                                                                    coat_rough ? f_coat : (xfloat)0.0f,
                                                                    coat_rough ? f_coat : (xfloat)0.0f));
     *pdf += coat_rough ? p.coat * xi_ggx_visible_pdf(wo, hr, ac) / (4.0f * cr) : (xfloat)0.0f;
@@ -414,6 +430,9 @@ static inline xfloat3 xi_pbr_eval_pdf(PbrLobes m, xfloat3 wo, xfloat3 wi, xfloat
   return f;
 }
 
+static inline xfloat3 xi_pbr_eval_pdf(PbrLobes m, xfloat3 wo, xfloat3 wi, xfloat* pdf) {
+  return xi_pbr_eval_pdf_at(m, xi_pbr_at(m, wo), wo, wi, pdf);
+}
 static inline xfloat3 xi_pbr_eval(PbrLobes m, xfloat3 wo, xfloat3 wi) {
   xfloat pdf;
   return xi_pbr_eval_pdf(m, wo, wi, &pdf);
@@ -431,9 +450,8 @@ static inline xfloat xi_pbr_pdf(PbrLobes m, xfloat3 wo, xfloat3 wi) {
 // with *pdf = 0 and *delta set. A sample that leaves its lobe's side of the surface (reflection
 // below, transmission above) or meets total internal reflection returns weight 0 and *pdf = 0.
 // *lobe: the XI_LOBE_* bits of the lobe chosen (material.h).
-static inline xfloat3 xi_pbr_sample_lobe(PbrLobes m, xfloat3 wo, xfloat u_lobe, xfloat2 u, xfloat3* wi, xfloat* pdf,
-                                         xmask* delta, xuint* lobe) {
-  PbrLobeChoice p = xi_pbr_lobe_probabilities(m, wo);
+static inline xfloat3 xi_pbr_sample_lobe_at(PbrLobes m, PbrAtWo p, xfloat3 wo, xfloat u_lobe, xfloat2 u, xfloat3* wi,
+                                            xfloat* pdf, xmask* delta, xuint* lobe) {
   xfloat pr = p.reflect, pd = p.diffuse, pt = p.transmit, pc = p.coat;
   xmask pick_c = u_lobe < pc;
   xmask pick_r = !pick_c && (u_lobe < pc + pr || (pd <= 0.0f && pt <= 0.0f));
@@ -460,7 +478,7 @@ static inline xfloat3 xi_pbr_sample_lobe(PbrLobes m, xfloat3 wo, xfloat u_lobe, 
   xfloat3 w = xi_select3(pick_r || pick_c, wr, xi_select3(pick_t, wt, wd));
   xmask valid = pick_t ? (refracts && w.z < 0.0f) : w.z > 0.0f;
   xfloat pw;
-  xfloat3 f = xi_pbr_eval_pdf(m, wo, w, &pw);
+  xfloat3 f = xi_pbr_eval_pdf_at(m, p, wo, w, &pw);
   valid = valid && pw > 0.0f;
   xfloat3 zero = make_xfloat3((xfloat)0.0f, (xfloat)0.0f, (xfloat)0.0f);
   xfloat3 weight = xi_select3(valid, xi_scale3(f, fabs(w.z) / (valid ? pw : (xfloat)1.0f)), zero);
@@ -470,11 +488,11 @@ static inline xfloat3 xi_pbr_sample_lobe(PbrLobes m, xfloat3 wo, xfloat u_lobe, 
   xmask is_delta = pick_c ? coat_smooth : smooth && !pick_d;
   xfloat3 fo = xi_dielectric_fresnel(m, wo.z);
   xfloat dielectric = 1.0f - m.metallic;
-  xfloat share = xi_coat_share(m, wo.z) * xi_sheen_share(m, wo.z);
+  xfloat share = p.coat_share * p.sheen_share;
   xfloat3 mirror = xi_add3(xi_scale3(xi_schlick_color(m.base_color, wo.z), m.metallic), xi_scale3(fo, dielectric));
   xfloat3 weight_r = xi_scale3(mirror, share / fmax(pr, (xfloat)1e-30f));
   xfloat3 passed = xi_sub3(make_xfloat3((xfloat)1.0f, (xfloat)1.0f, (xfloat)1.0f), fo);
-  xfloat3 weight_t = xi_scale3(xi_mul3(m.base_color, passed),
+  xfloat3 weight_t = xi_scale3(xi_mul3(xi_transmission_tint(m), passed),
                                (refracts ? share * dielectric * m.transmission : (xfloat)0.0f) / fmax(pt, (xfloat)1e-30f));
   xfloat3 weight_delta = xi_select3(pick_r, weight_r, weight_t);
   if (XI_ANY(m.coat > 0.0f)) {
@@ -490,6 +508,10 @@ static inline xfloat3 xi_pbr_sample_lobe(PbrLobes m, xfloat3 wo, xfloat u_lobe, 
   return xi_select3(is_delta, weight_delta, weight);
 }
 
+static inline xfloat3 xi_pbr_sample_lobe(PbrLobes m, xfloat3 wo, xfloat u_lobe, xfloat2 u, xfloat3* wi, xfloat* pdf,
+                                         xmask* delta, xuint* lobe) {
+  return xi_pbr_sample_lobe_at(m, xi_pbr_at(m, wo), wo, u_lobe, u, wi, pdf, delta, lobe);
+}
 static inline xfloat3 xi_pbr_sample(PbrLobes m, xfloat3 wo, xfloat u_lobe, xfloat2 u, xfloat3* wi, xfloat* pdf,
                                     xmask* delta) {
   xuint lobe;
