@@ -372,6 +372,28 @@ TEST(BsdfChi2Power, WrongDensitiesAreRejected) {
                 run.r.statistic, run.r.dof, run.r.p_value);
     EXPECT_LT(run.r.p_value, must_fail) << degrees << " deg";
   }
+
+  // The layers: a coat sampled at roughness 0.3 against the density of one at 0.45; a sheen's and
+  // a weakened specular layer's samples against the density of the material without them (their
+  // albedos change how often each lobe is chosen).
+  struct Wrong {
+    const char* what;
+    Case sampled, density;
+  };
+  Case coat = coated(pbr(kColour, 0.5f, 0.0f, 0.0f, true), 0.3f), rougher_coat = coated(coat, 0.45f);
+  Case base = pbr(kColour, 0.5f, 0.0f, 0.0f, true);
+  const Wrong wrong[] = {{"coat r 0.30 against r 0.45", coat, rougher_coat},
+                         {"sheen against none", sheened(base, glm::vec3(1.0f), 0.8f), base},
+                         {"specular 0.2 against 1", specular(pbr(kColour, 0.2f, 0.0f, 0.0f, true), 0.2f, glm::vec3(1.0f)),
+                          pbr(kColour, 0.2f, 0.0f, 0.0f, true)}};
+  for (const Wrong& w : wrong) {
+    Case a = w.sampled, b = w.density;
+    a.degrees = b.degrees = 60.0f;
+    Surface sa = surface(a), sb = surface(b);
+    run = chi2_run(sa, [&](glm::vec3 d) { return eval_pdf(sb, d); }, 0x5a20u, false);
+    std::printf("[ chi2     ] %s: X2 = %.1f dof = %d p = %.3g\n", w.what, run.r.statistic, run.r.dof, run.r.p_value);
+    EXPECT_LT(run.r.p_value, must_fail) << w.what;
+  }
 }
 
 // ---------------------------------------------------------------------------------------------
