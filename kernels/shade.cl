@@ -154,15 +154,38 @@ static inline XI_INLINE Bsdf xi_surface_bsdf(XI_SCENE_PARAMS, uint shading, Shad
       b.pbr.alpha = in.roughness * in.roughness;
       b.pbr.eta = front ? m.ior : 1.0f / m.ior;
       b.pbr.transmission = in.transmission;
-      if (xi_uses(shading, XI_USE_SPECULAR)) b.pbr.specular_color = XI_GATHER_XYZ_FIELD(materials, mi, specular, &b.pbr.specular);
+      // The layers' factors, times their textures (glTF's channels: the coat's weight in R, its
+      // roughness in G, the sheen's and the specular layer's strength in A).
+      const bool textured = xi_uses(shading, XI_USE_TEXTURES);
+      xfloat a;
+      if (xi_uses(shading, XI_USE_SPECULAR)) {
+        b.pbr.specular_color = XI_GATHER_XYZ_FIELD(materials, mi, specular, &b.pbr.specular);
+        if (textured) {
+          xi_material_texture(materials, texture_refs, images, texels, mi, XI_TEXTURE_SPECULAR, uv0, uv1, &a);
+          b.pbr.specular *= a;
+          b.pbr.specular_color = xi_mul3(b.pbr.specular_color, xi_material_texture(materials, texture_refs, images, texels, mi,
+                                                                                    XI_TEXTURE_SPECULAR_COLOR, uv0, uv1, &a));
+        }
+      }
       if (xi_uses(shading, XI_USE_CLEARCOAT)) {
         xfloat3 coat = XI_GATHER_XYZ_FIELD(materials, mi, coat, 0);
+        if (textured) {
+          coat.x *= xi_material_texture(materials, texture_refs, images, texels, mi, XI_TEXTURE_CLEARCOAT, uv0, uv1, &a).x;
+          coat.y *= xi_material_texture(materials, texture_refs, images, texels, mi, XI_TEXTURE_CLEARCOAT_ROUGHNESS, uv0,
+                                        uv1, &a).y;
+        }
         b.pbr.coat = pbr ? coat.x : (xfloat)0.0f;
         b.pbr.coat_alpha = coat.y * coat.y;
       }
       if (xi_uses(shading, XI_USE_SHEEN)) {
         xfloat roughness;
         xfloat3 sheen = XI_GATHER_XYZ_FIELD(materials, mi, sheen, &roughness);
+        if (textured) {
+          sheen = xi_mul3(sheen, xi_material_texture(materials, texture_refs, images, texels, mi, XI_TEXTURE_SHEEN_COLOR, uv0,
+                                                     uv1, &a));
+          xi_material_texture(materials, texture_refs, images, texels, mi, XI_TEXTURE_SHEEN_ROUGHNESS, uv0, uv1, &a);
+          roughness *= a;
+        }
         b.pbr.sheen_color = xi_select3(pbr, sheen, b.pbr.sheen_color);
         b.pbr.sheen_alpha = roughness * roughness;
       }

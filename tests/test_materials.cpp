@@ -1061,10 +1061,9 @@ TEST(MaterialGltf, AssimpTestModels) {
   EXPECT_GE(transformed, 5);
   EXPECT_FALSE(t.images.empty());
 
-  // ClearCoatTest: its coats' factors are read; one warning line per kind of what is not (the
-  // coats' textures and normal maps).
+  // ClearCoatTest: its coats' factors and textures are read; one warning line for what is not
+  // (the coats' own normal maps).
   const xi::Scene cc = xi::load_asset(kModels / "ClearCoat-glTF/ClearCoatTest.gltf", xi::AssetOptions{.height = 32});
-  EXPECT_EQ(count_containing(cc.warnings, "clearcoat textures are not modelled"), 1);
   EXPECT_EQ(count_containing(cc.warnings, "clearcoatNormalTexture is not modelled"), 1);
   int coated = 0;
   for (const xi::Material& m : cc.materials) {
@@ -1072,6 +1071,8 @@ TEST(MaterialGltf, AssimpTestModels) {
     EXPECT_EQ(m.clearcoat, should ? 1.0f : 0.0f) << m.name;
     if (m.name == "Simple_Coated") EXPECT_FLOAT_EQ(m.clearcoat_roughness, 0.03f);
     if (m.name == "RoughVariations_Coated") EXPECT_FLOAT_EQ(m.clearcoat_roughness, 1.0f);
+    EXPECT_EQ(m.textures[XI_TEXTURE_CLEARCOAT].used(), m.name == "Partial_Coated") << m.name;
+    EXPECT_EQ(m.textures[XI_TEXTURE_CLEARCOAT_ROUGHNESS].used(), m.name == "RoughVariations_Coated") << m.name;
     coated += should;
   }
   EXPECT_EQ(coated, 6);
@@ -1232,15 +1233,21 @@ TEST(MaterialGltf, LayerExtensions) {
   Gltf g;
   g.doc["extensionsUsed"] = {"KHR_materials_clearcoat", "KHR_materials_specular", "KHR_materials_volume",
                              "KHR_materials_transmission"};
+  g.add("images", {{"uri", "data:image/png;base64," + base64(png_bytes(pattern4()))}});
+  g.add("textures", {{"source", 0}});
+  const json tex = {{"index", 0}};
   const json plain = {{"metallicFactor", 0.0}, {"roughnessFactor", 0.5}};
   const json glass = {{"KHR_materials_transmission", {{"transmissionFactor", 1.0}}}};
   auto with = [&](json ext, const json& more) {
     for (auto& [k, v] : more.items()) ext[k] = v;
     return ext;
   };
+  const json clearcoat = {{"clearcoatFactor", 0.7}, {"clearcoatRoughnessFactor", 0.2}, {"clearcoatTexture", tex},
+                          {"clearcoatRoughnessTexture", tex}};
   const int coat = g.add("materials", {{"name", "coat"}, {"pbrMetallicRoughness", plain},
-                                       {"extensions", {{"KHR_materials_clearcoat", {{"clearcoatFactor", 0.7}, {"clearcoatRoughnessFactor", 0.2}}}}}});
-  const json specular = {{"specularFactor", 0.4}, {"specularColorFactor", {1.0, 0.5, 2.0}}};
+                                       {"extensions", {{"KHR_materials_clearcoat", clearcoat}}}});
+  const json specular = {{"specularFactor", 0.4}, {"specularColorFactor", {1.0, 0.5, 2.0}}, {"specularTexture", tex},
+                         {"specularColorTexture", tex}};
   const int spec = g.add("materials", {{"name", "spec"}, {"pbrMetallicRoughness", plain},
                                        {"extensions", {{"KHR_materials_specular", specular}}}});
   const int vol = g.add("materials", {{"name", "vol"}, {"pbrMetallicRoughness", plain},
@@ -1252,7 +1259,8 @@ TEST(MaterialGltf, LayerExtensions) {
   const json sg = {{"diffuseFactor", {0.5, 0.25, 0.125, 1.0}}, {"specularFactor", {0.2, 0.1, 0.04}}, {"glossinessFactor", 0.75}};
   const int gloss = g.add("materials", {{"name", "gloss"}, {"pbrMetallicRoughness", {{"metallicFactor", 1.0}}},
                                         {"extensions", {{"KHR_materials_pbrSpecularGlossiness", sg}}}});
-  const json fibres = {{"sheenColorFactor", {0.9, 0.5, 0.1}}, {"sheenRoughnessFactor", 0.4}};
+  const json fibres = {{"sheenColorFactor", {0.9, 0.5, 0.1}}, {"sheenRoughnessFactor", 0.4}, {"sheenColorTexture", tex},
+                       {"sheenRoughnessTexture", tex}};
   const int sheen = g.add("materials", {{"name", "sheen"}, {"pbrMetallicRoughness", plain},
                                         {"extensions", {{"KHR_materials_sheen", fibres}}}});
   int i = 0;
@@ -1284,6 +1292,14 @@ TEST(MaterialGltf, LayerExtensions) {
   EXPECT_EQ(material("sheen").sheen_color, glm::vec3(0.9f, 0.5f, 0.1f));
   EXPECT_FLOAT_EQ(material("sheen").sheen_roughness, 0.4f);
   EXPECT_EQ(material("coat").sheen_color, glm::vec3(0.0f));
+  // Their textures, each in its slot (colour ones sRGB-decoded).
+  const std::pair<const char*, int> slots[] = {{"coat", XI_TEXTURE_CLEARCOAT}, {"coat", XI_TEXTURE_CLEARCOAT_ROUGHNESS},
+                                               {"spec", XI_TEXTURE_SPECULAR}, {"spec", XI_TEXTURE_SPECULAR_COLOR},
+                                               {"sheen", XI_TEXTURE_SHEEN_COLOR}, {"sheen", XI_TEXTURE_SHEEN_ROUGHNESS}};
+  for (const auto& [name, k] : slots) {
+    EXPECT_TRUE(material(name).textures[k].used()) << name << " slot " << k;
+    EXPECT_FALSE(material("vol").textures[k].used()) << "slot " << k;
+  }
   // Specular-glossiness, preferred to the metallic-roughness beside it: F0 = the specular colour.
   const xi::Material& sgm = material("gloss");
   EXPECT_EQ(sgm.albedo, glm::vec3(0.5f, 0.25f, 0.125f));
@@ -1323,4 +1339,41 @@ TEST(MaterialVolume, BaseColourTintsOncePerObject) {
     EXPECT_NEAR(got.mean, base[ch], tol) << "channel " << ch;
     if (base[ch] < 1.0) EXPECT_GT(std::abs(got.mean - base[ch] * base[ch]), tol) << "channel " << ch;
   }
+}
+
+// The layers' textures multiply their factors: a black clearcoat_texture takes the coat away, pixel
+// for pixel (every feature compiled in, so one program), and a white one leaves it whole (within
+// 1e-5: the bilinear weights' sum); a specular_texture whose alpha is 0 takes the specular layer
+// away as a specular factor of 0 does.
+TEST(MaterialLayers, TexturesScaleTheirFactors) {
+  const fs::path dir = temp_dir();
+  write_png(dir / "black.png", Rgba{1, 1, {0, 0, 0, 0}});
+  write_png(dir / "white.png", Rgba{1, 1, {255, 255, 255, 255}});
+  auto render = [&](json material) {
+    material["type"] = "pbr";
+    material["base_color"] = {0.6, 0.3, 0.2};
+    material["roughness"] = 0.4;
+    const json scene = {{"camera", camera_json({0, 0, 3}, {0, 0, 0}, {0, 1, 0}, 40)},
+                        {"film", {{"width", 24}, {"height", 24}}},
+                        {"environment", {{"file", (fs::path(XI_SCENE_DIR) / "sky.hdr").string()}}},
+                        {"materials", {{"m", material}}},
+                        {"shapes", {{{"type", "sphere"}, {"material", "m"}, {"center", {0, 0, 0}}, {"radius", 1}}}}};
+    return xi::test::render_shot(load_json(dir, scene), options(4, 3, XI_SAMPLER_RANDOM, 3)).mean;
+  };
+  auto same = [](const xi::Image& a, const xi::Image& b) { return a.pixels == b.pixels; };
+  // A white texel is 1 up to the rounding of the bilinear weights' sum.
+  auto close = [](const xi::Image& a, const xi::Image& b) {
+    for (size_t i = 0; i < a.pixels.size(); ++i)
+      if (glm::any(glm::greaterThan(glm::abs(a.pixels[i] - b.pixels[i]), 1e-5f * (glm::abs(a.pixels[i]) + 1.0f))))
+        return false;
+    return true;
+  };
+  const xi::Image plain = render(json::object());
+  const xi::Image coated = render({{"clearcoat", 1.0}, {"clearcoat_roughness", 0.1}});
+  EXPECT_FALSE(same(plain, coated));
+  EXPECT_TRUE(same(plain, render({{"clearcoat", 1.0}, {"clearcoat_roughness", 0.1}, {"clearcoat_texture", "black.png"}})));
+  EXPECT_TRUE(close(coated, render({{"clearcoat", 1.0}, {"clearcoat_roughness", 0.1}, {"clearcoat_texture", "white.png"}})));
+  const xi::Image weak = render({{"specular", 0.0}});
+  EXPECT_FALSE(same(plain, weak));
+  EXPECT_TRUE(same(weak, render({{"specular_texture", "black.png"}})));
 }

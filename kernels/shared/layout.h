@@ -20,7 +20,14 @@
 #define XI_TEXTURE_METALLIC_ROUGHNESS 1
 #define XI_TEXTURE_NORMAL 2
 #define XI_TEXTURE_EMISSIVE 3
-#define XI_TEXTURE_SLOTS 4
+#define XI_TEXTURE_CLEARCOAT 4            // R: the coat's weight
+#define XI_TEXTURE_CLEARCOAT_ROUGHNESS 5  // G: its roughness
+#define XI_TEXTURE_SHEEN_COLOR 6
+#define XI_TEXTURE_SHEEN_ROUGHNESS 7      // A
+#define XI_TEXTURE_SPECULAR 8             // A: the specular layer's strength
+#define XI_TEXTURE_SPECULAR_COLOR 9
+#define XI_TEXTURE_SLOTS 10
+#define XI_TEXTURE_SLOTS_PADDED 12  // the array's length: the struct's float4s stay 16-byte aligned
 
 typedef struct {
   float4 albedo;     // rgb: diffuse albedo, mirror or glass tint, base colour (pbr); w: index of refraction
@@ -30,7 +37,7 @@ typedef struct {
   float alpha_cutoff;
   float alpha;       // the base colour's alpha factor
   float4 pbr;        // metallic, roughness (perceptual: GGX alpha = roughness²), transmission, normal map scale
-  uint textures[XI_TEXTURE_SLOTS];  // TextureRef index or XI_NO_TEXTURE, by XI_TEXTURE_*
+  uint textures[XI_TEXTURE_SLOTS_PADDED];  // TextureRef index or XI_NO_TEXTURE, by XI_TEXTURE_*
   float4 specular;   // KHR_materials_specular (pbr): rgb the f0 tint, w the layer's strength (1, 1: none)
   float4 coat;       // KHR_materials_clearcoat (pbr): x weight (0: none), y roughness (perceptual); zw unused
   float4 absorption; // KHR_materials_volume (pbr): rgb σa per unit length of the volume inside (0: none)

@@ -57,6 +57,12 @@ inline constexpr TextureSlotInfo kTextureSlots[XI_TEXTURE_SLOTS] = {
     {"metallic_roughness_texture", false},  // G: roughness, B: metallic
     {"normal_texture", false},              // tangent space
     {"emissive_texture", true},
+    {"clearcoat_texture", false},            // R: the coat's weight
+    {"clearcoat_roughness_texture", false},  // G: its roughness
+    {"sheen_color_texture", true},
+    {"sheen_roughness_texture", false},      // A
+    {"specular_texture", false},             // A: the specular layer's strength
+    {"specular_color_texture", true},
 };
 
 struct Material {

@@ -11,9 +11,9 @@
 #include "xi/error.h"
 
 // shade's xi_gather_material (bsdf.h) reads a material as three float4s with the type first in the third.
-static_assert(sizeof(MaterialData) == 144 && offsetof(MaterialData, sheen) == 128 && offsetof(MaterialData, type) == 32 && offsetof(MaterialData, pbr) == 48 &&
-                  offsetof(MaterialData, textures) == 64 && offsetof(MaterialData, specular) == 80 &&
-                  offsetof(MaterialData, coat) == 96 && offsetof(MaterialData, absorption) == 112,
+static_assert(sizeof(MaterialData) == 176 && offsetof(MaterialData, sheen) == 160 && offsetof(MaterialData, type) == 32 && offsetof(MaterialData, pbr) == 48 &&
+                  offsetof(MaterialData, textures) == 64 && offsetof(MaterialData, specular) == 112 &&
+                  offsetof(MaterialData, coat) == 128 && offsetof(MaterialData, absorption) == 144,
               "MaterialData layout");
 static_assert(sizeof(TextureRef) == 48 && sizeof(EnvironmentData) == 80 && sizeof(PunctualLightData) == 64, "layout");
 

@@ -142,8 +142,8 @@ class Reader {
       out.specular = std::clamp(float(number(*e, "specularFactor", 1.0)), 0.0f, 1.0f);
       const auto colour = numbers(*e, "specularColorFactor", {1, 1, 1});
       out.specular_color = glm::clamp(glm::vec3(colour[0], colour[1], colour[2]), 0.0f, 1e3f);
-      if (member(*e, "specularTexture") || member(*e, "specularColorTexture"))
-        warn_.add("specular textures (KHR_materials_specular) are not modelled: their materials use the factors");
+      read_slot(XI_TEXTURE_SPECULAR, *e, "specularTexture");
+      read_slot(XI_TEXTURE_SPECULAR_COLOR, *e, "specularColorTexture");
     }
     if (const json* e = extension(m, "KHR_materials_volume")) {
       // A thickness of 0 makes the surface thin-walled: no volume inside.
@@ -158,14 +158,14 @@ class Reader {
       const auto colour = numbers(*e, "sheenColorFactor", {0, 0, 0});
       out.sheen_color = glm::clamp(glm::vec3(colour[0], colour[1], colour[2]), 0.0f, 1.0f);
       out.sheen_roughness = std::clamp(float(number(*e, "sheenRoughnessFactor", 0.0)), 0.0f, 1.0f);
-      if (member(*e, "sheenColorTexture") || member(*e, "sheenRoughnessTexture"))
-        warn_.add("sheen textures are not modelled: their materials use the sheen factors");
+      read_slot(XI_TEXTURE_SHEEN_COLOR, *e, "sheenColorTexture");
+      read_slot(XI_TEXTURE_SHEEN_ROUGHNESS, *e, "sheenRoughnessTexture");
     }
     if (const json* e = extension(m, "KHR_materials_clearcoat")) {
       out.clearcoat = std::clamp(float(number(*e, "clearcoatFactor", 0.0)), 0.0f, 1.0f);
       out.clearcoat_roughness = std::clamp(float(number(*e, "clearcoatRoughnessFactor", 0.0)), 0.0f, 1.0f);
-      if (member(*e, "clearcoatTexture") || member(*e, "clearcoatRoughnessTexture"))
-        warn_.add("clearcoat textures are not modelled: their materials use the clearcoat factors");
+      read_slot(XI_TEXTURE_CLEARCOAT, *e, "clearcoatTexture");
+      read_slot(XI_TEXTURE_CLEARCOAT_ROUGHNESS, *e, "clearcoatRoughnessTexture");
       if (member(*e, "clearcoatNormalTexture"))
         warn_.add("clearcoatNormalTexture is not modelled: the coat shares the base's shading normal");
     }
