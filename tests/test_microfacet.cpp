@@ -350,6 +350,23 @@ TEST(MicrofacetReciprocity, ReflectionIsSymmetric) {
 // every roughness and incidence; single-scattering GGX alone (the must-fail) loses more and more
 // with roughness: at roughness 1, 0.31 is left at normal incidence and less than 0.8 anywhere.
 
+// The mean red sample weight of n samples from wo (seeded), the sampler's estimate of the
+// directional albedo, and its standard error.
+double mean_weight(const PbrLobes& m, glm::vec3 wo, int n, uint32_t seed, double* se) {
+  Uniform xi(seed);
+  double sum = 0.0, sum2 = 0.0;
+  for (int k = 0; k < n; ++k) {
+    float ul = xi(), pdf;
+    glm::vec3 wi;
+    bool delta;
+    double w = xi_pbr_sample(m, wo, ul, xi.pair(), &wi, &pdf, &delta).x;
+    sum += w, sum2 += w * w;
+  }
+  const double mean = sum / n;
+  *se = std::sqrt(std::max(sum2 / n - mean * mean, 0.0) / (n - 1));
+  return mean;
+}
+
 TEST(MicrofacetFurnace, AlbedoAtMostOneAndMatchesSampling) {
   const int n = 100000;
   const float degrees[] = {0.0f, 45.0f, 70.0f, 85.0f};
@@ -389,16 +406,8 @@ TEST(MicrofacetFurnace, AlbedoAtMostOneAndMatchesSampling) {
       return integrals[key] = sum;
     };
     double albedo = (1.0 - c.metallic) * integral(0.0f) + c.metallic * integral(1.0f);
-    Uniform xi(0xf00du + (uint32_t)(&c - cases.data()));  // independent streams: independent z-tests
-    double sum = 0.0, sum2 = 0.0;
-    for (int k = 0; k < n; ++k) {
-      float ul = xi(), pdf;
-      glm::vec3 wi;
-      bool delta;
-      double w = xi_pbr_sample(m, wo, ul, xi.pair(), &wi, &pdf, &delta).x;
-      sum += w, sum2 += w * w;
-    }
-    double mean = sum / n, se = std::sqrt(std::max(sum2 / n - mean * mean, 0.0) / (n - 1));
+    double se;  // independent streams: independent z-tests
+    const double mean = mean_weight(m, wo, n, 0xf00du + (uint32_t)(&c - cases.data()), &se);
     double z = (mean - albedo) / std::max(se, 1e-12);
     std::printf("[ furnace  ] %-66s %8.5f %8.5f %8.1e %6.2f%s\n", describe(c).c_str(), albedo, mean, se, z,
                 single ? " single scattering" : "");
@@ -451,16 +460,8 @@ TEST(MicrofacetLayering, WhiteBaseUnderTheLayerReflectsAll) {
         };
         const double scaled = albedo(1.0f), mix = albedo(0.0f);
         PbrLobes m = lobes(r, 0.0f, 0.0f, ior, glm::vec3(1.0f));
-        Uniform xi(0x1a7e5u + (uint32_t)(100 * r + 10 * ior + d));
-        double sum = 0.0, sum2 = 0.0;
-        for (int k = 0; k < n; ++k) {
-          float ul = xi(), pdf;
-          glm::vec3 wi;
-          bool delta;
-          double w = xi_pbr_sample(m, wo, ul, xi.pair(), &wi, &pdf, &delta).x;
-          sum += w, sum2 += w * w;
-        }
-        const double mean = sum / n, se = std::sqrt(std::max(sum2 / n - mean * mean, 0.0) / (n - 1));
+        double se;
+        const double mean = mean_weight(m, wo, n, 0x1a7e5u + (uint32_t)(100 * r + 10 * ior + d), &se);
         std::printf("[ layering ] %-66s %8.5f %8.5f %8.1e %8.5f\n", describe(c).c_str(), scaled, mean, se, mix);
         EXPECT_NEAR(scaled, 1.0, 0.01) << describe(c);
         EXPECT_LE(std::fabs(mean - scaled), 4.0 * se + 1e-4) << describe(c) << ": MC " << mean << " ± " << se;
@@ -471,6 +472,7 @@ TEST(MicrofacetLayering, WhiteBaseUnderTheLayerReflectsAll) {
         PbrLobes black = m;
         black.base_color = glm::vec3(0.0f);
         float first = -1.0f;
+        Uniform xi(0xba5eu);
         for (int k = 0; k < 50; ++k) {
           glm::vec3 wi = random_upper(xi);
           const float f = xi_pbr_eval(m, wo, wi).x, base = f - xi_pbr_eval(black, wo, wi).x;

@@ -290,20 +290,22 @@ TEST(Scene, DefaultsAndOptionalFields) {
   expect_vec(glm::normalize(face_normal(s.triangles[1])), {0, 0, 1}, 0.0f);
 }
 
+// The features of the quad scene with these materials and, where given, this "render" block.
+xi::Features quad_features(const std::string& render, const std::string& materials) {
+  std::string text = scene_text(kQuad, materials);
+  if (!render.empty()) text = "{" + render + ", " + text.substr(1);
+  return xi::compile_scene(parse(text)).features;
+}
+
 // "render": {"multiple_scattering": ...}: on by default, and a feature only where a pbr material
 // is; false turns it off; anything but a boolean is refused, naming the key.
 TEST(Scene, MultipleScatteringSwitch) {
   const std::string pbr = R"("materials": {"white": {"type": "pbr", "base_color": [1, 1, 1], "metallic": 1,
       "roughness": 0.8}})";
-  auto features = [&](const std::string& render, const std::string& materials) {
-    std::string text = scene_text(kQuad, materials);
-    if (!render.empty()) text = "{" + render + ", " + text.substr(1);
-    return xi::compile_scene(parse(text)).features;
-  };
-  EXPECT_TRUE(features("", pbr).multiple_scattering);
-  EXPECT_NE(features("", pbr).describe().find("multiple-scattering"), std::string::npos);
-  EXPECT_FALSE(features(R"("render": {"multiple_scattering": false})", pbr).multiple_scattering);
-  EXPECT_FALSE(features("", kMaterials).multiple_scattering);  // no pbr material: nothing to compensate
+  EXPECT_TRUE(quad_features("", pbr).multiple_scattering);
+  EXPECT_NE(quad_features("", pbr).describe().find("multiple-scattering"), std::string::npos);
+  EXPECT_FALSE(quad_features(R"("render": {"multiple_scattering": false})", pbr).multiple_scattering);
+  EXPECT_FALSE(quad_features("", kMaterials).multiple_scattering);  // no pbr material: nothing to compensate
   EXPECT_TRUE(parse(scene_text(kQuad)).render.multiple_scattering);
   expect_parse_error("{\"render\": {\"multiple_scattering\": 1}, " + scene_text(kQuad).substr(1),
                      "/render/multiple_scattering");
@@ -313,16 +315,11 @@ TEST(Scene, MultipleScatteringSwitch) {
 // "fresnel-mix" turns it off; an unknown name is refused, naming the key and the names it takes.
 TEST(Scene, LayeringChoice) {
   const std::string pbr = R"("materials": {"white": {"type": "pbr", "base_color": [0.5, 0.5, 0.5], "roughness": 0.5}})";
-  auto features = [&](const std::string& render, const std::string& materials) {
-    std::string text = scene_text(kQuad, materials);
-    if (!render.empty()) text = "{" + render + ", " + text.substr(1);
-    return xi::compile_scene(parse(text)).features;
-  };
-  EXPECT_TRUE(features("", pbr).albedo_scaling);
-  EXPECT_NE(features("", pbr).describe().find("albedo-scaling"), std::string::npos);
-  EXPECT_TRUE(features(R"("render": {"layering": "albedo-scaling"})", pbr).albedo_scaling);
-  EXPECT_FALSE(features(R"("render": {"layering": "fresnel-mix"})", pbr).albedo_scaling);
-  EXPECT_FALSE(features("", kMaterials).albedo_scaling);  // no pbr material: no layer
+  EXPECT_TRUE(quad_features("", pbr).albedo_scaling);
+  EXPECT_NE(quad_features("", pbr).describe().find("albedo-scaling"), std::string::npos);
+  EXPECT_TRUE(quad_features(R"("render": {"layering": "albedo-scaling"})", pbr).albedo_scaling);
+  EXPECT_FALSE(quad_features(R"("render": {"layering": "fresnel-mix"})", pbr).albedo_scaling);
+  EXPECT_FALSE(quad_features("", kMaterials).albedo_scaling);  // no pbr material: no layer
   EXPECT_EQ(parse(scene_text(kQuad)).render.layering, xi::Layering::AlbedoScaling);
   expect_parse_error("{\"render\": {\"layering\": \"kulla\"}, " + scene_text(kQuad).substr(1),
                      "/render/layering");
