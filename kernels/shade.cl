@@ -244,11 +244,14 @@ static inline XI_INLINE ShadeResult xi_shade_paths(XI_PATH_PARAMS xuint slot, xm
   xfloat prev_pdf;  // 0 after a camera ray or a specular bounce
   xfloat3 beta = xi_gather_xyz(throughput, slot, &prev_pdf);
   xfloat3 L = xi_gather_xyz(radiance, slot, 0);
-  xuint medium = 0u;  // the volume the ray crossed: its material + 1, 0 for none
+  // The volumes the ray is in (layout.h's ray_dir.w): the innermost in the low 16 bits, the one
+  // around it in the high 16, each its material + 1 (0: none).
+  xuint media = 0u, medium = 0u;
   if (xi_uses(shading, XI_USE_VOLUME)) {
-    xfloat medium_bits;
-    xi_gather_xyz(ray_dir, slot, &medium_bits);
-    medium = active ? xi_as_uint(medium_bits) : (xuint)0u;
+    xfloat media_bits;
+    xi_gather_xyz(ray_dir, slot, &media_bits);
+    media = active ? xi_as_uint(media_bits) : (xuint)0u;
+    medium = media & 0xffffu;
     if (XI_ANY(medium != 0u)) beta = xi_select3(medium != 0u, xi_volume_transmittance(materials, medium, h.x, beta), beta);
   }
 
@@ -386,16 +389,17 @@ static inline XI_INLINE ShadeResult xi_shade_paths(XI_PATH_PARAMS xuint slot, xm
     pdf = passes ? prev_pdf : pdf;
   }
 
-  xfloat medium_out = 0.0f;
+  xfloat media_out = 0.0f;
   if (xi_uses(shading, XI_USE_VOLUME)) {
-    // A refraction into a volume's mesh enters its medium and one out of it returns to the outside
-    // (volumes do not nest); reflections, thin surfaces and cut-outs keep the medium the ray is in.
+    // A refraction into a volume's mesh enters its medium, the one it was in becoming the outer;
+    // one out of it returns to the outer (a liquid in a glass: two levels, no deeper);
+    // reflections, thin surfaces and cut-outs keep the media the ray is in.
     xmask transmitted = at_surface && (bs.lobe & (xuint)XI_LOBE_TRANSMISSION) != 0u;
     xmask bounds = transmitted && xi_max3(XI_GATHER_XYZ_FIELD(materials, mi, absorption, 0)) > 0.0f;
-    medium_out = xi_as_float(bounds ? (front ? mi + 1u : (xuint)0u) : medium);
+    media_out = xi_as_float(bounds ? (front ? (medium << 16) | (mi + 1u) : media >> 16) : media);
   }
   xi_scatter4(ray_org, slot, xi_offset_ray_origin(p, p_error, bsdf.n_geo, wi), (xfloat)0.0f, goes_on);
-  xi_scatter4(ray_dir, slot, wi, medium_out, goes_on);
+  xi_scatter4(ray_dir, slot, wi, media_out, goes_on);
   xi_scatter4(throughput, slot, beta, pdf, goes_on);
   r.next_ray = goes_on;
   return r;

@@ -1377,3 +1377,42 @@ TEST(MaterialLayers, TexturesScaleTheirFactors) {
   EXPECT_FALSE(same(plain, weak));
   EXPECT_TRUE(same(weak, render({{"specular_texture", "black.png"}})));
 }
+
+// A volume inside another (a liquid in a glass): a slab of σ_in, 0.4 thick, inside one of σ_out, 1
+// thick (ior 1, smooth, transmission 1). Through both, exp(−σ_out · 0.6 − σ_in · 0.4) within the
+// Šidák z standard errors plus 1e-4; must-fail: a path that left the inner slab for the outside
+// (σ_out over 0.3 only) is rejected.
+TEST(MaterialVolume, OneVolumeInsideAnother) {
+  const fs::path dir = temp_dir();
+  const dvec3 c_out(0.5, 0.7, 0.9), c_in(0.9, 0.4, 0.2);  // attenuation colours, distance 1
+  const int W = 16, H = 16;
+  auto pbr = [](dvec3 c) {
+    return json{{"type", "pbr"}, {"base_color", {1, 1, 1}}, {"metallic", 0}, {"roughness", 0}, {"ior", 1.0},
+                {"transmission", 1}, {"attenuation_color", {c.x, c.y, c.z}}, {"attenuation_distance", 1}};
+  };
+  // A pair of faces bounding z in [z1, z0]: the front one faces +z, the back one −z.
+  auto slab = [](const char* material, double z0, double z1) {
+    return std::vector<json>{
+        {{"type", "quad"}, {"material", material}, {"vertices", {{-2, -2, z0}, {2, -2, z0}, {2, 2, z0}, {-2, 2, z0}}}},
+        {{"type", "quad"}, {"material", material}, {"vertices", {{-2, -2, z1}, {-2, 2, z1}, {2, 2, z1}, {2, -2, z1}}}}};
+  };
+  json shapes = json::array();
+  for (const json& q : slab("glass", 0.0, -1.0)) shapes.push_back(q);
+  for (const json& q : slab("liquid", -0.3, -0.7)) shapes.push_back(q);
+  const json scene = {{"camera", camera_json({0, 0, 3}, {0, 0, 0}, {0, 1, 0}, 10)},
+                      {"film", {{"width", W}, {"height", H}}},
+                      {"background", {1, 1, 1}},
+                      {"materials", {{"glass", pbr(c_out)}, {"liquid", pbr(c_in)}}},
+                      {"shapes", shapes}};
+  const xi::test::Shot shot = xi::test::render_shot(load_json(dir, scene), options(256, 9, XI_SAMPLER_RANDOM, 6));
+  ASSERT_EQ(shot.nonfinite, 0u);
+  const double z = xi::stats::sidak_critical_z(0.01, 3);
+  for (int ch = 0; ch < 3; ++ch) {
+    const xi::test::MeanSe got = xi::test::block_mean(shot, W / 2 - 2, H / 2 - 2, W / 2 + 2, H / 2 + 2, ch);
+    const double s_out = -std::log(c_out[ch]), s_in = -std::log(c_in[ch]), tol = z * got.se + 1e-4;
+    const double want = std::exp(-s_out * 0.6 - s_in * 0.4), left_outside = std::exp(-s_out * 0.3 - s_in * 0.4);
+    std::printf("[ volume   ] nested, channel %d: %.5f ± %.1e, Beer–Lambert %.5f\n", ch, got.mean, got.se, want);
+    EXPECT_NEAR(got.mean, want, tol) << "channel " << ch;
+    EXPECT_GT(std::abs(got.mean - left_outside), tol) << "channel " << ch;
+  }
+}

@@ -184,7 +184,7 @@ typedef struct {
 // of them first (XI_PATH_PARAMS) in this order, and the host creates and binds them from this list.
 #define XI_PATH_STATE(F)                                                    \
   F(float4, ray_org)    /* xyz: ray origin */                               \
-  F(float4, ray_dir)    /* xyz: unit direction; w: as_float(the volume's material + 1, 0: none) */ \
+  F(float4, ray_dir)    /* xyz: unit direction; w: as_float(the volumes it is in: inner | outer << 16) */ \
   F(float4, hit)        /* t (< 0: miss), barycentric u, v, as_float(tri) */ \
   F(float4, throughput) /* rgb; w: solid-angle pdf of the last BSDF sample, 0 if specular */ \
   F(float4, radiance)   /* rgb gathered so far */                           \

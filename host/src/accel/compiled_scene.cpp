@@ -169,6 +169,10 @@ CompiledScene compile_scene(const Scene& scene, int bvh_width, bool spatial_spli
     cs.features.sheen |= m.type == MaterialType::Pbr && m.sheen_color != glm::vec3(0.0f);
     cs.features.alpha |= m.cuts_out();
   }
+  // A path's volumes are material indices + 1 in 16 bits each (shade.cl).
+  if (cs.features.volume && scene.materials.size() >= 0xffff)
+    throw Error("a scene with volumes holds at most 65534 materials, not " + std::to_string(scene.materials.size()),
+                scene.source);
   cs.features.textures = !cs.texture_refs.empty();
   cs.features.multiple_scattering = cs.features.pbr && scene.render.multiple_scattering;
   cs.features.albedo_scaling = cs.features.pbr && scene.render.layering == Layering::AlbedoScaling;
