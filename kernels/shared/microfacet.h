@@ -229,9 +229,15 @@ static inline xfloat3 xi_dielectric_fresnel(PbrLobes m, xfloat cos_o) {
 }
 
 // Where the layer's albedo is known: a smooth layer reflects its Fresnel at wo.z (total internal
-// reflection included); a rough one, met from outside (eta ≥ 1), f0' E + (1 − f0') E_s. A rough
-// layer met from inside a denser medium (a surface seen from behind) keeps the Fresnel mix.
+// reflection included); a rough one met from outside (eta ≥ 1), xi_schlick_layer_albedo of f0'.
+// A rough layer met from inside a denser medium (a surface seen from behind) keeps the Fresnel mix.
 static inline xmask xi_layer_albedo_known(PbrLobes m) { return m.alpha < XI_DELTA_ALPHA || m.eta >= 1.0f; }
+
+// The directional albedo at wo.z = mu of a rough GGX layer (alpha = r²) with Schlick's Fresnel from
+// f0: exactly f0 E + (1 − f0) E_s.
+static inline xfloat xi_schlick_layer_albedo(xfloat f0, xfloat mu, xfloat r) {
+  return f0 * xi_ggx_albedo(mu, r) + (1.0f - f0) * xi_albedo_lookup(xi_ggx_albedo_schlick_table, mu, r);
+}
 
 // E_spec(mu): the dielectric specular layer's directional albedo at wo.z = mu, where known (its
 // largest channel, as Blender's Principled BSDF dims the base by).
@@ -240,8 +246,7 @@ static inline xfloat xi_dielectric_layer_albedo(PbrLobes m, xfloat mu) {
   if (!XI_ANY(m.alpha >= XI_DELTA_ALPHA)) return smooth;
   xfloat q = (m.eta - 1.0f) / (m.eta + 1.0f), r = sqrt(fmax(m.alpha, (xfloat)0.0f));
   xfloat f0 = fmin(q * q * xi_max3(m.specular_color), (xfloat)1.0f);
-  xfloat e = xi_ggx_albedo(mu, r), e_s = xi_albedo_lookup(xi_ggx_albedo_schlick_table, mu, r);
-  return m.alpha >= XI_DELTA_ALPHA ? m.specular * (f0 * e + (1.0f - f0) * e_s) : smooth;
+  return m.alpha >= XI_DELTA_ALPHA ? m.specular * xi_schlick_layer_albedo(f0, mu, r) : smooth;
 }
 
 // What the layer passes down to the base towards wo (wo.z = mu_o): 1 − E_spec(mu_o) with albedo
@@ -273,9 +278,8 @@ static inline xfloat xi_base_weight(PbrLobes m, xfloat base_share, xfloat mu_i) 
 static inline xfloat xi_coat_albedo(PbrLobes m, xfloat mu) {
   xfloat smooth = xi_schlick_dielectric(mu, (xfloat)XI_COAT_ETA);
   if (!XI_ANY(m.coat_alpha >= XI_DELTA_ALPHA && m.albedo_scaling > 0.0f)) return smooth;
-  const float q = (XI_COAT_ETA - 1.0f) / (XI_COAT_ETA + 1.0f), f0 = q * q;
-  xfloat r = sqrt(fmax(m.coat_alpha, (xfloat)0.0f));
-  xfloat rough = f0 * xi_ggx_albedo(mu, r) + (1.0f - f0) * xi_albedo_lookup(xi_ggx_albedo_schlick_table, mu, r);
+  const float q = (XI_COAT_ETA - 1.0f) / (XI_COAT_ETA + 1.0f);
+  xfloat rough = xi_schlick_layer_albedo((xfloat)(q * q), mu, sqrt(fmax(m.coat_alpha, (xfloat)0.0f)));
   return m.coat_alpha >= XI_DELTA_ALPHA && m.albedo_scaling > 0.0f ? rough : smooth;
 }
 static inline xfloat xi_coat_share(PbrLobes m, xfloat mu_o) {
