@@ -12,16 +12,44 @@ STRATA^2 samples per entry, the estimate's error well below 1e-3.
 Table layout (what microfacet.h's lookups assume): E[j][i] at mu_i = (i + 0.5) / N (cell centres) and
 r_j = j / (N - 1), linear in both and clamped at the ends; E_avg[j] = 2 * integral of E(mu) mu dmu over
 [0, 1] for that interpolation of row j, so that the compensation lobe integrates to exactly 1 - E(mu_o)
-of the table. Row r = 0 is 1 (a mirror loses nothing). Standard library only; takes about a minute.
+of the table. Row r = 0 is 1 (a mirror loses nothing).
+
+E_F(mu, r, z): the same integral with the microfacet's Fresnel s(wo.h) = (F(wo.h) - F0) / (1 - F0), F the
+exact unpolarised Fresnel reflectance of a dielectric of relative ior eta met from outside, F0 its value at
+normal incidence: SLICES slices E_F[k][j][i] at z_k = k Z_MAX / (SLICES - 1), z = sqrt((eta - 1) / (eta + 1))
+(dense where s changes fastest, near eta = 1), linear in z too. Between slices the lookup stays within a
+few 1e-3 of a direct estimate (printed at the end). Standard library only; a few seconds on two cores.
 Usage: scripts/make-ggx-albedo.py [output] (default kernels/shared/ggx_albedo.h).
 """
 import math
+import multiprocessing
 import os
 import sys
 
 N = 32
 STRATA = 48
 DELTA_ALPHA = 1e-4  # microfacet.h's XI_DELTA_ALPHA
+SLICES = 8          # E_F's slices in z = sqrt((eta - 1) / (eta + 1)), at z = k Z_MAX / (SLICES - 1)
+Z_MAX = math.sqrt(0.6)  # eta = 4, the largest ior a scene may give
+
+
+def slice_eta(k):
+    r0 = (k * Z_MAX / (SLICES - 1)) ** 2
+    return (1.0 + r0) / (1.0 - r0)
+
+
+def fresnel_dielectric(c, eta):
+    """The unpolarised Fresnel reflectance met at cosine c from outside a dielectric of relative ior eta >= 1."""
+    ct = math.sqrt(max(0.0, 1.0 - (1.0 - c * c) / (eta * eta)))
+    rs = (c - eta * ct) / (c + eta * ct)
+    rp = (eta * c - ct) / (eta * c + ct)
+    return 0.5 * (rs * rs + rp * rp)
+
+
+def remapped_fresnel(c, eta):
+    """s(c) = (F(c) - F0) / (1 - F0): the Fresnel of eta running from 0 at normal incidence to 1 at grazing."""
+    f0 = ((eta - 1.0) / (eta + 1.0)) ** 2
+    return min(max((fresnel_dielectric(c, eta) - f0) / (1.0 - f0), 0.0), 1.0)
 
 
 def lam(x, y, z, a):
@@ -29,7 +57,8 @@ def lam(x, y, z, a):
     return t / (2.0 * (1.0 + math.sqrt(1.0 + t)))
 
 
-def albedo(mu, r):
+def albedo(mu, r, etas):
+    """E(mu) and, for each ior of ETAS, E_F(mu)."""
     a = max(r * r, DELTA_ALPHA)
     wo = (math.sqrt(max(0.0, 1.0 - mu * mu)), 0.0, mu)
     lo = lam(*wo, a)
@@ -45,7 +74,8 @@ def albedo(mu, r):
         t1 = (1.0, 0.0, 0.0)
     t2 = (vy * t1[2] - vz * t1[1], vz * t1[0] - vx * t1[2], vx * t1[1] - vy * t1[0])
     s = 0.5 * (1.0 + vz)
-    total = schlick = 0.0
+    total = 0.0
+    fresnel = [0.0] * len(etas)
     for i in range(STRATA):
         for j in range(STRATA):
             u1, u2 = (i + 0.5) / STRATA, (j + 0.5) / STRATA
@@ -65,8 +95,19 @@ def albedo(mu, r):
                 continue
             weight = (1.0 + lo) / (1.0 + lo + lam(wix, wiy, wiz, a))  # G2 / G1(wo)
             total += weight
-            schlick += weight * (1.0 - d) ** 5
-    return total / (STRATA * STRATA), schlick / (STRATA * STRATA)
+            for k, eta in enumerate(etas):
+                fresnel[k] += weight * remapped_fresnel(d, eta)
+    return total / (STRATA * STRATA), [f / (STRATA * STRATA) for f in fresnel]
+
+
+def row(j):
+    """Row r_j of E and of every slice of E_F."""
+    r = j / (N - 1)
+    if j == 0:  # a mirror reflects wo itself: E = 1, E_F = s(mu)
+        mus = [(i + 0.5) / N for i in range(N)]
+        return [1.0] * N, [[remapped_fresnel(mu, slice_eta(k)) for mu in mus] for k in range(SLICES)]
+    both = [albedo((i + 0.5) / N, r, [slice_eta(k) for k in range(SLICES)]) for i in range(N)]
+    return [min(e, 1.0) for e, _ in both], [[f[k] for _, f in both] for k in range(SLICES)]
 
 
 def interpolated(row, mu):
@@ -76,41 +117,68 @@ def interpolated(row, mu):
     return row[i] * (1.0 - f) + row[i + 1] * f
 
 
+def lookup(table, mu, r, z):
+    """microfacet.h's E_F lookup: linear in mu, r and z, clamped."""
+    def axis(x, n):
+        i = min(max(int(math.floor(x)), 0), n - 2)
+        return i, min(max(x - i, 0.0), 1.0)
+    i, fx = axis(mu * N - 0.5, N)
+    j, fy = axis(r * (N - 1), N)
+    k, fz = axis(z / Z_MAX * (SLICES - 1), SLICES)
+    def slice_value(kk):
+        t = table[kk]
+        lo = t[j][i] * (1 - fx) + t[j][i + 1] * fx
+        hi = t[j + 1][i] * (1 - fx) + t[j + 1][i + 1] * fx
+        return lo * (1 - fy) + hi * fy
+    return slice_value(k) * (1 - fz) + slice_value(k + 1) * fz
+
+
 def main():
     out = sys.argv[1] if len(sys.argv) > 1 else os.path.join(os.path.dirname(__file__), "..", "kernels", "shared",
                                                              "ggx_albedo.h")
-    table, schlick = [], []
-    for j in range(N):
-        r = j / (N - 1)
-        both = [albedo((i + 0.5) / N, r) for i in range(N)]
-        table.append([1.0] * N if j == 0 else [min(e, 1.0) for e, _ in both])
-        # A mirror reflects wo itself: its Schlick weight is (1 - mu)^5 exactly.
-        schlick.append([(1.0 - (i + 0.5) / N) ** 5 for i in range(N)] if j == 0 else [e5 for _, e5 in both])
+    with multiprocessing.Pool() as pool:
+        rows = pool.map(row, range(N))
+    table = [e for e, _ in rows]
+    fresnel = [[rows[j][1][k] for j in range(N)] for k in range(SLICES)]
     steps = 4096
     averages = [min(2.0 * sum(interpolated(row, (k + 0.5) / steps) * (k + 0.5) / steps for k in range(steps)) / steps,
                     1.0) for row in table]
     averages[0] = 1.0
     lines = ["// Generated by scripts/make-ggx-albedo.py; do not edit. The directional albedo E(mu, r) of xi's",
              "// single-scattering GGX reflection (Fresnel 1) and its average E_avg(r): the multiple-scattering",
-             "// compensation's tables (microfacet.h), and E_s(mu, r), the albedo with a Fresnel of (1 - wo.h)^5:",
-             "// a Schlick Fresnel's lobe reflects f0 E + (1 - f0) E_s, the dielectric layer's albedo scaling.",
-             "// E and E_s at mu = (i + 0.5) / %d, r = j / %d (alpha = r^2)." % (N, N - 1),
+             "// compensation's tables (microfacet.h), and E_F(mu, r, z), the albedo with the Fresnel F of a",
+             "// dielectric of ior eta remapped to run from 0 to 1, (F - F0) / (1 - F0), z = sqrt((eta - 1) / (eta + 1)):",
+             "// a lobe whose Fresnel runs from f0 to 1 that way reflects f0 E + (1 - f0) E_F, the dielectric layer's",
+             "// albedo scaling. E and E_F at mu = (i + 0.5) / %d, r = j / %d (alpha = r^2), E_F's slices at" % (N, N - 1),
+             "// z = k z_max / %d, z_max = sqrt(0.6) (ior 4)." % (SLICES - 1),
              "#ifndef XI_GGX_ALBEDO_H", "#define XI_GGX_ALBEDO_H", '#include "compat.h"', "",
-             "#define XI_GGX_ALBEDO_SIZE %d" % N, "",
+             "#define XI_GGX_ALBEDO_SIZE %d" % N,
+             "#define XI_GGX_FRESNEL_SLICES %d" % SLICES,
+             "#define XI_GGX_FRESNEL_Z_MAX %.9ff" % Z_MAX, "",
              "XI_TABLE float xi_ggx_albedo_table[%d] = {" % (N * N)]
-    for row in table:
-        lines.append("    " + " ".join("%.6ff," % v for v in row))
+    for r in table:
+        lines.append("    " + " ".join("%.6ff," % v for v in r))
     lines += ["};", "", "XI_TABLE float xi_ggx_albedo_average_table[%d] = {" % N]
     for k in range(0, N, 8):
         lines.append("    " + " ".join("%.6ff," % v for v in averages[k:k + 8]))
-    lines += ["};", "", "XI_TABLE float xi_ggx_albedo_schlick_table[%d] = {" % (N * N)]
-    for row in schlick:
-        lines.append("    " + " ".join("%.6ff," % v for v in row))
+    lines += ["};", "", "XI_TABLE float xi_ggx_albedo_fresnel_table[%d] = {" % (SLICES * N * N)]
+    for k in range(SLICES):
+        for r in fresnel[k]:
+            lines.append("    " + " ".join("%.6ff," % v for v in r))
     lines += ["};", "", "#endif", ""]
     with open(out, "w") as f:
         f.write("\n".join(lines))
     print("wrote %s: E(mu = 1, r = 1) = %.4f, E_avg(r = 0.5) = %.4f, E_avg(r = 1) = %.4f"
           % (out, table[-1][-1], averages[N // 2], averages[-1]))
+    # E_F between its slices: the lookup against a direct estimate at iors on no slice.
+    worst = 0.0
+    for eta in (1.3, 1.5, 2.5):
+        z = math.sqrt((eta - 1.0) / (eta + 1.0))
+        for mu in (0.05, 0.3, 0.7, 1.0):
+            for r in (0.05, 0.3, 0.6, 1.0):
+                direct = albedo(mu, r, [eta])[1][0]
+                worst = max(worst, abs(lookup(fresnel, mu, r, z) - direct))
+    print("E_F's lookup against direct estimates (ior 1.3, 1.5, 2.5): largest difference %.2e" % worst)
 
 
 if __name__ == "__main__":

@@ -344,7 +344,8 @@ TEST(MicrofacetReciprocity, ReflectionIsSymmetric) {
 // ---------------------------------------------------------------------------------------------
 // 6. White furnace: base colour 1. The directional albedo ∫ f |cos θ_i| dω by cubature over the
 // chart of test 2 on 12 × 16 cells before refinement (cell_integrals' tolerance: ~1e-5 in all), at
-// most 1 + 1e-4 (1 + 0.01 for a metal with its multiple scattering, whose tables are interpolated),
+// most 1 + 1e-4 (1 + 0.01 for a metal with its multiple scattering, 1 + 0.005 for a rough dielectric
+// over its albedo-scaled base: both from interpolated tables),
 // and equal to the mean sample weight over 10^5 samples within 4 standard errors plus 1e-4 for the
 // cubature and float rounding. A white metal with its multiple scattering reflects 1 within 0.01 at
 // every roughness and incidence; single-scattering GGX alone (the must-fail) loses more and more
@@ -411,7 +412,9 @@ TEST(MicrofacetFurnace, AlbedoAtMostOneAndMatchesSampling) {
     double z = (mean - albedo) / std::max(se, 1e-12);
     std::printf("[ furnace  ] %-66s %8.5f %8.5f %8.1e %6.2f%s\n", describe(c).c_str(), albedo, mean, se, z,
                 single ? " single scattering" : "");
-    EXPECT_LE(albedo, 1.0 + (c.metallic > 0.0f && !single ? 0.01 : 1e-4)) << describe(c);
+    // Tables: the metal's multiple scattering and the albedo-scaled base are interpolated.
+    const bool scaled_base = c.metallic < 1.0f && c.transmission < 1.0f && c.eta > 1.0f && c.roughness > 0.0f;
+    EXPECT_LE(albedo, 1.0 + (c.metallic > 0.0f && !single ? 0.01 : scaled_base ? 0.005 : 1e-4)) << describe(c);
     EXPECT_LE(std::fabs(mean - albedo), 4.0 * se + 1e-4) << describe(c) << ": albedo " << albedo << ", MC " << mean
                                                           << " ± " << se;
     if (c.metallic == 1.0f && c.eta > 1.0f && c.transmission == 0.0f) {
@@ -456,7 +459,7 @@ TEST(MicrofacetLayering, WhiteBaseUnderTheLayerReflectsAll) {
                                          [&](glm::vec3 w) { return (double)xi_pbr_eval(m, wo, w).x * std::fabs(w.z); }))
             sum += v;
           // A smooth layer's mirror is a delta lobe, which eval leaves out: its F(wo.z) is added.
-          return sum + (r == 0.0f ? (double)xi_schlick_dielectric(wo.z, ior) : 0.0);
+          return sum + (r == 0.0f ? (double)xi_fresnel_dielectric(wo.z, ior) : 0.0);
         };
         const double scaled = albedo(1.0f), mix = albedo(0.0f);
         PbrLobes m = lobes(r, 0.0f, 0.0f, ior, glm::vec3(1.0f));

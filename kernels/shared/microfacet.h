@@ -13,16 +13,18 @@
 //   btdf(h) = η² |wi·h| |wo·h| D(h) G2 / (|wo.z| |wi.z| (wo·h + η wi·h)²)  Walter et al. 2007, with
 //             h = normalize(wo + η wi) turned to +z                       transmission (wi.z < 0)
 //
-// D is GGX, G2 the height-correlated Smith term 1 / (1 + Λ(wo) + Λ(wi)), F Schlick's
-// approximation of the dielectric Fresnel with f0 = ((η − 1)/(η + 1))². The dielectric specular
-// reflection and the rough transmission share D, G2 and the microfacet's F, so together they keep
-// at most the energy that arrives (F + (1 − F) per microfacet, G2 ≤ G1).
+// D is GGX, G2 the height-correlated Smith term 1 / (1 + Λ(wo) + Λ(wi)), F the exact dielectric
+// Fresnel of η, as Blender's Principled BSDF, Mitsuba and pbrt use (Schlick's approximation, which
+// the glTF spec's sample code uses, reflects less on average: 0.086 against 0.092 at η = 1.5, which
+// shows where the base is dark). The dielectric specular reflection and the rough transmission
+// share D, G2 and the microfacet's F, so together they keep at most the energy that arrives
+// (F + (1 − F) per microfacet, G2 ≤ G1).
 //
 // The layering of the dielectric specular over the base (PbrLobes.albedo_scaling):
 // - albedo scaling (1, the default; Blender's Principled BSDF and OpenPBR do the same): the base
 //   receives what the specular layer does not reflect towards wo, (1 − E_spec(wo.z)), with
 //   E_spec(mu) = ∫ spec·F·cos θi the layer's directional albedo, looked up (ggx_albedo.h:
-//   f0 E + (1 − f0) E_s for Schlick's F). A white base under the layer then reflects exactly what
+//   f0 E + (1 − f0) E_F). A white base under the layer then reflects exactly what
 //   arrives, at every roughness and ior. Like those models it weighs by wo alone: not reciprocal,
 //   which a path traced from the camera does not need.
 // - the Fresnel mix (0): the base weighed by (1 − F(wo.z)) (1 − F(wi.z)), reciprocal, but it
@@ -131,18 +133,6 @@ static inline xfloat xi_ggx_visible_pdf(xfloat3 wo, xfloat3 h, xfloat alpha) {
 
 // --- Fresnel
 
-// Schlick's dielectric Fresnel for a boundary met at cosine cos_o on wo's side (with the
-// microfacet normal), eta = n far / n near. Leaving the denser medium (eta < 1), the cosine of the
-// transmitted angle, on the less dense side, stands in for cos_o (Schlick's approximation holds
-// for the angle on the rarer side), and F = 1 under total internal reflection.
-static inline xfloat xi_schlick_dielectric(xfloat cos_o, xfloat eta) {
-  xfloat r = (eta - 1.0f) / (eta + 1.0f), f0 = r * r;
-  xfloat c = clamp(cos_o, (xfloat)0.0f, (xfloat)1.0f);
-  xfloat sin2_t = (1.0f - c * c) / (eta * eta);
-  xfloat cs = eta < 1.0f ? xi_safe_sqrt(1.0f - sin2_t) : c;
-  xfloat m = 1.0f - cs, m2 = m * m;
-  return sin2_t >= 1.0f ? (xfloat)1.0f : f0 + (1.0f - f0) * (m2 * m2 * m);
-}
 // Schlick with a colour f0 (the metal).
 static inline xfloat3 xi_schlick_color(xfloat3 f0, xfloat cos_o) {
   xfloat m = 1.0f - clamp(cos_o, (xfloat)0.0f, (xfloat)1.0f), m2 = m * m, w = m2 * m2 * m;
@@ -161,18 +151,33 @@ static inline xuint xi_ggx_albedo_row(xfloat r, xfloat* fy) {
   *fy = y - y0;
   return convert_xuint(y0);
 }
-// A (mu, r) table (ggx_albedo.h's E or E_s, sheen_albedo.h's) interpolated linearly in both, clamped.
-static inline xfloat xi_albedo_lookup(__constant const float* table, xfloat mu, xfloat r) {
+// A (mu, r) table (ggx_albedo.h's E or a slice of E_F, sheen_albedo.h's) starting at entry `first`,
+// interpolated linearly in both, clamped.
+static inline xfloat xi_albedo_lookup_from(__constant const float* table, xuint first, xfloat mu, xfloat r) {
   const float n = (float)XI_GGX_ALBEDO_SIZE;
   xfloat x = clamp(mu * n - 0.5f, 0.0f, n - 1.0f), x0 = fmin(floor(x), (xfloat)(n - 2.0f)), fx = x - x0, fy;
-  xuint i = xi_ggx_albedo_row(r, &fy) * XI_GGX_ALBEDO_SIZE + convert_xuint(x0);
+  xuint i = first + xi_ggx_albedo_row(r, &fy) * XI_GGX_ALBEDO_SIZE + convert_xuint(x0);
   xfloat a = xi_gather_table(table, i), b = xi_gather_table(table, i + 1u);
   xfloat c = xi_gather_table(table, i + XI_GGX_ALBEDO_SIZE);
   xfloat d = xi_gather_table(table, i + XI_GGX_ALBEDO_SIZE + 1u);
   xfloat lo = a + (b - a) * fx, hi = c + (d - c) * fx;
   return lo + (hi - lo) * fy;
 }
+static inline xfloat xi_albedo_lookup(__constant const float* table, xfloat mu, xfloat r) {
+  return xi_albedo_lookup_from(table, (xuint)0u, mu, r);
+}
 static inline xfloat xi_ggx_albedo(xfloat mu, xfloat r) { return xi_albedo_lookup(xi_ggx_albedo_table, mu, r); }
+// E_F(mu, r) for a dielectric of relative ior eta ≥ 1: linear between the table's slices in
+// z = √((η − 1)/(η + 1)), clamped.
+static inline xfloat xi_ggx_fresnel_albedo(xfloat mu, xfloat r, xfloat eta) {
+  const float last = (float)(XI_GGX_FRESNEL_SLICES - 1);
+  xfloat z = clamp(sqrt(fmax((eta - 1.0f) / (eta + 1.0f), (xfloat)0.0f)) * (last / XI_GGX_FRESNEL_Z_MAX), 0.0f, last);
+  xfloat z0 = fmin(floor(z), (xfloat)(last - 1.0f)), fz = z - z0;
+  xuint first = convert_xuint(z0) * (XI_GGX_ALBEDO_SIZE * XI_GGX_ALBEDO_SIZE);
+  xfloat lo = xi_albedo_lookup_from(xi_ggx_albedo_fresnel_table, first, mu, r);
+  xfloat hi = xi_albedo_lookup_from(xi_ggx_albedo_fresnel_table, first + XI_GGX_ALBEDO_SIZE * XI_GGX_ALBEDO_SIZE, mu, r);
+  return lo + (hi - lo) * fz;
+}
 // E_avg(r), interpolated likewise.
 static inline xfloat xi_ggx_albedo_average(xfloat r) {
   xfloat fy;
@@ -209,34 +214,28 @@ static inline xfloat3 xi_transmission_tint(PbrLobes m) {
 
 // --- the dielectric layer over the base
 
-// The dielectric layer's Fresnel at a microfacet cosine cos_o, with KHR_materials_specular:
-// Schlick from F0 = min(f0 · specular_color, 1) · specular to F90 = specular, that is
-// specular · (f0' + (1 − f0') w) with f0' = min(f0 · specular_color, 1) and w the Schlick term of
-// xi_schlick_dielectric (1 under total internal reflection). Without the extension (both 1) it is
-// xi_schlick_dielectric's value in every channel.
+// The dielectric layer's Fresnel at a microfacet cosine cos_o, with KHR_materials_specular as
+// Blender reads it: the exact Fresnel F of eta remapped to run from F0 = min(f0 · specular_color, 1)
+// · specular at normal incidence to specular at grazing, specular · (f0' + (1 − f0') s) with
+// f0' = min(f0 · specular_color, 1), f0 = ((η − 1)/(η + 1))² = F(1) and s = (F − f0) / (1 − f0)
+// (1 under total internal reflection). Without the extension (both 1) it is F in every channel.
 static inline xfloat3 xi_dielectric_fresnel(PbrLobes m, xfloat cos_o) {
-  xfloat r = (m.eta - 1.0f) / (m.eta + 1.0f), f0 = r * r;
-  xfloat c = clamp(cos_o, (xfloat)0.0f, (xfloat)1.0f);
-  xfloat sin2_t = (1.0f - c * c) / (m.eta * m.eta);
-  xfloat cs = m.eta < 1.0f ? xi_safe_sqrt(1.0f - sin2_t) : c;
-  xfloat q = 1.0f - cs, q2 = q * q, w = q2 * q2 * q;
-  xmask tir = sin2_t >= 1.0f;
+  xfloat q = (m.eta - 1.0f) / (m.eta + 1.0f), f0 = q * q;
+  xfloat s = clamp((xi_fresnel_dielectric(cos_o, m.eta) - f0) / (1.0f - f0), (xfloat)0.0f, (xfloat)1.0f);
   xfloat fx = fmin(f0 * m.specular_color.x, (xfloat)1.0f), fy = fmin(f0 * m.specular_color.y, (xfloat)1.0f),
          fz = fmin(f0 * m.specular_color.z, (xfloat)1.0f);
-  return xi_scale3(make_xfloat3(tir ? (xfloat)1.0f : fx + (1.0f - fx) * w, tir ? (xfloat)1.0f : fy + (1.0f - fy) * w,
-                                tir ? (xfloat)1.0f : fz + (1.0f - fz) * w),
-                   m.specular);
+  return xi_scale3(make_xfloat3(fx + (1.0f - fx) * s, fy + (1.0f - fy) * s, fz + (1.0f - fz) * s), m.specular);
 }
 
 // Where the layer's albedo is known: a smooth layer reflects its Fresnel at wo.z (total internal
-// reflection included); a rough one met from outside (eta ≥ 1), xi_schlick_layer_albedo of f0'.
+// reflection included); a rough one met from outside (eta ≥ 1), xi_fresnel_layer_albedo of f0'.
 // A rough layer met from inside a denser medium (a surface seen from behind) keeps the Fresnel mix.
 static inline xmask xi_layer_albedo_known(PbrLobes m) { return m.alpha < XI_DELTA_ALPHA || m.eta >= 1.0f; }
 
-// The directional albedo at wo.z = mu of a rough GGX layer (alpha = r²) with Schlick's Fresnel from
-// f0: exactly f0 E + (1 − f0) E_s.
-static inline xfloat xi_schlick_layer_albedo(xfloat f0, xfloat mu, xfloat r) {
-  return f0 * xi_ggx_albedo(mu, r) + (1.0f - f0) * xi_albedo_lookup(xi_ggx_albedo_schlick_table, mu, r);
+// The directional albedo at wo.z = mu of a rough GGX layer (alpha = r²) whose Fresnel runs from f0
+// to 1 as eta's (≥ 1) does from its own f0 to 1 (xi_dielectric_fresnel): f0 E + (1 − f0) E_F.
+static inline xfloat xi_fresnel_layer_albedo(xfloat f0, xfloat mu, xfloat r, xfloat eta) {
+  return f0 * xi_ggx_albedo(mu, r) + (1.0f - f0) * xi_ggx_fresnel_albedo(mu, r, eta);
 }
 
 // E_spec(mu): the dielectric specular layer's directional albedo at wo.z = mu, where known (its
@@ -246,7 +245,7 @@ static inline xfloat xi_dielectric_layer_albedo(PbrLobes m, xfloat mu) {
   if (!XI_ANY(m.alpha >= XI_DELTA_ALPHA)) return smooth;
   xfloat q = (m.eta - 1.0f) / (m.eta + 1.0f), r = sqrt(fmax(m.alpha, (xfloat)0.0f));
   xfloat f0 = fmin(q * q * xi_max3(m.specular_color), (xfloat)1.0f);
-  return m.alpha >= XI_DELTA_ALPHA ? m.specular * xi_schlick_layer_albedo(f0, mu, r) : smooth;
+  return m.alpha >= XI_DELTA_ALPHA ? m.specular * xi_fresnel_layer_albedo(f0, mu, r, m.eta) : smooth;
 }
 
 // What the layer passes down to the base towards wo (wo.z = mu_o): 1 − E_spec(mu_o) with albedo
@@ -276,10 +275,10 @@ static inline xfloat xi_base_weight(PbrLobes m, xfloat base_share, xfloat mu_i) 
 #define XI_COAT_ETA 1.5f
 
 static inline xfloat xi_coat_albedo(PbrLobes m, xfloat mu) {
-  xfloat smooth = xi_schlick_dielectric(mu, (xfloat)XI_COAT_ETA);
+  xfloat smooth = xi_fresnel_dielectric(mu, (xfloat)XI_COAT_ETA);
   if (!XI_ANY(m.coat_alpha >= XI_DELTA_ALPHA && m.albedo_scaling > 0.0f)) return smooth;
   const float q = (XI_COAT_ETA - 1.0f) / (XI_COAT_ETA + 1.0f);
-  xfloat rough = xi_schlick_layer_albedo((xfloat)(q * q), mu, sqrt(fmax(m.coat_alpha, (xfloat)0.0f)));
+  xfloat rough = xi_fresnel_layer_albedo((xfloat)(q * q), mu, sqrt(fmax(m.coat_alpha, (xfloat)0.0f)), (xfloat)XI_COAT_ETA);
   return m.coat_alpha >= XI_DELTA_ALPHA && m.albedo_scaling > 0.0f ? rough : smooth;
 }
 static inline xfloat xi_coat_share(PbrLobes m, xfloat mu_o) {
@@ -316,7 +315,7 @@ static inline xfloat xi_sheen_f(PbrLobes m, xfloat sheen_albedo_o, xfloat3 h, xf
 // probabilities of the lobes xi_pbr_sample chooses: the coat, reflection (specular layer and metal),
 // diffuse (the cosine-distributed lobes: the diffuse base, the metal's multiple scattering and the
 // sheen), transmission, from estimates of their albedos at wo. Each is positive wherever its lobe
-// can be nonzero: the coat wherever it is, reflection always (Schlick tends to 1 at grazing
+// can be nonzero: the coat wherever it is, reflection always (the Fresnel tends to 1 at grazing
 // microfacets), transmission wherever transmission and base colour are, even under total internal
 // reflection at wo.z, where tilted microfacets still refract; diffuse vanishes exactly where both
 // its terms do.
@@ -355,7 +354,7 @@ static inline PbrAtWo xi_pbr_at(PbrLobes m, xfloat3 wo) {
   xfloat wc = 0.0f;
   if (XI_ANY(m.coat > 0.0f)) {
     wr *= at.coat_share, wd *= at.coat_share, wt *= at.coat_share;
-    wc = m.coat > 0.0f ? fmax(m.coat * xi_schlick_dielectric(wo.z, (xfloat)XI_COAT_ETA), (xfloat)0.02f) : (xfloat)0.0f;
+    wc = m.coat > 0.0f ? fmax(m.coat * xi_fresnel_dielectric(wo.z, (xfloat)XI_COAT_ETA), (xfloat)0.02f) : (xfloat)0.0f;
   }
   xfloat inv = 1.0f / (wc + wr + wd + wt);
   at.coat = wc * inv;
@@ -380,9 +379,12 @@ static inline xfloat3 xi_pbr_eval_pdf_at(PbrLobes m, PbrAtWo p, xfloat3 wo, xflo
   xfloat3 hr = xi_add3(wo, wi);
   hr = xi_scale3(hr, 1.0f / sqrt(fmax(xi_dot3(hr, hr), (xfloat)1e-30f)));
   xfloat cr = fmax(xi_dot3(wo, hr), (xfloat)XI_MIN_COS);
+  // The Fresnel terms' cosine, the same whichever of wo and wi comes first, so that f stays
+  // reciprocal where the dielectric's Fresnel is steep (near the critical angle).
+  xfloat cf = 0.5f * (xi_dot3(wo, hr) + xi_dot3(wi, hr));
   xfloat spec = xi_ggx_d(hr, a) * g2 / (4.0f * zo * zi);
-  xfloat3 fmetal = xi_schlick_color(m.base_color, cr);
-  xfloat3 fdiel = xi_dielectric_fresnel(m, cr);
+  xfloat3 fmetal = xi_schlick_color(m.base_color, cf);
+  xfloat3 fdiel = xi_dielectric_fresnel(m, cf);
   xfloat3 f_spec = xi_scale3(xi_add3(xi_scale3(fmetal, m.metallic), xi_scale3(fdiel, dielectric)), spec);
   xfloat pdf_r = xi_ggx_visible_pdf(wo, hr, a) / (4.0f * cr);
   xmask refl = above && rough;
@@ -424,7 +426,7 @@ static inline xfloat3 xi_pbr_eval_pdf_at(PbrLobes m, PbrAtWo p, xfloat3 wo, xflo
   if (XI_ANY(m.coat > 0.0f)) {
     xfloat ac = fmax(m.coat_alpha, (xfloat)XI_DELTA_ALPHA);
     xmask coat_rough = above && m.coat > 0.0f && m.coat_alpha >= XI_DELTA_ALPHA;
-    xfloat f_coat = m.coat * xi_ggx_d(hr, ac) * xi_ggx_g2(wo, wi, ac) * xi_schlick_dielectric(cr, (xfloat)XI_COAT_ETA) /
+    xfloat f_coat = m.coat * xi_ggx_d(hr, ac) * xi_ggx_g2(wo, wi, ac) * xi_fresnel_dielectric(cf, (xfloat)XI_COAT_ETA) /
                     (4.0f * zo * zi);
     f = xi_add3(xi_scale3(f, p.coat_share), make_xfloat3(coat_rough ? f_coat : (xfloat)0.0f,
                                                                    coat_rough ? f_coat : (xfloat)0.0f,
@@ -500,7 +502,7 @@ static inline xfloat3 xi_pbr_sample_lobe_at(PbrLobes m, PbrAtWo p, xfloat3 wo, x
                                (refracts ? share * dielectric * m.transmission : (xfloat)0.0f) / fmax(pt, (xfloat)1e-30f));
   xfloat3 weight_delta = xi_select3(pick_r, weight_r, weight_t);
   if (XI_ANY(m.coat > 0.0f)) {
-    xfloat c = m.coat * xi_schlick_dielectric(wo.z, (xfloat)XI_COAT_ETA) / fmax(pc, (xfloat)1e-30f);
+    xfloat c = m.coat * xi_fresnel_dielectric(wo.z, (xfloat)XI_COAT_ETA) / fmax(pc, (xfloat)1e-30f);
     weight_delta = xi_select3(pick_c, make_xfloat3(c, c, c), weight_delta);
   }
 
