@@ -49,18 +49,21 @@ static inline XI_INLINE PbrInputs xi_pbr_inputs(XI_SCENE_PARAMS, uint shading, x
   return in;
 }
 
-// The shading normal with material mi's normal map applied (tangent space: the file's tangents,
-// glTF's TANGENT interpolated, with the bitangent w · n × tangent; where the file has none, the
-// tangent along increasing u of the map's texture coordinates, from the triangle, as glTF viewers
-// do), then turned toward wo where it would face away from it: a shading normal
-// seen from behind would make the lobes' local frame invalid (black fringes) or light leak
-// through; bending it until wo is just above keeps both away. (Sample directions are still
-// checked against the geometric normal.)
-static inline XI_INLINE xfloat3 xi_pbr_normal(XI_SCENE_PARAMS, uint shading, xuint mi, xuint tri, xfloat b1,
+// The shading normal with the normal map of material mi's texture slot `slot` applied (tangent
+// space: the file's tangents, glTF's TANGENT interpolated, with the bitangent w · n × tangent; where
+// the file has none, the tangent along increasing u of the map's texture coordinates, from the
+// triangle, as glTF viewers do), then turned where it would face away from wo or mirror wo below
+// the surface: a shading normal seen from behind would make the lobes' local frame invalid (black
+// fringes) or light leak through, and one that mirrors wo into the surface loses the specular
+// light a bumped glossy surface reflects (a strong normal map went dark). As Cycles does, it is
+// turned so that wo's mirror direction keeps the azimuth about the geometric normal it had but
+// rises to just above the surface. (Sample directions are still checked against the geometric
+// normal.)
+static inline XI_INLINE xfloat3 xi_pbr_normal(XI_SCENE_PARAMS, uint shading, xuint mi, xuint tri, int slot, xfloat b1,
                                               xfloat b2, xfloat3 n, xfloat3 n_geo, xfloat3 wo, xfloat normal_scale,
                                               xfloat3 p0, xfloat3 p1, xfloat3 p2, xfloat2 uv0, xfloat2 uv1) {
   if (xi_uses(shading, XI_USE_TEXTURES)) {
-    xuint ref = XI_GATHER_UINT_FIELD(materials, mi, textures[XI_TEXTURE_NORMAL]);
+    xuint ref = XI_GATHER_UINT_FIELD(materials, mi, textures[slot]);
     xmask mapped = ref != XI_NO_TEXTURE;
     if (XI_ANY(mapped)) {
       xfloat a;
@@ -99,7 +102,17 @@ static inline XI_INLINE xfloat3 xi_pbr_normal(XI_SCENE_PARAMS, uint shading, xui
   }
   // Never above the geometric normal's own cosine, so the geometric normal itself is left as it is.
   xfloat c = xi_dot3(n, wo), least = fmin((xfloat)0.01f, xi_dot3(n_geo, wo));
-  return xi_select3(c < least, xi_normalize3(xi_add3(n, xi_scale3(wo, least - c))), n);
+  n = xi_select3(c < least, xi_normalize3(xi_add3(n, xi_scale3(wo, least - c))), n);
+  // The mirror direction r at least `lowest` above the surface: else r' (r's azimuth, that height)
+  // and the normal halfway between wo and r'.
+  xfloat3 r = xi_sub3(xi_scale3(n, 2.0f * xi_dot3(n, wo)), wo);
+  xfloat height = xi_dot3(n_geo, r), lowest = fmin(0.9f * xi_dot3(n_geo, wo), (xfloat)0.01f);
+  xfloat3 across = xi_sub3(r, xi_scale3(n_geo, height));
+  xfloat al = xi_length3(across);
+  xmask turn = height < lowest && al > 0.0f;
+  xfloat3 raised = xi_add3(xi_scale3(across, xi_safe_sqrt(1.0f - lowest * lowest) / (al > 0.0f ? al : (xfloat)1.0f)),
+                           xi_scale3(n_geo, lowest));
+  return xi_select3(turn, xi_normalize3(xi_add3(wo, raised)), n);
 }
 
 // The BSDF at a hit (material.h): the shading normal (interpolated vertex normals, a normal map),
@@ -137,6 +150,7 @@ static inline XI_INLINE Bsdf xi_surface_bsdf(XI_SCENE_PARAMS, uint shading, Shad
   b.pbr.specular_color = make_xfloat3((xfloat)1.0f, (xfloat)1.0f, (xfloat)1.0f);
   b.pbr.specular = 1.0f;
   b.pbr.coat = b.pbr.coat_alpha = 0.0f;
+  b.pbr.coat_normal = make_xfloat3((xfloat)0.0f, (xfloat)0.0f, (xfloat)1.0f);
   b.pbr.sheen_color = make_xfloat3((xfloat)0.0f, (xfloat)0.0f, (xfloat)0.0f);
   b.pbr.sheen_alpha = 0.0f;
   b.pbr.eta = 1.5f;
@@ -145,8 +159,9 @@ static inline XI_INLINE Bsdf xi_surface_bsdf(XI_SCENE_PARAMS, uint shading, Shad
     xmask pbr = at_surface && m.type == XI_MATERIAL_PBR;
     if (XI_ANY(pbr)) {
       PbrInputs in = xi_pbr_inputs(XI_SCENE_ARGS, shading, mi, m.albedo, uv0, uv1);
-      xfloat3 np = xi_pbr_normal(XI_SCENE_ARGS, shading, mi, tri, b1, b2, b.n, b.n_geo, wo, in.normal_scale, p0, p1,
-                                 p2, uv0, uv1);
+      xfloat3 n_interpolated = b.n;
+      xfloat3 np = xi_pbr_normal(XI_SCENE_ARGS, shading, mi, tri, XI_TEXTURE_NORMAL, b1, b2, b.n, b.n_geo, wo,
+                                 in.normal_scale, p0, p1, p2, uv0, uv1);
       b.n = xi_select3(pbr, np, b.n);
       xi_basis(b.n, &b.frame_t, &b.frame_b);
       b.pbr.base_color = in.base_color;
@@ -176,6 +191,10 @@ static inline XI_INLINE Bsdf xi_surface_bsdf(XI_SCENE_PARAMS, uint shading, Shad
         }
         b.pbr.coat = pbr ? coat.x : (xfloat)0.0f;
         b.pbr.coat_alpha = coat.y * coat.y;
+        // The coat's normal: the interpolated one with the coat's own normal map (not the base's).
+        xfloat3 nc = xi_pbr_normal(XI_SCENE_ARGS, shading, mi, tri, XI_TEXTURE_CLEARCOAT_NORMAL, b1, b2, n_interpolated,
+                                   b.n_geo, wo, coat.z, p0, p1, p2, uv0, uv1);
+        b.pbr.coat_normal = xi_normalize3(make_xfloat3(xi_dot3(nc, b.frame_t), xi_dot3(nc, b.frame_b), xi_dot3(nc, b.n)));
       }
       if (xi_uses(shading, XI_USE_SHEEN)) {
         xfloat roughness;

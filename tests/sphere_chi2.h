@@ -97,12 +97,12 @@ inline int cell_of(const SphereGrid& g, glm::vec3 w) {
 // of error in a cell that expects 10^4 against a noise of 100, 0.02 in one that expects 75 against
 // 9; tighter tolerances chase the float pdf's rounding, ~1e-4 relative in a lobe of
 // α = 0.0025 where a float direction moves by 6e-8 rad. At least `near_depth` levels deep in the
-// cells within 0.15 rad of a peak so no lobe hides between the nodes, 1 elsewhere; at most
+// cells within 0.15 rad of a peak so no lobe hides between the nodes, `far_depth` (1) elsewhere; at most
 // `max_depth` (a density that jumps inside a cell, as a rough transmission lobe's where its half
 // vector meets the horizon, is refined along the jump to that depth).
 inline std::vector<double> cell_integrals(const SphereGrid& g, const std::function<double(glm::vec3)>& f,
                                           double rel_tol = 1e-4, double abs_tol = 1e-7, int near_depth = 3,
-                                          int max_depth = 10) {
+                                          int max_depth = 10, int far_depth = 1) {
   auto integrand = [&](double t, double p) { return f(direction(t, p)) * std::sin(t); };
   std::vector<double> out;
   out.reserve(g.cells());
@@ -115,7 +115,7 @@ inline std::vector<double> cell_integrals(const SphereGrid& g, const std::functi
         double dp = std::max({0.0, p0 - pk.y, pk.y - p1});
         near = near || (dt < 0.15 && (std::sin(pk.x) < 0.2 || dp * std::sin(pk.x) < 0.15));
       }
-      int depth = near ? near_depth : 1;
+      int depth = near ? near_depth : far_depth;
       double rough = xi::stats::integrate_2d(integrand, t0, t1, p0, p1, 0.0, depth, depth);
       out.push_back(
           xi::stats::integrate_2d(integrand, t0, t1, p0, p1, std::max(abs_tol, rel_tol * std::fabs(rough)), max_depth, depth));

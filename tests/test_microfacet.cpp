@@ -49,6 +49,7 @@ PbrLobes lobes(float roughness, float metallic, float transmission, float eta, g
   m.specular_color = glm::vec3(1.0f);
   m.specular = 1.0f;
   m.coat = m.coat_alpha = 0.0f;
+  m.coat_normal = glm::vec3(0.0f, 0.0f, 1.0f);
   m.sheen_color = glm::vec3(0.0f);
   m.sheen_alpha = 0.0f;
   return m;

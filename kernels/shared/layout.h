@@ -26,7 +26,8 @@
 #define XI_TEXTURE_SHEEN_ROUGHNESS 7      // A
 #define XI_TEXTURE_SPECULAR 8             // A: the specular layer's strength
 #define XI_TEXTURE_SPECULAR_COLOR 9
-#define XI_TEXTURE_SLOTS 10
+#define XI_TEXTURE_CLEARCOAT_NORMAL 10    // tangent space: the coat's own normal
+#define XI_TEXTURE_SLOTS 11
 #define XI_TEXTURE_SLOTS_PADDED 12  // the array's length: the struct's float4s stay 16-byte aligned
 
 typedef struct {
@@ -39,7 +40,7 @@ typedef struct {
   float4 pbr;        // metallic, roughness (perceptual: GGX alpha = roughness²), transmission, normal map scale
   uint textures[XI_TEXTURE_SLOTS_PADDED];  // TextureRef index or XI_NO_TEXTURE, by XI_TEXTURE_*
   float4 specular;   // KHR_materials_specular (pbr): rgb the f0 tint, w the layer's strength (1, 1: none)
-  float4 coat;       // KHR_materials_clearcoat (pbr): x weight (0: none), y roughness (perceptual); zw unused
+  float4 coat;       // KHR_materials_clearcoat (pbr): x weight (0: none), y roughness (perceptual), z the coat's normal map scale; w unused
   float4 absorption; // KHR_materials_volume (pbr): rgb σa per unit length of the volume inside (0: none)
   float4 sheen;      // KHR_materials_sheen (pbr): rgb colour (0: none), w roughness (perceptual)
 } MaterialData;

@@ -79,6 +79,7 @@ typedef struct {
   xfloat specular;             // KHR_materials_specular: the dielectric layer's strength (1: none)
   xfloat coat;                 // KHR_materials_clearcoat: the coat's weight (0: none)
   xfloat coat_alpha;           // the coat's GGX alpha
+  xfloat3 coat_normal;         // the coat's own normal in this frame (+z: the base's), wo above it
   xfloat3 sheen_color;         // KHR_materials_sheen (0: none)
   xfloat sheen_alpha;          // the sheen's alpha, roughness²
 } PbrLobes;
@@ -266,13 +267,33 @@ static inline xfloat xi_base_weight(PbrLobes m, xfloat base_share, xfloat mu_i) 
 
 // --- the clear coat (KHR_materials_clearcoat)
 //
-// A dielectric of ior 1.5 over everything else, weighted by coat, with its own roughness and the
-// base's shading normal:
-//   f = coat · D_c(h) G2_c F_c(wo·h) / (4 |wo.z| |wi.z|) + share_c(wo.z) · f_below
-// share_c = 1 − coat · E_c(wo.z) with albedo scaling (the coat's albedo from the tables, as above),
-// 1 − coat · F_c(wo.z) in the Fresnel mix (the spec's own layering). A coat met from behind is the
-// same coat: it stays on the outside.
+// A dielectric of ior 1.5 over everything else, weighted by coat, with its own roughness and its
+// own normal n_c (glTF: the interpolated normal with the coat's normal map, not the base's); wo_c,
+// wi_c are wo and wi in a frame about n_c:
+//   f = coat · D_c(h) G2_c F_c(wo_c·h) / (4 |wo_c.z| |wi.z|) + share_c(wo_c.z) · f_below
+// for wi above both normals (h = normalize(wo_c + wi_c); |wi.z| where a lobe of its own frame has
+// |wi_c.z|, as the renderer multiplies f by the cosine with the base's normal); share_c = 1 − coat · E_c(wo_c.z) with
+// albedo scaling (the coat's albedo from the tables, as above), 1 − coat · F_c(wo_c.z) in the
+// Fresnel mix (the spec's own layering). A coat met from behind is the same coat: it stays on the
+// outside.
 #define XI_COAT_ETA 1.5f
+
+// The coat's frame: w in a frame about n_c (its tangents from xi_basis), and back.
+typedef struct {
+  xfloat3 t, b, n;
+} CoatFrame;
+static inline CoatFrame xi_coat_frame(PbrLobes m) {
+  CoatFrame f;
+  f.n = m.coat_normal;
+  xi_basis(f.n, &f.t, &f.b);
+  return f;
+}
+static inline xfloat3 xi_to_coat(CoatFrame f, xfloat3 w) {
+  return make_xfloat3(xi_dot3(w, f.t), xi_dot3(w, f.b), xi_dot3(w, f.n));
+}
+static inline xfloat3 xi_from_coat(CoatFrame f, xfloat3 w) {
+  return xi_add3(xi_add3(xi_scale3(f.t, w.x), xi_scale3(f.b, w.y)), xi_scale3(f.n, w.z));
+}
 
 static inline xfloat xi_coat_albedo(PbrLobes m, xfloat mu) {
   xfloat smooth = xi_fresnel_dielectric(mu, (xfloat)XI_COAT_ETA);
@@ -336,7 +357,9 @@ static inline PbrAtWo xi_pbr_at(PbrLobes m, xfloat3 wo) {
     at.sheen_albedo = xi_sheen_albedo(m, wo.z);
     at.sheen_share = 1.0f - xi_max3(m.sheen_color) * fmin(at.sheen_albedo, (xfloat)1.0f);
   }
-  at.coat_share = xi_coat_share(m, wo.z);
+  xfloat coat_mu = 1.0f;  // wo's cosine with the coat's normal
+  if (XI_ANY(m.coat > 0.0f)) coat_mu = fmax(xi_dot3(wo, m.coat_normal), (xfloat)XI_MIN_COS);
+  at.coat_share = xi_coat_share(m, coat_mu);
 
   xfloat fo = xi_max3(xi_dielectric_fresnel(m, wo.z));
   xfloat lum = fmax(xi_luminance(m.base_color), (xfloat)0.0f);
@@ -354,7 +377,7 @@ static inline PbrAtWo xi_pbr_at(PbrLobes m, xfloat3 wo) {
   xfloat wc = 0.0f;
   if (XI_ANY(m.coat > 0.0f)) {
     wr *= at.coat_share, wd *= at.coat_share, wt *= at.coat_share;
-    wc = m.coat > 0.0f ? fmax(m.coat * xi_fresnel_dielectric(wo.z, (xfloat)XI_COAT_ETA), (xfloat)0.02f) : (xfloat)0.0f;
+    wc = m.coat > 0.0f ? fmax(m.coat * xi_fresnel_dielectric(coat_mu, (xfloat)XI_COAT_ETA), (xfloat)0.02f) : (xfloat)0.0f;
   }
   xfloat inv = 1.0f / (wc + wr + wd + wt);
   at.coat = wc * inv;
@@ -424,14 +447,21 @@ static inline xfloat3 xi_pbr_eval_pdf_at(PbrLobes m, PbrAtWo p, xfloat3 wo, xflo
     f = xi_add3(xi_scale3(f, p.sheen_share), xi_scale3(m.sheen_color, fs));
   }
   if (XI_ANY(m.coat > 0.0f)) {
+    CoatFrame coat_frame = xi_coat_frame(m);
+    xfloat3 woc = xi_to_coat(coat_frame, wo), wic = xi_to_coat(coat_frame, wi);
+    xfloat3 hc = xi_to_coat(coat_frame, hr);
     xfloat ac = fmax(m.coat_alpha, (xfloat)XI_DELTA_ALPHA);
-    xmask coat_rough = above && m.coat > 0.0f && m.coat_alpha >= XI_DELTA_ALPHA;
-    xfloat f_coat = m.coat * xi_ggx_d(hr, ac) * xi_ggx_g2(wo, wi, ac) * xi_fresnel_dielectric(cf, (xfloat)XI_COAT_ETA) /
-                    (4.0f * zo * zi);
+    xfloat zoc = fmax(woc.z, (xfloat)XI_MIN_COS);
+    xfloat coc = fmax(xi_dot3(woc, hc), (xfloat)XI_MIN_COS);
+    xmask coat_rough = above && wic.z > 0.0f && m.coat > 0.0f && m.coat_alpha >= XI_DELTA_ALPHA;
+    // Its cosine is wi's with its own normal: f · |wi.z| must be the coat's f · wi_c.z.
+    xfloat f_coat = m.coat * xi_ggx_d(hc, ac) * xi_ggx_g2(woc, wic, ac) *
+                    xi_fresnel_dielectric(0.5f * (xi_dot3(woc, hc) + xi_dot3(wic, hc)), (xfloat)XI_COAT_ETA) /
+                    (4.0f * zoc * zi);
     f = xi_add3(xi_scale3(f, p.coat_share), make_xfloat3(coat_rough ? f_coat : (xfloat)0.0f,
                                                                    coat_rough ? f_coat : (xfloat)0.0f,
                                                                    coat_rough ? f_coat : (xfloat)0.0f));
-    *pdf += coat_rough ? p.coat * xi_ggx_visible_pdf(wo, hr, ac) / (4.0f * cr) : (xfloat)0.0f;
+    *pdf += coat_rough ? p.coat * xi_ggx_visible_pdf(woc, hc, ac) / (4.0f * coc) : (xfloat)0.0f;
   }
   return f;
 }
@@ -466,11 +496,20 @@ static inline xfloat3 xi_pbr_sample_lobe_at(PbrLobes m, PbrAtWo p, xfloat3 wo, x
   xmask smooth = m.alpha < XI_DELTA_ALPHA;
   xfloat3 n = make_xfloat3((xfloat)0.0f, (xfloat)0.0f, (xfloat)1.0f);
 
-  // Rough lobes (the coat's normal only where some path has a coat).
+  // Rough lobes (the coat's microfacet normal, in its own frame, only where some path has a coat).
   xfloat3 h = xi_ggx_sample_visible(wo, m.alpha, u);
   xmask coat_smooth = m.coat_alpha < XI_DELTA_ALPHA;
-  if (XI_ANY(pick_c)) h = xi_select3(pick_c, xi_ggx_sample_visible(wo, m.coat_alpha, u), h);
-  xfloat3 hs = xi_select3(pick_c ? coat_smooth : smooth, n, h);  // the smooth lobes reflect and refract about n
+  xfloat coat_mu = 1.0f;
+  xfloat3 nc = n;
+  if (XI_ANY(pick_c)) {
+    CoatFrame coat_frame = xi_coat_frame(m);
+    xfloat3 woc = xi_to_coat(coat_frame, wo);
+    coat_mu = fmax(woc.z, (xfloat)XI_MIN_COS);
+    nc = m.coat_normal;
+    h = xi_select3(pick_c, xi_from_coat(coat_frame, xi_ggx_sample_visible(woc, m.coat_alpha, u)), h);
+  }
+  // The smooth lobes reflect and refract about n, the smooth coat about its own normal.
+  xfloat3 hs = xi_select3(pick_c ? coat_smooth : smooth, xi_select3(pick_c, nc, n), h);
   xfloat3 wr = xi_reflect(wo, hs);
   // Refraction only where some path has transmission (pt, and with it pick_t and weight_t, are 0
   // elsewhere).
@@ -502,7 +541,7 @@ static inline xfloat3 xi_pbr_sample_lobe_at(PbrLobes m, PbrAtWo p, xfloat3 wo, x
                                (refracts ? share * dielectric * m.transmission : (xfloat)0.0f) / fmax(pt, (xfloat)1e-30f));
   xfloat3 weight_delta = xi_select3(pick_r, weight_r, weight_t);
   if (XI_ANY(m.coat > 0.0f)) {
-    xfloat c = m.coat * xi_fresnel_dielectric(wo.z, (xfloat)XI_COAT_ETA) / fmax(pc, (xfloat)1e-30f);
+    xfloat c = m.coat * xi_fresnel_dielectric(coat_mu, (xfloat)XI_COAT_ETA) / fmax(pc, (xfloat)1e-30f);
     weight_delta = xi_select3(pick_c, make_xfloat3(c, c, c), weight_delta);
   }
 

@@ -63,6 +63,7 @@ inline constexpr TextureSlotInfo kTextureSlots[XI_TEXTURE_SLOTS] = {
     {"sheen_roughness_texture", false},      // A
     {"specular_texture", false},             // A: the specular layer's strength
     {"specular_color_texture", true},
+    {"clearcoat_normal_texture", false},     // tangent space: the coat's own normal
 };
 
 struct Material {
@@ -80,9 +81,11 @@ struct Material {
   // KHR_materials_specular: the dielectric layer's f0 tint and strength (its F0 and F90).
   glm::vec3 specular_color{1.0f};
   float specular = 1.0f;
-  // KHR_materials_clearcoat: a dielectric coat (ior 1.5) over the material, its weight and roughness.
+  // KHR_materials_clearcoat: a dielectric coat (ior 1.5) over the material, its weight and roughness;
+  // its normal is the interpolated one, normal-mapped by its own texture only.
   float clearcoat = 0.0f;
   float clearcoat_roughness = 0.0f;
+  float clearcoat_normal_scale = 1.0f;
   // KHR_materials_sheen: fibres over the material, their colour (0: none) and roughness.
   glm::vec3 sheen_color{0.0f};
   float sheen_roughness = 0.0f;

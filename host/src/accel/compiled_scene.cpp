@@ -146,7 +146,7 @@ CompiledScene compile_scene(const Scene& scene, int bvh_width, bool spatial_spli
     md.alpha = m.alpha;
     md.pbr = glm::vec4(m.metallic, m.roughness, m.transmission, m.normal_scale);
     md.specular = glm::vec4(m.specular_color, m.specular);
-    md.coat = glm::vec4(m.clearcoat, m.clearcoat_roughness, 0.0f, 0.0f);
+    md.coat = glm::vec4(m.clearcoat, m.clearcoat_roughness, m.clearcoat_normal_scale, 0.0f);
     md.absorption = glm::vec4(m.volume_absorption(), 0.0f);
     md.sheen = glm::vec4(m.sheen_color, m.sheen_roughness);
     for (int k = 0; k < XI_TEXTURE_SLOTS; ++k) {

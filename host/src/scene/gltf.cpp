@@ -166,8 +166,9 @@ class Reader {
       out.clearcoat_roughness = std::clamp(float(number(*e, "clearcoatRoughnessFactor", 0.0)), 0.0f, 1.0f);
       read_slot(XI_TEXTURE_CLEARCOAT, *e, "clearcoatTexture");
       read_slot(XI_TEXTURE_CLEARCOAT_ROUGHNESS, *e, "clearcoatRoughnessTexture");
-      if (member(*e, "clearcoatNormalTexture"))
-        warn_.add("clearcoatNormalTexture is not modelled: the coat shares the base's shading normal");
+      read_slot(XI_TEXTURE_CLEARCOAT_NORMAL, *e, "clearcoatNormalTexture");
+      if (out.textures[XI_TEXTURE_CLEARCOAT_NORMAL].used())
+        out.clearcoat_normal_scale = float(number(*member(*e, "clearcoatNormalTexture"), "scale", 1.0));
     }
 
     const std::string mode = member(m, "alphaMode") && m["alphaMode"].is_string() ? m["alphaMode"].get<std::string>() : "OPAQUE";

@@ -277,7 +277,8 @@ void read_pbr(const Node& n, Material& m, ImageFiles& images) {
   std::vector<std::string_view> keys = {"type", "base_color", "metallic", "roughness", "ior", "transmission",
                                         "normal_scale", "radiance", "two_sided", "alpha", "alpha_mode", "alpha_cutoff",
                                         "specular", "specular_color", "clearcoat", "clearcoat_roughness",
-                                        "attenuation_color", "attenuation_distance", "sheen_color", "sheen_roughness"};
+                                        "attenuation_color", "attenuation_distance", "sheen_color", "sheen_roughness",
+                                        "clearcoat_normal_scale"};
   for (const TextureSlotInfo& slot : kTextureSlots) keys.push_back(slot.key);
   n.expect_object(keys);
   m.type = MaterialType::Pbr;
@@ -311,6 +312,11 @@ void read_pbr(const Node& n, Material& m, ImageFiles& images) {
       if (n.has("normal_scale") && !m.textures[k].used())
         n.at("normal_scale").fail("normal_scale needs a normal_texture");
       m.normal_scale = n.number_in("normal_scale", 1.0f, -1e3f, 1e3f);
+    }
+    if (k == XI_TEXTURE_CLEARCOAT_NORMAL) {
+      if (n.has("clearcoat_normal_scale") && !m.textures[k].used())
+        n.at("clearcoat_normal_scale").fail("clearcoat_normal_scale needs a clearcoat_normal_texture");
+      m.clearcoat_normal_scale = n.number_in("clearcoat_normal_scale", 1.0f, -1e3f, 1e3f);
     }
   }
   // The emissive texture is multiplied by the radiance: white unless given.
