@@ -36,7 +36,13 @@ pixel footprints differ most. The background (the map seen directly) is a region
 camera and the map's orientation agree. Per region and channel: the ratio of the means, xi / Cycles, its
 standard error (from both variances, pixels independent) and z = (mean xi - mean Cycles) / sqrt(var xi + var
 Cycles) of the region means. A region passes if every channel's ratio is within --tolerance (2%) of 1.
-Regions with fewer than --min-pixels pixels are listed without figures.
+Regions with fewer than --min-pixels pixels are listed without figures. Block z-tests: the image is cut into
+--block x --block tiles; each tile at least half inside a region is a block of it, and each block and
+channel gets the same z of its own means. Where the models coincide and both renderers are unbiased, each z
+is close to a standard normal: a block fails at |z| > 3.29 (two-sided significance 0.001), so about one
+test in a thousand fails by chance; the table gives the failed tests against all of the region's (blocks x
+3 channels) and the mean z^2 (about 1 where the images differ only by noise). A region whose ratios pass
+but whose blocks fail differs in where it is bright, not in how bright it is on the whole.
 
 Output: the table on stdout, and bench/out/validate_cycles/ (--out): validate_cycles.json (every figure, the
 extensions, the cameras and xi's warnings per file), the .glb files, both renderers' EXRs and PNGs. The exit
@@ -388,8 +394,32 @@ def erode(mask, r):
     return out
 
 
+BLOCK_Z = 3.29  # two-sided significance 0.001
+
+
+def block_tests(a, mask, xi_mean, xi_var, cy_mean, cy_var):
+    """The region MASK's block z-tests: (blocks, failed tests, mean z^2) over its blocks and channels."""
+    b, (h, w) = a.block, mask.shape
+    zs = []
+    for y in range(0, h - b + 1, b):
+        for x in range(0, w - b + 1, b):
+            m = mask[y:y + b, x:x + b]
+            n = int(m.sum())
+            if 2 * n < b * b:
+                continue
+            tile = (slice(y, y + b), slice(x, x + b))
+            mx, mc = xi_mean[tile][m].mean(axis=0), cy_mean[tile][m].mean(axis=0)
+            vx, vc = xi_var[tile][m].sum(axis=0) / n ** 2, cy_var[tile][m].sum(axis=0) / n ** 2
+            zs.append((mx - mc) / np.sqrt(np.maximum(vx + vc, 1e-300)))
+    if not zs:
+        return 0, 0, float("nan")
+    zs = np.array(zs)
+    return len(zs), int((np.abs(zs) > BLOCK_Z).sum()), float((zs ** 2).mean())
+
+
 def regions(a, index, materials, xi_mean, xi_var, cy_mean, cy_var):
-    """Per material (and the background) the region's figures: pixels, ratio, its standard error, z."""
+    """Per material (and the background) the region's figures: pixels, ratio, its standard error, z, and its
+    block z-tests."""
     out = []
     for name, k in [("(background)", 0)] + sorted(materials.items(), key=lambda kv: kv[1]):
         mask = erode(index == k, a.erode)
@@ -401,8 +431,10 @@ def regions(a, index, materials, xi_mean, xi_var, cy_mean, cy_var):
             ratio = np.where(mc > 0, mx / np.where(mc > 0, mc, 1), np.nan)
             rel_se = np.sqrt(vx / np.maximum(mx, 1e-30) ** 2 + vc / np.maximum(mc, 1e-30) ** 2)
             z = (mx - mc) / np.sqrt(np.maximum(vx + vc, 1e-300))
+            blocks, block_failed, block_z2 = block_tests(a, mask, xi_mean, xi_var, cy_mean, cy_var)
             row.update(xi=mx.tolist(), cycles=mc.tolist(), ratio=ratio.tolist(), ratio_se=(ratio * rel_se).tolist(),
-                       z=z.tolist(), passed=bool(np.all(np.abs(ratio - 1) <= a.tolerance)))
+                       z=z.tolist(), passed=bool(np.all(np.abs(ratio - 1) <= a.tolerance)), blocks=blocks,
+                       block_failed=block_failed, block_mean_z2=block_z2)
         out.append(row)
     return out
 
@@ -459,6 +491,7 @@ def main():
     p.add_argument("--erode", type=int, default=2, help="pixels left out at a region's edge")
     p.add_argument("--min-pixels", type=int, default=50, help="smaller regions are listed without figures")
     p.add_argument("--tolerance", type=float, default=0.02, help="a ratio passes within 1 +- this")
+    p.add_argument("--block", type=int, default=8, help="the block z-tests' tile size in pixels")
     p.add_argument("--worker-timeout", type=float, default=900, help="seconds a Cycles request may take")
     a = p.parse_args()
     unknown = [f for f in a.files if f not in GROUPS and f not in DEBIAN_FILES]
@@ -545,22 +578,25 @@ def main():
     table = []
     for r in results:
         if "failure" in r:
-            table.append([r["file"], "(all)", "-", "-", "-", "-", r["failure"]])
+            table.append([r["file"], "(all)", "-", "-", "-", "-", "-", "-", r["failure"]])
         for g in r["regions"]:
             if "ratio" not in g:
-                table.append([r["file"], g["material"], g["pixels"], "-", "-", "-", "n/a"])
+                table.append([r["file"], g["material"], g["pixels"], "-", "-", "-", "-", "-", "n/a"])
                 continue
             table.append([r["file"], g["material"], g["pixels"], fmt_ratio(g["ratio"]),
                           f"{max(g['ratio_se']):.3f}", f"{max(abs(z) for z in g['z']):.1f}",
+                          f"{g['block_failed']}/{3 * g['blocks']}", f"{g['block_mean_z2']:.1f}",
                           "PASS" if g["passed"] else "FAIL"])
-    c.print_table(["file", "material", "pixels", "xi/Cycles R G B", "± (1 se)", "max |z|", "result"], table)
+    c.print_table(["file", "material", "pixels", "xi/Cycles R G B", "± (1 se)", "max |z|", "blocks |z|>3.29",
+                   "mean z^2", "result"], table)
     judged = [g for r in results for g in r["regions"] if "passed" in g]
     print(f"{sum(g['passed'] for g in judged)} of {len(judged)} regions within {a.tolerance:.0%}; "
           f"n/a: fewer than {a.min_pixels} pixels after erosion. ± is the ratio's standard error from both "
-          f"renderers' noise; z compares the region means. {runtime:.0f} s in all.")
+          f"renderers' noise; z compares the region means; blocks: {a.block}x{a.block} px tiles, failed z-tests at "
+          f"significance 0.001 of all (blocks x 3), and their mean z^2 (1: noise alone). {runtime:.0f} s in all.")
     summary = dict(xi=xi_version, xi_program=str(xi), xi_kernel_dir=os.environ.get("XI_KERNEL_DIR"), blender=blender,
                    resolution=a.resolution, spp=a.spp, cycles_runs=a.cycles_runs, max_depth=a.max_depth,
-                   env=str(a.env), env_rotate=a.env_rotate, erode=a.erode, tolerance=a.tolerance,
+                   env=str(a.env), env_rotate=a.env_rotate, erode=a.erode, tolerance=a.tolerance, block=a.block,
                    runtime_seconds=runtime, files=results)
     (d / "validate_cycles.json").write_text(json.dumps(summary, indent=1) + "\n")
     print(f"wrote {d / 'validate_cycles.json'}")
