@@ -216,12 +216,10 @@ static inline XI_INLINE Bsdf xi_surface_bsdf(XI_SCENE_PARAMS, uint shading, Shad
   return b;
 }
 
-// Beer–Lambert over the segment a ray travelled inside the volume of material medium − 1: beta
-// times exp(−σa t); a ray that escaped from inside (a mesh that is not closed) is absorbed wherever
-// σa > 0.
-static inline xfloat3 xi_volume_transmittance(__global const MaterialData* materials, xuint medium, xfloat t,
-                                              xfloat3 beta) {
-  xfloat3 sigma = XI_GATHER_XYZ_FIELD(materials, medium != 0u ? medium - 1u : (xuint)0u, absorption, 0);
+// Beer–Lambert over the segment a ray travelled inside volume medium − 1: beta times exp(−σa t); a
+// ray that escaped from inside (a mesh that is not closed) is absorbed wherever σa > 0.
+static inline xfloat3 xi_volume_transmittance(__global const float4* volumes, xuint medium, xfloat t, xfloat3 beta) {
+  xfloat3 sigma = xi_gather_xyz(volumes, medium != 0u ? medium - 1u : (xuint)0u, 0);
   xfloat d = t < 0.0f ? (xfloat)1e30f : t;
   return make_xfloat3(beta.x * exp(-sigma.x * d), beta.y * exp(-sigma.y * d), beta.z * exp(-sigma.z * d));
 }
@@ -263,15 +261,15 @@ static inline XI_INLINE ShadeResult xi_shade_paths(XI_PATH_PARAMS xuint slot, xm
   xfloat prev_pdf;  // 0 after a camera ray or a specular bounce
   xfloat3 beta = xi_gather_xyz(throughput, slot, &prev_pdf);
   xfloat3 L = xi_gather_xyz(radiance, slot, 0);
-  // The volumes the ray is in (layout.h's ray_dir.w): the innermost in the low 16 bits, the one
-  // around it in the high 16, each its material + 1 (0: none).
+  // The volumes the ray is in (layout.h's ray_dir.w, XI_VOLUME_BITS each): the innermost, medium,
+  // in the lowest bits (0: none).
   xuint media = 0u, medium = 0u;
   if (xi_uses(shading, XI_USE_VOLUME)) {
     xfloat media_bits;
     xi_gather_xyz(ray_dir, slot, &media_bits);
     media = active ? xi_as_uint(media_bits) : (xuint)0u;
-    medium = media & 0xffffu;
-    if (XI_ANY(medium != 0u)) beta = xi_select3(medium != 0u, xi_volume_transmittance(materials, medium, h.x, beta), beta);
+    medium = media & (xuint)((1u << XI_VOLUME_BITS) - 1u);
+    if (XI_ANY(medium != 0u)) beta = xi_select3(medium != 0u, xi_volume_transmittance(volumes, medium, h.x, beta), beta);
   }
 
   if (xi_uses(shading, XI_USE_ENVIRONMENT) && env.width > 0u) {
@@ -410,12 +408,15 @@ static inline XI_INLINE ShadeResult xi_shade_paths(XI_PATH_PARAMS xuint slot, xm
 
   xfloat media_out = 0.0f;
   if (xi_uses(shading, XI_USE_VOLUME)) {
-    // A refraction into a volume's mesh enters its medium, the one it was in becoming the outer;
-    // one out of it returns to the outer (a liquid in a glass: two levels, no deeper);
-    // reflections, thin surfaces and cut-outs keep the media the ray is in.
+    // A refraction into a volume's mesh pushes its medium onto the ones the ray is in (XI_VOLUME_LEVELS
+    // deep: a deeper one forgets the outermost); one out of it pops back to the one around it.
+    // Reflections, thin surfaces and cut-outs keep the media the ray is in.
     xmask transmitted = at_surface && (bs.lobe & (xuint)XI_LOBE_TRANSMISSION) != 0u;
-    xmask bounds = transmitted && xi_max3(XI_GATHER_XYZ_FIELD(materials, mi, absorption, 0)) > 0.0f;
-    media_out = xi_as_float(bounds ? (front ? (medium << 16) | (mi + 1u) : media >> 16) : media);
+    xfloat volume;
+    XI_GATHER_XYZ_FIELD(materials, mi, absorption, &volume);
+    xmask bounds = transmitted && volume > 0.0f;
+    xuint pushed = (media << XI_VOLUME_BITS) | convert_xuint(volume);
+    media_out = xi_as_float(bounds ? (front ? pushed : media >> XI_VOLUME_BITS) : media);
   }
   xi_scatter4(ray_org, slot, xi_offset_ray_origin(p, p_error, bsdf.n_geo, wi), (xfloat)0.0f, goes_on);
   xi_scatter4(ray_dir, slot, wi, media_out, goes_on);

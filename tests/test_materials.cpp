@@ -1418,41 +1418,74 @@ TEST(MaterialLayers, CoatKeepsItsOwnNormal) {
   EXPECT_GT(moved, 0) << "the coat's own normal map changes nothing";
 }
 
-// A volume inside another (a liquid in a glass): a slab of σ_in, 0.4 thick, inside one of σ_out, 1
-// thick (ior 1, smooth, transmission 1). Through both, exp(−σ_out · 0.6 − σ_in · 0.4) within the
-// Šidák z standard errors plus 1e-4; must-fail: a path that left the inner slab for the outside
-// (σ_out over 0.3 only) is rejected.
-TEST(MaterialVolume, OneVolumeInsideAnother) {
+// Volumes inside one another (ice in a drink in a glass in a tank), as deep as a path follows them
+// (XI_VOLUME_LEVELS, 4): slabs of σ_k, k = 1..4, each inside the one before ([0, −1], [−0.2, −0.8],
+// [−0.3, −0.7], [−0.4, −0.6]; ior 1, smooth, transmission 1). Through them all,
+// exp(−0.4 σ_1 − 0.2 σ_2 − 0.2 σ_3 − 0.2 σ_4) within the Šidák z standard errors plus 1e-4; must-fail:
+// a path that forgot the outermost (three levels) absorbs nothing on its way out of the first
+// slab's last 0.2, and is rejected.
+TEST(MaterialVolume, VolumesNestFourDeep) {
   const fs::path dir = temp_dir();
-  const dvec3 c_out(0.5, 0.7, 0.9), c_in(0.9, 0.4, 0.2);  // attenuation colours, distance 1
+  const dvec3 colours[4] = {{0.2, 0.3, 0.4}, {0.9, 0.4, 0.2}, {0.6, 0.8, 0.3}, {0.3, 0.5, 0.7}};  // distance 1
+  const double fronts[4] = {0.0, -0.2, -0.3, -0.4}, backs[4] = {-1.0, -0.8, -0.7, -0.6};
+  const double inside[4] = {0.4, 0.2, 0.2, 0.2};  // how far the ray travels with slab k innermost
   const int W = 16, H = 16;
   auto pbr = [](dvec3 c) {
     return json{{"type", "pbr"}, {"base_color", {1, 1, 1}}, {"metallic", 0}, {"roughness", 0}, {"ior", 1.0},
                 {"transmission", 1}, {"attenuation_color", {c.x, c.y, c.z}}, {"attenuation_distance", 1}};
   };
-  // A pair of faces bounding z in [z1, z0]: the front one faces +z, the back one −z.
-  auto slab = [](const char* material, double z0, double z1) {
-    return std::vector<json>{
-        {{"type", "quad"}, {"material", material}, {"vertices", {{-2, -2, z0}, {2, -2, z0}, {2, 2, z0}, {-2, 2, z0}}}},
-        {{"type", "quad"}, {"material", material}, {"vertices", {{-2, -2, z1}, {-2, 2, z1}, {2, 2, z1}, {2, -2, z1}}}}};
-  };
-  json shapes = json::array();
-  for (const json& q : slab("glass", 0.0, -1.0)) shapes.push_back(q);
-  for (const json& q : slab("liquid", -0.3, -0.7)) shapes.push_back(q);
+  json shapes = json::array(), materials = json::object();
+  for (int k = 0; k < 4; ++k) {
+    const std::string name = "slab" + std::to_string(k);
+    materials[name] = pbr(colours[k]);
+    const double z0 = fronts[k], z1 = backs[k];  // the front face faces +z, the back one −z
+    shapes.push_back({{"type", "quad"}, {"material", name}, {"vertices", {{-2, -2, z0}, {2, -2, z0}, {2, 2, z0}, {-2, 2, z0}}}});
+    shapes.push_back({{"type", "quad"}, {"material", name}, {"vertices", {{-2, -2, z1}, {-2, 2, z1}, {2, 2, z1}, {2, -2, z1}}}});
+  }
   const json scene = {{"camera", camera_json({0, 0, 3}, {0, 0, 0}, {0, 1, 0}, 10)},
                       {"film", {{"width", W}, {"height", H}}},
                       {"background", {1, 1, 1}},
-                      {"materials", {{"glass", pbr(c_out)}, {"liquid", pbr(c_in)}}},
+                      {"materials", materials},
                       {"shapes", shapes}};
-  const xi::test::Shot shot = xi::test::render_shot(load_json(dir, scene), options(256, 9, XI_SAMPLER_RANDOM, 6));
+  const xi::test::Shot shot = xi::test::render_shot(load_json(dir, scene), options(1024, 9, XI_SAMPLER_RANDOM, 10));
   ASSERT_EQ(shot.nonfinite, 0u);
   const double z = xi::stats::sidak_critical_z(0.01, 3);
   for (int ch = 0; ch < 3; ++ch) {
     const xi::test::MeanSe got = xi::test::block_mean(shot, W / 2 - 2, H / 2 - 2, W / 2 + 2, H / 2 + 2, ch);
-    const double s_out = -std::log(c_out[ch]), s_in = -std::log(c_in[ch]), tol = z * got.se + 1e-4;
-    const double want = std::exp(-s_out * 0.6 - s_in * 0.4), left_outside = std::exp(-s_out * 0.3 - s_in * 0.4);
-    std::printf("[ volume   ] nested, channel %d: %.5f ± %.1e, Beer–Lambert %.5f\n", ch, got.mean, got.se, want);
+    double optical = 0.0;
+    for (int k = 0; k < 4; ++k) optical += inside[k] * -std::log(colours[k][ch]);
+    const double want = std::exp(-optical), forgot = std::exp(-optical - 0.2 * std::log(colours[0][ch]));
+    const double tol = z * got.se + 1e-4;
+    std::printf("[ volume   ] four deep, channel %d: %.5f ± %.1e, Beer–Lambert %.5f\n", ch, got.mean, got.se, want);
     EXPECT_NEAR(got.mean, want, tol) << "channel " << ch;
-    EXPECT_GT(std::abs(got.mean - left_outside), tol) << "channel " << ch;
+    EXPECT_GT(std::abs(got.mean - forgot), tol) << "channel " << ch;
   }
+}
+
+// A scene may hold XI_MAX_VOLUMES materials with a volume (a path names each in 8 bits): one more is
+// one error naming the limit, before anything renders.
+TEST(MaterialVolume, TooManyVolumesIsOneError) {
+  const fs::path dir = temp_dir();
+  json shapes = json::array(), materials = json::object();
+  for (int k = 0; k <= XI_MAX_VOLUMES; ++k) {
+    const std::string name = "v" + std::to_string(k);
+    materials[name] = {{"type", "pbr"}, {"transmission", 1}, {"attenuation_color", {0.5, 0.5, 0.5}},
+                       {"attenuation_distance", 1}};
+    const double x = k;
+    shapes.push_back({{"type", "triangle"}, {"material", name}, {"vertices", {{x, 0, 0}, {x + 1, 0, 0}, {x, 1, 0}}}});
+  }
+  json scene = {{"camera", camera_json({0, 0, 3}, {0, 0, 0}, {0, 1, 0}, 40)},
+                {"film", {{"width", 8}, {"height", 8}}},
+                {"materials", materials},
+                {"shapes", shapes}};
+  try {
+    xi::compile_scene(load_json(dir, scene));
+    FAIL() << "no error";
+  } catch (const xi::Error& e) {
+    EXPECT_NE(std::string(e.what()).find("at most 255 materials with a volume, not 256"), std::string::npos) << e.what();
+  }
+  // One fewer compiles.
+  scene["shapes"].erase(scene["shapes"].size() - 1);
+  scene["materials"].erase("v" + std::to_string(XI_MAX_VOLUMES));
+  EXPECT_NO_THROW(xi::compile_scene(load_json(dir, scene)));
 }

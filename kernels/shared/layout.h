@@ -30,6 +30,12 @@
 #define XI_TEXTURE_SLOTS 11
 #define XI_TEXTURE_SLOTS_PADDED 12  // the array's length: the struct's float4s stay 16-byte aligned
 
+// A path carries the volumes it is in (KHR_materials_volume), nested: each its index in the scene's
+// volumes + 1 in XI_VOLUME_BITS bits of a 32-bit word, the innermost lowest, XI_VOLUME_LEVELS deep.
+#define XI_VOLUME_BITS 8
+#define XI_VOLUME_LEVELS 4
+#define XI_MAX_VOLUMES 255  // volume materials a scene may hold: 2^XI_VOLUME_BITS − 1
+
 typedef struct {
   float4 albedo;     // rgb: diffuse albedo, mirror or glass tint, base colour (pbr); w: index of refraction
   float4 emission;   // rgb radiance; w: 1 when both faces emit
@@ -41,7 +47,7 @@ typedef struct {
   uint textures[XI_TEXTURE_SLOTS_PADDED];  // TextureRef index or XI_NO_TEXTURE, by XI_TEXTURE_*
   float4 specular;   // KHR_materials_specular (pbr): rgb the f0 tint, w the layer's strength (1, 1: none)
   float4 coat;       // KHR_materials_clearcoat (pbr): x weight (0: none), y roughness (perceptual), z the coat's normal map scale; w unused
-  float4 absorption; // KHR_materials_volume (pbr): rgb σa per unit length of the volume inside (0: none)
+  float4 absorption; // KHR_materials_volume (pbr): rgb σa per unit length of the volume inside (0: none); w its index in volumes + 1
   float4 sheen;      // KHR_materials_sheen (pbr): rgb colour (0: none), w roughness (perceptual)
 } MaterialData;
 
@@ -185,7 +191,7 @@ typedef struct {
 // of them first (XI_PATH_PARAMS) in this order, and the host creates and binds them from this list.
 #define XI_PATH_STATE(F)                                                    \
   F(float4, ray_org)    /* xyz: ray origin */                               \
-  F(float4, ray_dir)    /* xyz: unit direction; w: as_float(the volumes it is in: inner | outer << 16) */ \
+  F(float4, ray_dir)    /* xyz: unit direction; w: as_float(the volumes it is in, XI_VOLUME_BITS each, the innermost low) */ \
   F(float4, hit)        /* t (< 0: miss), barycentric u, v, as_float(tri) */ \
   F(float4, throughput) /* rgb; w: solid-angle pdf of the last BSDF sample, 0 if specular */ \
   F(float4, radiance)   /* rgb gathered so far */                           \
@@ -210,7 +216,8 @@ typedef struct {
 #define XI_SCENE_BUFFERS(F)                                                                           \
   XI_SURFACE_BUFFERS(F)                                                                               \
   F(float4, tri_verts) F(float4, tri_normals) F(float4, tri_tangents) F(float, light_cdf) F(uint, light_tri) \
-  F(float, tri_light_pdf) F(PunctualLightData, punctual) F(float4, environment_texels) F(float, environment_cdf)
+  F(float, tri_light_pdf) F(PunctualLightData, punctual) F(float4, environment_texels) F(float, environment_cdf) \
+  F(float4, volumes)
 
 // The film: one float4 per pixel in each of these buffers, which accumulate adds the finished
 // paths to (its parameters film_sum, ...) and the host reads back into RenderState's fields of the

@@ -147,7 +147,9 @@ CompiledScene compile_scene(const Scene& scene, int bvh_width, bool spatial_spli
     md.pbr = glm::vec4(m.metallic, m.roughness, m.transmission, m.normal_scale);
     md.specular = glm::vec4(m.specular_color, m.specular);
     md.coat = glm::vec4(m.clearcoat, m.clearcoat_roughness, m.clearcoat_normal_scale, 0.0f);
-    md.absorption = glm::vec4(m.volume_absorption(), 0.0f);
+    const bool has_volume = m.type == MaterialType::Pbr && m.volume_absorption() != glm::vec3(0.0f);
+    md.absorption = glm::vec4(m.volume_absorption(), has_volume ? float(cs.volumes.size() + 1) : 0.0f);
+    if (has_volume) cs.volumes.push_back(glm::vec4(m.volume_absorption(), 0.0f));
     md.sheen = glm::vec4(m.sheen_color, m.sheen_roughness);
     for (int k = 0; k < XI_TEXTURE_SLOTS; ++k) {
       const TextureSlot& slot = m.textures[k];
@@ -165,13 +167,14 @@ CompiledScene compile_scene(const Scene& scene, int bvh_width, bool spatial_spli
     cs.features.pbr |= m.type == MaterialType::Pbr;
     cs.features.specular |= m.type == MaterialType::Pbr && (m.specular != 1.0f || m.specular_color != glm::vec3(1.0f));
     cs.features.clearcoat |= m.type == MaterialType::Pbr && m.clearcoat > 0.0f;
-    cs.features.volume |= m.type == MaterialType::Pbr && m.volume_absorption() != glm::vec3(0.0f);
+    cs.features.volume |= has_volume;
     cs.features.sheen |= m.type == MaterialType::Pbr && m.sheen_color != glm::vec3(0.0f);
     cs.features.alpha |= m.cuts_out();
   }
-  // A path's volumes are material indices + 1 in 16 bits each (shade.cl).
-  if (cs.features.volume && scene.materials.size() >= 0xffff)
-    throw Error("a scene with volumes holds at most 65534 materials, not " + std::to_string(scene.materials.size()),
+  // A path's volumes are volume indices + 1 in 8 bits each (shade.cl).
+  if (cs.volumes.size() > XI_MAX_VOLUMES)
+    throw Error("a scene holds at most " + std::to_string(XI_MAX_VOLUMES) + " materials with a volume, not " +
+                    std::to_string(cs.volumes.size()),
                 scene.source);
   cs.features.textures = !cs.texture_refs.empty();
   cs.features.multiple_scattering = cs.features.pbr && scene.render.multiple_scattering;
@@ -269,6 +272,7 @@ CompiledScene compile_scene(const Scene& scene, int bvh_width, bool spatial_spli
     cs.light_tri.push_back(0);
   }
   if (cs.punctual.empty()) cs.punctual.push_back(PunctualLightData{});
+  if (cs.volumes.empty()) cs.volumes.push_back(glm::vec4(0.0f));
   if (cs.tri_uv.empty()) cs.tri_uv.push_back(glm::vec4(0.0f));
   if (cs.tri_tangents.empty()) cs.tri_tangents.push_back(glm::vec4(0.0f));
   if (cs.texture_refs.empty()) cs.texture_refs.push_back(TextureRef{});
