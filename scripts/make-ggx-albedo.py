@@ -57,12 +57,9 @@ def lam(x, y, z, a):
     return t / (2.0 * (1.0 + math.sqrt(1.0 + t)))
 
 
-def albedo(mu, r, etas):
-    """E(mu) and, for each ior of ETAS, E_F(mu)."""
-    a = max(r * r, DELTA_ALPHA)
-    wo = (math.sqrt(max(0.0, 1.0 - mu * mu)), 0.0, mu)
-    lo = lam(*wo, a)
-    # Visible normals (microfacet.h's xi_ggx_sample_visible): stretch, sample the half disc, unstretch.
+def visible_normals(wo, a):
+    """The STRATA^2 stratified visible normals of GGX alpha A seen from WO (microfacet.h's
+    xi_ggx_sample_visible: stretch, sample the half disc, unstretch)."""
     vx, vy, vz = a * wo[0], a * wo[1], wo[2]
     vl = math.sqrt(vx * vx + vy * vy + vz * vz)
     vx, vy, vz = vx / vl, vy / vl, vz / vl
@@ -74,8 +71,6 @@ def albedo(mu, r, etas):
         t1 = (1.0, 0.0, 0.0)
     t2 = (vy * t1[2] - vz * t1[1], vz * t1[0] - vx * t1[2], vx * t1[1] - vy * t1[0])
     s = 0.5 * (1.0 + vz)
-    total = 0.0
-    fresnel = [0.0] * len(etas)
     for i in range(STRATA):
         for j in range(STRATA):
             u1, u2 = (i + 0.5) / STRATA, (j + 0.5) / STRATA
@@ -88,16 +83,68 @@ def albedo(mu, r, etas):
             nz = t1[2] * p1 + t2[2] * p2 + vz * p3
             hx, hy, hz = a * nx, a * ny, max(nz, 0.0)
             hl = math.sqrt(hx * hx + hy * hy + hz * hz)
-            hx, hy, hz = hx / hl, hy / hl, hz / hl
-            d = wo[0] * hx + wo[1] * hy + wo[2] * hz
-            wix, wiy, wiz = 2.0 * d * hx - wo[0], 2.0 * d * hy - wo[1], 2.0 * d * hz - wo[2]
-            if wiz <= 0.0:
-                continue
-            weight = (1.0 + lo) / (1.0 + lo + lam(wix, wiy, wiz, a))  # G2 / G1(wo)
-            total += weight
-            for k, eta in enumerate(etas):
-                fresnel[k] += weight * remapped_fresnel(d, eta)
+            yield hx / hl, hy / hl, hz / hl
+
+
+def albedo(mu, r, etas):
+    """E(mu) and, for each ior of ETAS, E_F(mu)."""
+    a = max(r * r, DELTA_ALPHA)
+    wo = (math.sqrt(max(0.0, 1.0 - mu * mu)), 0.0, mu)
+    lo = lam(*wo, a)
+    total = 0.0
+    fresnel = [0.0] * len(etas)
+    for hx, hy, hz in visible_normals(wo, a):
+        d = wo[0] * hx + wo[1] * hy + wo[2] * hz
+        wix, wiy, wiz = 2.0 * d * hx - wo[0], 2.0 * d * hy - wo[1], 2.0 * d * hz - wo[2]
+        if wiz <= 0.0:
+            continue
+        weight = (1.0 + lo) / (1.0 + lo + lam(wix, wiy, wiz, a))  # G2 / G1(wo)
+        total += weight
+        for k, eta in enumerate(etas):
+            fresnel[k] += weight * remapped_fresnel(d, eta)
     return total / (STRATA * STRATA), [f / (STRATA * STRATA) for f in fresnel]
+
+
+def glass_albedo(mu, r, eta):
+    """E_glass(mu): the directional albedo of microfacet.h's rough dielectric boundary of relative ior ETA (either
+    side: below 1 from inside), reflection and transmission with the exact Fresnel (1 under total internal
+    reflection) and no tint. A refracted sample weighs (1 - F) G2 / G1 (no 1/eta^2: microfacet.h's convention)."""
+    a = max(r * r, DELTA_ALPHA)
+    wo = (math.sqrt(max(0.0, 1.0 - mu * mu)), 0.0, mu)
+    lo = lam(*wo, a)
+    total = 0.0
+    for hx, hy, hz in visible_normals(wo, a):
+        d = wo[0] * hx + wo[1] * hy + wo[2] * hz
+        if d <= 0.0:
+            continue
+        sin2_t = (1.0 - d * d) / (eta * eta)
+        if sin2_t >= 1.0:
+            f, ct = 1.0, 0.0
+        else:
+            ct = math.sqrt(1.0 - sin2_t)
+            rs = (d - eta * ct) / (d + eta * ct)
+            rp = (eta * d - ct) / (eta * d + ct)
+            f = 0.5 * (rs * rs + rp * rp)
+        wrz = 2.0 * d * hz - wo[2]
+        if wrz > 0.0:
+            total += f * (1.0 + lo) / (1.0 + lo + lam(2.0 * d * hx - wo[0], 2.0 * d * hy - wo[1], wrz, a))
+        if f < 1.0:
+            k = d / eta - ct  # the refracted direction -wo / eta + (d / eta - ct) h
+            wt = (-wo[0] / eta + k * hx, -wo[1] / eta + k * hy, -wo[2] / eta + k * hz)
+            if wt[2] < 0.0:
+                total += (1.0 - f) * (1.0 + lo) / (1.0 + lo + lam(*wt, a))
+    return total / (STRATA * STRATA)
+
+
+GLASS_N = 16  # E_glass's entries in mu and r
+
+
+def glass_row(job):
+    """Row r_j of E_glass's slice k for the side (0: from outside, eta = slice_eta(k); 1: from inside, its inverse)."""
+    side, k, j = job
+    eta = slice_eta(k) if side == 0 else 1.0 / slice_eta(k)
+    r = j / (GLASS_N - 1)
+    return [1.0 if j == 0 else min(glass_albedo((i + 0.5) / GLASS_N, r, eta), 1.0) for i in range(GLASS_N)]
 
 
 def row(j):
@@ -117,13 +164,13 @@ def interpolated(row, mu):
     return row[i] * (1.0 - f) + row[i + 1] * f
 
 
-def lookup(table, mu, r, z):
-    """microfacet.h's E_F lookup: linear in mu, r and z, clamped."""
+def lookup(table, mu, r, z, n=N):
+    """microfacet.h's lookup of E_F (or of one side of E_glass, N = GLASS_N): linear in mu, r and z, clamped."""
     def axis(x, n):
         i = min(max(int(math.floor(x)), 0), n - 2)
         return i, min(max(x - i, 0.0), 1.0)
-    i, fx = axis(mu * N - 0.5, N)
-    j, fy = axis(r * (N - 1), N)
+    i, fx = axis(mu * n - 0.5, n)
+    j, fy = axis(r * (n - 1), n)
     k, fz = axis(z / Z_MAX * (SLICES - 1), SLICES)
     def slice_value(kk):
         t = table[kk]
@@ -138,6 +185,10 @@ def main():
                                                              "ggx_albedo.h")
     with multiprocessing.Pool() as pool:
         rows = pool.map(row, range(N))
+        jobs = [(side, k, j) for side in (0, 1) for k in range(SLICES) for j in range(GLASS_N)]
+        glass_rows = pool.map(glass_row, jobs)
+    glass = [[[glass_rows[(side * SLICES + k) * GLASS_N + j] for j in range(GLASS_N)] for k in range(SLICES)]
+             for side in (0, 1)]
     table = [e for e, _ in rows]
     fresnel = [[rows[j][1][k] for j in range(N)] for k in range(SLICES)]
     steps = 4096
@@ -150,11 +201,15 @@ def main():
              "// dielectric of ior eta remapped to run from 0 to 1, (F - F0) / (1 - F0), z = sqrt((eta - 1) / (eta + 1)):",
              "// a lobe whose Fresnel runs from f0 to 1 that way reflects f0 E + (1 - f0) E_F, the dielectric layer's",
              "// albedo scaling. E and E_F at mu = (i + 0.5) / %d, r = j / %d (alpha = r^2), E_F's slices at" % (N, N - 1),
-             "// z = k z_max / %d, z_max = sqrt(0.6) (ior 4)." % (SLICES - 1),
+             "// z = k z_max / %d, z_max = sqrt(0.6) (ior 4). E_glass(mu, r, z): the directional albedo of the rough" % (SLICES - 1),
+             "// dielectric boundary, reflection and transmission (microfacet.h's glass energy compensation), from",
+             "// outside (eta = ior) and from inside (1 / ior), each in slices of z as E_F, at mu = (i + 0.5) / %d," % GLASS_N,
+             "// r = j / %d." % (GLASS_N - 1),
              "#ifndef XI_GGX_ALBEDO_H", "#define XI_GGX_ALBEDO_H", '#include "compat.h"', "",
              "#define XI_GGX_ALBEDO_SIZE %d" % N,
              "#define XI_GGX_FRESNEL_SLICES %d" % SLICES,
-             "#define XI_GGX_FRESNEL_Z_MAX %.9ff" % Z_MAX, "",
+             "#define XI_GGX_FRESNEL_Z_MAX %.9ff" % Z_MAX,
+             "#define XI_GGX_GLASS_SIZE %d" % GLASS_N, "",
              "XI_TABLE float xi_ggx_albedo_table[%d] = {" % (N * N)]
     for r in table:
         lines.append("    " + " ".join("%.6ff," % v for v in r))
@@ -165,6 +220,11 @@ def main():
     for k in range(SLICES):
         for r in fresnel[k]:
             lines.append("    " + " ".join("%.6ff," % v for v in r))
+    lines += ["};", "", "XI_TABLE float xi_ggx_glass_albedo_table[%d] = {" % (2 * SLICES * GLASS_N * GLASS_N)]
+    for side in (0, 1):
+        for k in range(SLICES):
+            for r in glass[side][k]:
+                lines.append("    " + " ".join("%.6ff," % v for v in r))
     lines += ["};", "", "#endif", ""]
     with open(out, "w") as f:
         f.write("\n".join(lines))
@@ -179,6 +239,15 @@ def main():
                 direct = albedo(mu, r, [eta])[1][0]
                 worst = max(worst, abs(lookup(fresnel, mu, r, z) - direct))
     print("E_F's lookup against direct estimates (ior 1.3, 1.5, 2.5): largest difference %.2e" % worst)
+    worst = 0.0
+    for eta in (1.3, 1.5, 2.5):
+        z = math.sqrt((eta - 1.0) / (eta + 1.0))
+        for side in (0, 1):
+            for mu in (0.05, 0.3, 0.7, 1.0):
+                for r in (0.05, 0.3, 0.6, 1.0):
+                    direct = glass_albedo(mu, r, eta if side == 0 else 1.0 / eta)
+                    worst = max(worst, abs(lookup(glass[side], mu, r, z, GLASS_N) - direct))
+    print("E_glass's lookup against direct estimates (ior 1.3, 1.5, 2.5, both sides): largest difference %.2e" % worst)
 
 
 if __name__ == "__main__":

@@ -449,12 +449,13 @@ TEST(BsdfConsistency, WeightIsEvalCosOverPdf) {
   }
 }
 
-// Whether f(wo, wi) = f(wi, wo): every case but a dielectric base under albedo scaling and a clear
-// coat, which weigh what lies below by wo alone (test_microfacet.cpp's MicrofacetLayering checks
-// that instead).
+// Whether f(wo, wi) = f(wi, wo): every case but a dielectric base under albedo scaling, rough glass
+// compensated with it and a clear coat, which weigh by wo alone (test_microfacet.cpp's
+// MicrofacetLayering and MicrofacetGlass check those instead).
 bool reciprocal(const Case& c) {
-  return !(c.kind == Kind::Pbr && ((c.albedo_scaling && c.metallic < 1.0f && c.transmission < 1.0f) || c.coat > 0.0f ||
-                                   c.sheen != glm::vec3(0.0f)));
+  return !(c.kind == Kind::Pbr &&
+           ((c.albedo_scaling && c.metallic < 1.0f && (c.transmission < 1.0f || c.roughness > 0.0f)) ||
+            c.coat > 0.0f || c.sheen != glm::vec3(0.0f)));
 }
 
 // f(wo, wi) = f(wi, wo) for both above the shading normal, for every reciprocal case (0 for the
@@ -484,7 +485,7 @@ TEST(BsdfReciprocity, ReflectionIsSymmetric) {
       }
     }
   }
-  EXPECT_GE(checked, 3 * 40);  // the Fresnel mix among them
+  EXPECT_GE(checked, 3 * 30);  // the Fresnel mix among them
 }
 
 // ---------------------------------------------------------------------------------------------

@@ -40,8 +40,14 @@
 //   f_ms = F_ms (1 − E(wo.z)) (1 − E(wi.z)) / (π (1 − E_avg)),   F_ms = F_avg² E_avg / (1 − F_avg (1 − E_avg)),
 // E the directional albedo of the single-scattering lobe with a Fresnel of 1 and E_avg its cosine-
 // weighted mean (tables in ggx_albedo.h), F_avg = f0 + (1 − f0) / 21 Schlick's mean: a white metal
-// then reflects all it receives. It is sampled with the diffuse lobe's cosine distribution. The
-// dielectric layer and transmission are left single-scattering.
+// then reflects all it receives. It is sampled with the diffuse lobe's cosine distribution.
+//
+// Rough glass loses the light that bounces between its microfacets too (6% at roughness 0.3 seen
+// from inside, more at grazing angles and high roughness). With albedo scaling, as Blender's
+// Principled BSDF, the glass lobes (the transmission and the transmissive share of the specular
+// reflection) are scaled by 1 / E_glass(wo.z), E_glass the single-scattering boundary's albedo
+// (ggx_albedo.h, from outside and from inside): white rough glass then keeps what arrives. The
+// scale weighs by wo alone, as the layering does.
 //
 // Transmission is tinted by √base_color at each crossing, so that light through a closed object
 // (in and out) is tinted by the base colour once, as through the spec's thin-walled surface and in
@@ -144,45 +150,55 @@ static inline xfloat xi_luminance(xfloat3 c) { return 0.2126f * c.x + 0.7152f * 
 
 // --- multiple scattering
 
-// The tables' roughness axis (ggx_albedo.h's layout): r = √α's row below it and the fraction
-// towards the next, clamped.
-static inline xuint xi_ggx_albedo_row(xfloat r, xfloat* fy) {
-  const float n = (float)XI_GGX_ALBEDO_SIZE;
-  xfloat y = clamp(r * (n - 1.0f), 0.0f, n - 1.0f), y0 = fmin(floor(y), (xfloat)(n - 2.0f));
+// The tables' roughness axis (ggx_albedo.h's layout, n entries): r = √α's row below it and the
+// fraction towards the next, clamped.
+static inline xuint xi_albedo_row(xfloat r, const uint n, xfloat* fy) {
+  xfloat y = clamp(r * (float)(n - 1u), 0.0f, (float)(n - 1u)), y0 = fmin(floor(y), (xfloat)(n - 2u));
   *fy = y - y0;
   return convert_xuint(y0);
 }
-// A (mu, r) table (ggx_albedo.h's E or a slice of E_F, sheen_albedo.h's) starting at entry `first`,
-// interpolated linearly in both, clamped.
-static inline xfloat xi_albedo_lookup_from(__constant const float* table, xuint first, xfloat mu, xfloat r) {
-  const float n = (float)XI_GGX_ALBEDO_SIZE;
-  xfloat x = clamp(mu * n - 0.5f, 0.0f, n - 1.0f), x0 = fmin(floor(x), (xfloat)(n - 2.0f)), fx = x - x0, fy;
-  xuint i = first + xi_ggx_albedo_row(r, &fy) * XI_GGX_ALBEDO_SIZE + convert_xuint(x0);
+// An n × n (mu, r) table (ggx_albedo.h's E, a slice of E_F or E_glass, sheen_albedo.h's) starting at
+// entry `first`, interpolated linearly in both, clamped.
+static inline xfloat xi_albedo_lookup_from(__constant const float* table, const uint n, xuint first, xfloat mu, xfloat r) {
+  xfloat x = clamp(mu * (float)n - 0.5f, 0.0f, (float)(n - 1u)), x0 = fmin(floor(x), (xfloat)(n - 2u)), fx = x - x0, fy;
+  xuint i = first + xi_albedo_row(r, n, &fy) * n + convert_xuint(x0);
   xfloat a = xi_gather_table(table, i), b = xi_gather_table(table, i + 1u);
-  xfloat c = xi_gather_table(table, i + XI_GGX_ALBEDO_SIZE);
-  xfloat d = xi_gather_table(table, i + XI_GGX_ALBEDO_SIZE + 1u);
+  xfloat c = xi_gather_table(table, i + n);
+  xfloat d = xi_gather_table(table, i + n + 1u);
   xfloat lo = a + (b - a) * fx, hi = c + (d - c) * fx;
   return lo + (hi - lo) * fy;
 }
 static inline xfloat xi_albedo_lookup(__constant const float* table, xfloat mu, xfloat r) {
-  return xi_albedo_lookup_from(table, (xuint)0u, mu, r);
+  return xi_albedo_lookup_from(table, XI_GGX_ALBEDO_SIZE, (xuint)0u, mu, r);
 }
 static inline xfloat xi_ggx_albedo(xfloat mu, xfloat r) { return xi_albedo_lookup(xi_ggx_albedo_table, mu, r); }
-// E_F(mu, r) for a dielectric of relative ior eta ≥ 1: linear between the table's slices in
-// z = √((η − 1)/(η + 1)), clamped.
-static inline xfloat xi_ggx_fresnel_albedo(xfloat mu, xfloat r, xfloat eta) {
+// n × n (mu, r) tables in XI_GGX_FRESNEL_SLICES slices from entry `first`, for an ior eta ≥ 1:
+// linear between the slices in z = √((η − 1)/(η + 1)), clamped.
+static inline xfloat xi_sliced_lookup(__constant const float* table, const uint n, xuint first, xfloat mu, xfloat r,
+                                      xfloat eta) {
   const float last = (float)(XI_GGX_FRESNEL_SLICES - 1);
   xfloat z = clamp(sqrt(fmax((eta - 1.0f) / (eta + 1.0f), (xfloat)0.0f)) * (last / XI_GGX_FRESNEL_Z_MAX), 0.0f, last);
   xfloat z0 = fmin(floor(z), (xfloat)(last - 1.0f)), fz = z - z0;
-  xuint first = convert_xuint(z0) * (XI_GGX_ALBEDO_SIZE * XI_GGX_ALBEDO_SIZE);
-  xfloat lo = xi_albedo_lookup_from(xi_ggx_albedo_fresnel_table, first, mu, r);
-  xfloat hi = xi_albedo_lookup_from(xi_ggx_albedo_fresnel_table, first + XI_GGX_ALBEDO_SIZE * XI_GGX_ALBEDO_SIZE, mu, r);
+  first += convert_xuint(z0) * (n * n);
+  xfloat lo = xi_albedo_lookup_from(table, n, first, mu, r), hi = xi_albedo_lookup_from(table, n, first + n * n, mu, r);
   return lo + (hi - lo) * fz;
+}
+// E_F(mu, r) for a dielectric of relative ior eta ≥ 1.
+static inline xfloat xi_ggx_fresnel_albedo(xfloat mu, xfloat r, xfloat eta) {
+  return xi_sliced_lookup(xi_ggx_albedo_fresnel_table, XI_GGX_ALBEDO_SIZE, (xuint)0u, mu, r, eta);
+}
+// E_glass(mu, r): the rough dielectric boundary's reflection and transmission together, met from
+// outside (eta ≥ 1) or inside (the table's second half, by 1 / eta).
+static inline xfloat xi_glass_albedo(xfloat mu, xfloat r, xfloat eta) {
+  const uint n = XI_GGX_GLASS_SIZE;
+  xmask inside = eta < 1.0f;
+  xuint first = inside ? (xuint)(XI_GGX_FRESNEL_SLICES * n * n) : (xuint)0u;
+  return xi_sliced_lookup(xi_ggx_glass_albedo_table, n, first, mu, r, inside ? 1.0f / eta : eta);
 }
 // E_avg(r), interpolated likewise.
 static inline xfloat xi_ggx_albedo_average(xfloat r) {
   xfloat fy;
-  xuint j = xi_ggx_albedo_row(r, &fy);
+  xuint j = xi_albedo_row(r, XI_GGX_ALBEDO_SIZE, &fy);
   xfloat a = xi_gather_table(xi_ggx_albedo_average_table, j), b = xi_gather_table(xi_ggx_albedo_average_table, j + 1u);
   return a + (b - a) * fy;
 }
@@ -346,6 +362,7 @@ typedef struct {
   xfloat sheen_albedo;  // E_sh(wo.z) (where there is a sheen)
   xfloat sheen_share;   // what the sheen passes below: 1 − max(sheen_color) min(1, E_sh(wo.z))
   xfloat coat_share;    // xi_coat_share(wo.z)
+  xfloat glass_scale;   // 1 / E_glass(wo.z) where rough glass is compensated, else 1
 } PbrAtWo;
 
 static inline PbrAtWo xi_pbr_at(PbrLobes m, xfloat3 wo) {
@@ -360,6 +377,12 @@ static inline PbrAtWo xi_pbr_at(PbrLobes m, xfloat3 wo) {
   xfloat coat_mu = 1.0f;  // wo's cosine with the coat's normal
   if (XI_ANY(m.coat > 0.0f)) coat_mu = fmax(xi_dot3(wo, m.coat_normal), (xfloat)XI_MIN_COS);
   at.coat_share = xi_coat_share(m, coat_mu);
+  at.glass_scale = 1.0f;
+  xmask compensated = m.transmission > 0.0f && m.alpha >= XI_DELTA_ALPHA && m.albedo_scaling > 0.0f;
+  if (XI_ANY(compensated)) {
+    xfloat e = xi_glass_albedo(wo.z, sqrt(fmax(m.alpha, (xfloat)0.0f)), m.eta);
+    at.glass_scale = compensated ? 1.0f / fmax(e, (xfloat)0.05f) : (xfloat)1.0f;
+  }
 
   xfloat fo = xi_max3(xi_dielectric_fresnel(m, wo.z));
   xfloat lum = fmax(xi_luminance(m.base_color), (xfloat)0.0f);
@@ -408,7 +431,9 @@ static inline xfloat3 xi_pbr_eval_pdf_at(PbrLobes m, PbrAtWo p, xfloat3 wo, xflo
   xfloat spec = xi_ggx_d(hr, a) * g2 / (4.0f * zo * zi);
   xfloat3 fmetal = xi_schlick_color(m.base_color, cf);
   xfloat3 fdiel = xi_dielectric_fresnel(m, cf);
-  xfloat3 f_spec = xi_scale3(xi_add3(xi_scale3(fmetal, m.metallic), xi_scale3(fdiel, dielectric)), spec);
+  // The dielectric's reflection, its transmissive share compensated as the transmission is.
+  xfloat glass_reflection = 1.0f + m.transmission * (p.glass_scale - 1.0f);
+  xfloat3 f_spec = xi_scale3(xi_add3(xi_scale3(fmetal, m.metallic), xi_scale3(fdiel, dielectric * glass_reflection)), spec);
   xfloat pdf_r = xi_ggx_visible_pdf(wo, hr, a) / (4.0f * cr);
   xmask refl = above && rough;
 
@@ -433,7 +458,7 @@ static inline xfloat3 xi_pbr_eval_pdf_at(PbrLobes m, PbrAtWo p, xfloat3 wo, xflo
     xfloat jac = m.eta * m.eta * fabs(cit) / fmax(len2, (xfloat)1e-12f);  // dω_h / dω_i, the denominator (wo·h + η wi·h)² = len2
     xfloat bt = fabs(cot) * xi_ggx_d(ht, a) * g2 * jac / (zo * zi);
     xfloat3 passed = xi_sub3(make_xfloat3((xfloat)1.0f, (xfloat)1.0f, (xfloat)1.0f), xi_dielectric_fresnel(m, cot));
-    f_trans = xi_scale3(xi_mul3(xi_transmission_tint(m), passed), dielectric * m.transmission * bt);
+    f_trans = xi_scale3(xi_mul3(xi_transmission_tint(m), passed), dielectric * m.transmission * bt * p.glass_scale);
     pdf_t = xi_ggx_visible_pdf(wo, ht, a) * jac;
   }
 
