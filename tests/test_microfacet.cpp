@@ -354,6 +354,16 @@ TEST(MicrofacetReciprocity, ReflectionIsSymmetric) {
 // every roughness and incidence; single-scattering GGX alone (the must-fail) loses more and more
 // with roughness: at roughness 1, 0.31 is left at normal incidence and less than 0.8 anywhere.
 
+// The directional albedo's red channel, ∫ f |cos θi| dω, of the non-delta lobes, by cubature over
+// the chart of test 2 around wo.
+double cubature_albedo(const PbrLobes& m, glm::vec3 wo) {
+  double sum = 0.0;
+  for (double v : cell_integrals(sphere_grid(wo, m.eta, 12, 16),
+                                 [&](glm::vec3 w) { return (double)xi_pbr_eval(m, wo, w).x * std::fabs(w.z); }))
+    sum += v;
+  return sum;
+}
+
 // The mean red sample weight of n samples from wo (seeded), the sampler's estimate of the
 // directional albedo, and its standard error.
 double mean_weight(const PbrLobes& m, glm::vec3 wo, int n, uint32_t seed, double* se) {
@@ -403,11 +413,7 @@ TEST(MicrofacetFurnace, AlbedoAtMostOneAndMatchesSampling) {
       if (it != integrals.end()) return it->second;
       PbrLobes mm = m;
       mm.metallic = metallic;
-      double sum = 0.0;
-      for (double v : cell_integrals(sphere_grid(wo, c.eta, 12, 16),
-                                     [&](glm::vec3 w) { return (double)xi_pbr_eval(mm, wo, w).x * std::fabs(w.z); }))
-        sum += v;
-      return integrals[key] = sum;
+      return integrals[key] = cubature_albedo(mm, wo);
     };
     double albedo = (1.0 - c.metallic) * integral(0.0f) + c.metallic * integral(1.0f);
     double se;  // independent streams: independent z-tests
@@ -459,13 +465,9 @@ TEST(MicrofacetLayering, WhiteBaseUnderTheLayerReflectsAll) {
         const MaterialCase c{r, 0.0f, d, 0.0f, ior};
         const glm::vec3 wo = wo_at(d);
         auto albedo = [&](float scaling) {
-          PbrLobes m = lobes(r, 0.0f, 0.0f, ior, glm::vec3(1.0f), 1.0f, scaling);
-          double sum = 0.0;
-          for (double v : cell_integrals(sphere_grid(wo, ior, 12, 16),
-                                         [&](glm::vec3 w) { return (double)xi_pbr_eval(m, wo, w).x * std::fabs(w.z); }))
-            sum += v;
           // A smooth layer's mirror is a delta lobe, which eval leaves out: its F(wo.z) is added.
-          return sum + (r == 0.0f ? (double)xi_fresnel_dielectric(wo.z, ior) : 0.0);
+          return cubature_albedo(lobes(r, 0.0f, 0.0f, ior, glm::vec3(1.0f), 1.0f, scaling), wo) +
+                 (r == 0.0f ? (double)xi_fresnel_dielectric(wo.z, ior) : 0.0);
         };
         const double scaled = albedo(1.0f), mix = albedo(0.0f);
         PbrLobes m = lobes(r, 0.0f, 0.0f, ior, glm::vec3(1.0f));
@@ -508,12 +510,7 @@ TEST(MicrofacetGlass, WhiteRoughGlassKeepsWhatArrives) {
         for (float d : {0.0f, 70.0f}) {
           const glm::vec3 wo = wo_at(d);
           auto albedo = [&](float scaling) {
-            PbrLobes m = lobes(r, 0.0f, 1.0f, eta, glm::vec3(1.0f), 1.0f, scaling);
-            double sum = 0.0;
-            for (double v : cell_integrals(sphere_grid(wo, eta, 12, 16),
-                                           [&](glm::vec3 w) { return (double)xi_pbr_eval(m, wo, w).x * std::fabs(w.z); }))
-              sum += v;
-            return sum;
+            return cubature_albedo(lobes(r, 0.0f, 1.0f, eta, glm::vec3(1.0f), 1.0f, scaling), wo);
           };
           const double scaled = albedo(1.0f), plain = albedo(0.0f);
           std::printf("[ glass    ] roughness %.1f eta %.3f %2.0f deg %15s %9.5f %9.5f\n", r, eta, d, "", scaled, plain);
