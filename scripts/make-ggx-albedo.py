@@ -204,7 +204,7 @@ def main():
              "// z = k z_max / %d, z_max = sqrt(0.6) (ior 4). E_glass(mu, r, z): the directional albedo of the rough" % (SLICES - 1),
              "// dielectric boundary, reflection and transmission (microfacet.h's glass energy compensation), from",
              "// outside (eta = ior) and from inside (1 / ior), each in slices of z as E_F, at mu = (i + 0.5) / %d," % GLASS_N,
-             "// r = j / %d." % (GLASS_N - 1),
+             "// r = j / %d. s_avg(z): the remapped Fresnel's cosine-weighted mean on E_F's slices." % (GLASS_N - 1),
              "#ifndef XI_GGX_ALBEDO_H", "#define XI_GGX_ALBEDO_H", '#include "compat.h"', "",
              "#define XI_GGX_ALBEDO_SIZE %d" % N,
              "#define XI_GGX_FRESNEL_SLICES %d" % SLICES,
@@ -220,6 +220,12 @@ def main():
     for k in range(SLICES):
         for r in fresnel[k]:
             lines.append("    " + " ".join("%.6ff," % v for v in r))
+    # s_avg(z_k) = 2 * integral of s(mu) mu dmu: the remapped Fresnel's mean, for the layer's multiple scattering.
+    steps = 20000
+    s_avg = [2.0 * sum(remapped_fresnel((i + 0.5) / steps, slice_eta(k)) * (i + 0.5) / steps for i in range(steps)) / steps
+             for k in range(SLICES)]
+    lines += ["};", "", "XI_TABLE float xi_ggx_fresnel_average_table[%d] = {" % SLICES,
+              "    " + " ".join("%.6ff," % v for v in s_avg)]
     lines += ["};", "", "XI_TABLE float xi_ggx_glass_albedo_table[%d] = {" % (2 * SLICES * GLASS_N * GLASS_N)]
     for side in (0, 1):
         for k in range(SLICES):

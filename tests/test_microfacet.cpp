@@ -316,13 +316,15 @@ TEST(MicrofacetConsistency, WrongSideIsZero) {
     for (int k = 0; k < 200; ++k) {
       glm::vec3 wo = random_upper(xi), wi = random_upper(xi);
       // Above: the specular layer only, whose f is the same with or without transmission but for
-      // rough glass's compensation (MicrofacetGlass), which scales it by 1 / E_glass(wo.z).
+      // the scales of its multiple scattering: rough glass's compensation (MicrofacetGlass),
+      // 1 / E_glass(wo.z), where it is transmissive, the layer's own where it is opaque.
       PbrLobes opaque = m;
       opaque.transmission = 0.0f;
       opaque.base_color = glm::vec3(0.0f);
       PbrLobes clear = m;
       clear.base_color = glm::vec3(0.0f);
-      const float scale = xi_pbr_at(clear, wo).glass_scale, f = xi_pbr_eval(clear, wo, wi).x;
+      const float scale = xi_pbr_at(clear, wo).glass_scale / xi_pbr_at(opaque, wo).layer_scale,
+                  f = xi_pbr_eval(clear, wo, wi).x;
       f_above += std::fabs(f - xi_pbr_eval(opaque, wo, wi).x * scale) / std::max(f, 1e-30f);
     }
     EXPECT_LE(f_above, 200 * 1e-6f);
@@ -493,6 +495,31 @@ TEST(MicrofacetLayering, WhiteBaseUnderTheLayerReflectsAll) {
       }
       if (r > 0.0f) EXPECT_LT(mix_least, 0.99) << "roughness " << r << " ior " << ior;
     }
+}
+
+// 7b. The rough layer's own multiple scattering: a layer whose Fresnel is 1 everywhere
+// (KHR_materials_specular's colour raising F0 to 1) over a black base is a white GGX reflector: with
+// multiple scattering it reflects 1 within 0.01 (its cubature against the table's E) at roughness
+// {0.3, 0.6, 1} × {0, 45, 70, 85}°; single-scattering (the must-fail) it loses more than 1%
+// somewhere at roughness 0.6 and 1.
+TEST(MicrofacetLayering, WhiteRoughLayerKeepsWhatItsMicrofacetsScatter) {
+  for (float r : {0.3f, 0.6f, 1.0f}) {
+    double single_least = 1.0;
+    for (float d : {0.0f, 45.0f, 70.0f, 85.0f}) {
+      const glm::vec3 wo = wo_at(d);
+      auto albedo = [&](float multiple_scattering) {
+        PbrLobes m = lobes(r, 0.0f, 0.0f, 1.5f, glm::vec3(0.0f), multiple_scattering);
+        m.specular_color = glm::vec3(25.0f);  // F0 = min(0.04 · 25, 1) = 1
+        return cubature_albedo(m, wo);
+      };
+      const double multiple = albedo(1.0f), single = albedo(0.0f);
+      std::printf("[ layering ] F = 1 layer, roughness %.1f %2.0f deg: %.5f (single scattering %.5f)\n", r, d, multiple,
+                  single);
+      EXPECT_NEAR(multiple, 1.0, 0.01) << "roughness " << r << " " << d << " deg";
+      single_least = std::min(single_least, single);
+    }
+    if (r > 0.5f) EXPECT_LT(single_least, 0.99) << "roughness " << r;
+  }
 }
 
 // 8. Rough glass keeps what arrives: white glass (base colour 1, transmission 1) at roughness

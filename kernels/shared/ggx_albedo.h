@@ -7,7 +7,7 @@
 // z = k z_max / 7, z_max = sqrt(0.6) (ior 4). E_glass(mu, r, z): the directional albedo of the rough
 // dielectric boundary, reflection and transmission (microfacet.h's glass energy compensation), from
 // outside (eta = ior) and from inside (1 / ior), each in slices of z as E_F, at mu = (i + 0.5) / 16,
-// r = j / 15.
+// r = j / 15. s_avg(z): the remapped Fresnel's cosine-weighted mean on E_F's slices.
 #ifndef XI_GGX_ALBEDO_H
 #define XI_GGX_ALBEDO_H
 #include "compat.h"
@@ -316,6 +316,10 @@ XI_TABLE float xi_ggx_albedo_fresnel_table[8192] = {
     0.010602f, 0.007899f, 0.005851f, 0.004246f, 0.003141f, 0.002462f, 0.001879f, 0.001397f, 0.001059f, 0.000794f, 0.000578f, 0.000426f, 0.000303f, 0.000212f, 0.000145f, 0.000095f, 0.000060f, 0.000036f, 0.000020f, 0.000010f, 0.000004f, 0.000001f, 0.000000f, 0.000000f, 0.000000f, 0.000000f, 0.000000f, 0.000000f, 0.000000f, 0.000000f, 0.000000f, 0.000000f,
     0.009710f, 0.007148f, 0.005263f, 0.003811f, 0.002754f, 0.002142f, 0.001642f, 0.001227f, 0.000906f, 0.000686f, 0.000502f, 0.000362f, 0.000261f, 0.000180f, 0.000124f, 0.000081f, 0.000052f, 0.000031f, 0.000017f, 0.000008f, 0.000004f, 0.000001f, 0.000000f, 0.000000f, 0.000000f, 0.000000f, 0.000000f, 0.000000f, 0.000000f, 0.000000f, 0.000000f, 0.000000f,
     0.008955f, 0.006490f, 0.004744f, 0.003429f, 0.002457f, 0.001867f, 0.001434f, 0.001076f, 0.000789f, 0.000590f, 0.000436f, 0.000311f, 0.000224f, 0.000156f, 0.000105f, 0.000070f, 0.000043f, 0.000026f, 0.000014f, 0.000007f, 0.000003f, 0.000001f, 0.000000f, 0.000000f, 0.000000f, 0.000000f, 0.000000f, 0.000000f, 0.000000f, 0.000000f, 0.000000f, 0.000000f,
+};
+
+XI_TABLE float xi_ggx_fresnel_average_table[8] = {
+    0.000000f, 0.007234f, 0.023443f, 0.040863f, 0.053582f, 0.056735f, 0.045073f, 0.011529f,
 };
 
 XI_TABLE float xi_ggx_glass_albedo_table[4096] = {

@@ -40,7 +40,8 @@
 //   f_ms = F_ms (1 − E(wo.z)) (1 − E(wi.z)) / (π (1 − E_avg)),   F_ms = F_avg² E_avg / (1 − F_avg (1 − E_avg)),
 // E the directional albedo of the single-scattering lobe with a Fresnel of 1 and E_avg its cosine-
 // weighted mean (tables in ggx_albedo.h), F_avg = f0 + (1 − f0) / 21 Schlick's mean: a white metal
-// then reflects all it receives. It is sampled with the diffuse lobe's cosine distribution.
+// then reflects all it receives. It is sampled with the diffuse lobe's cosine distribution. The
+// dielectric layer, under albedo scaling, is scaled instead (xi_layer_scattering_scale).
 //
 // Rough glass loses the light that bounces between its microfacets too (6% at roughness 0.3 seen
 // from inside, more at grazing angles and high roughness). With albedo scaling, as Blender's
@@ -79,7 +80,7 @@ typedef struct {
   xfloat alpha;         // GGX alpha = roughness² (the caller squares); below XI_DELTA_ALPHA: delta lobes
   xfloat eta;           // n on the far side of the surface / n on wo's side (ior entering, 1/ior leaving)
   xfloat transmission;  // [0, 1] (KHR_materials_transmission)
-  xfloat multiple_scattering;  // 1: the metal's multiple scattering restored (above); 0: single scattering
+  xfloat multiple_scattering;  // 1: the metal's and the layer's multiple scattering restored (above); 0: single scattering
   xfloat albedo_scaling;       // 1: the base weighed by the layer's albedo (above); 0: the Fresnel mix
   xfloat3 specular_color;      // KHR_materials_specular: the dielectric f0's tint (1: none)
   xfloat specular;             // KHR_materials_specular: the dielectric layer's strength (1: none)
@@ -265,13 +266,37 @@ static inline xfloat xi_dielectric_layer_albedo(PbrLobes m, xfloat mu) {
   return m.alpha >= XI_DELTA_ALPHA ? m.specular * xi_fresnel_layer_albedo(f0, mu, r, m.eta) : smooth;
 }
 
-// What the layer passes down to the base towards wo (wo.z = mu_o): 1 − E_spec(mu_o) with albedo
-// scaling where the layer's albedo is known, 1 − F(mu_o) in the Fresnel mix.
-static inline xfloat xi_base_share(PbrLobes m, xfloat mu_o) {
+// The rough layer's multiple scattering (as the metal's, Kulla and Conty; Blender's Principled BSDF
+// does the same): with albedo scaling and multiple scattering on, a rough layer met from outside is
+// scaled by 1 + F_ms (1 − E(mu_o)) / E(mu_o), F_ms = F_avg² E_avg / (1 − F_avg (1 − E_avg)) over one
+// F_avg (the single-scattering lobe already holds one Fresnel), F_avg = specular (f0' + (1 − f0')
+// s_avg) the layer's mean Fresnel, s_avg its remapped exact Fresnel's mean (ggx_albedo.h, by z).
+// 1 elsewhere.
+static inline xfloat xi_layer_scattering_scale(PbrLobes m, xfloat mu_o) {
+  xmask on = m.multiple_scattering > 0.0f && m.albedo_scaling > 0.0f && m.alpha >= XI_DELTA_ALPHA && m.eta >= 1.0f;
+  if (!XI_ANY(on)) return 1.0f;
+  const float last = (float)(XI_GGX_FRESNEL_SLICES - 1);
+  xfloat q = (m.eta - 1.0f) / (m.eta + 1.0f);
+  xfloat z = clamp(sqrt(fmax(q, (xfloat)0.0f)) * (last / XI_GGX_FRESNEL_Z_MAX), 0.0f, last);
+  xfloat z0 = fmin(floor(z), (xfloat)(last - 1.0f));
+  xuint k = convert_xuint(z0);
+  xfloat lo = xi_gather_table(xi_ggx_fresnel_average_table, k), hi = xi_gather_table(xi_ggx_fresnel_average_table, k + 1u);
+  xfloat s_avg = lo + (hi - lo) * (z - z0);
+  xfloat f0 = fmin(q * q * xi_max3(m.specular_color), (xfloat)1.0f);
+  xfloat f_avg = m.specular * (f0 + (1.0f - f0) * s_avg);
+  xfloat r = sqrt(fmax(m.alpha, (xfloat)0.0f)), e = xi_ggx_albedo(mu_o, r), e_avg = xi_ggx_albedo_average(r);
+  xfloat f_ms = f_avg * e_avg / (1.0f - f_avg * (1.0f - e_avg));
+  return on ? 1.0f + f_ms * (1.0f - e) / fmax(e, (xfloat)1e-4f) : (xfloat)1.0f;
+}
+
+// What the layer passes down to the base towards wo (wo.z = mu_o): 1 − E_spec(mu_o) times its
+// multiple-scattering scale with albedo scaling where the layer's albedo is known, 1 − F(mu_o) in
+// the Fresnel mix.
+static inline xfloat xi_base_share(PbrLobes m, xfloat mu_o, xfloat layer_scale) {
   xfloat mixed = 1.0f - xi_max3(xi_dielectric_fresnel(m, mu_o));
   xmask scaled = m.albedo_scaling > 0.0f && xi_layer_albedo_known(m);
   if (!XI_ANY(scaled)) return mixed;
-  return scaled ? 1.0f - xi_dielectric_layer_albedo(m, mu_o) : mixed;
+  return scaled ? 1.0f - xi_dielectric_layer_albedo(m, mu_o) * layer_scale : mixed;
 }
 
 // The diffuse base's weight between wo and wi (no base colour, transmission or metallic weight),
@@ -358,6 +383,7 @@ static inline xfloat xi_sheen_f(PbrLobes m, xfloat sheen_albedo_o, xfloat3 h, xf
 // its terms do.
 typedef struct {
   xfloat coat, reflect, diffuse, transmit;  // the lobes' probabilities
+  xfloat layer_scale;   // xi_layer_scattering_scale(wo.z)
   xfloat base_share;    // xi_base_share(wo.z)
   xfloat sheen_albedo;  // E_sh(wo.z) (where there is a sheen)
   xfloat sheen_share;   // what the sheen passes below: 1 − max(sheen_color) min(1, E_sh(wo.z))
@@ -367,7 +393,8 @@ typedef struct {
 
 static inline PbrAtWo xi_pbr_at(PbrLobes m, xfloat3 wo) {
   PbrAtWo at;
-  at.base_share = xi_base_share(m, wo.z);
+  at.layer_scale = xi_layer_scattering_scale(m, wo.z);
+  at.base_share = xi_base_share(m, wo.z, at.layer_scale);
   at.sheen_albedo = 0.0f;
   at.sheen_share = 1.0f;
   if (XI_ANY(xi_max3(m.sheen_color) > 0.0f)) {
@@ -431,9 +458,10 @@ static inline xfloat3 xi_pbr_eval_pdf_at(PbrLobes m, PbrAtWo p, xfloat3 wo, xflo
   xfloat spec = xi_ggx_d(hr, a) * g2 / (4.0f * zo * zi);
   xfloat3 fmetal = xi_schlick_color(m.base_color, cf);
   xfloat3 fdiel = xi_dielectric_fresnel(m, cf);
-  // The dielectric's reflection, its transmissive share compensated as the transmission is.
-  xfloat glass_reflection = 1.0f + m.transmission * (p.glass_scale - 1.0f);
-  xfloat3 f_spec = xi_scale3(xi_add3(xi_scale3(fmetal, m.metallic), xi_scale3(fdiel, dielectric * glass_reflection)), spec);
+  // The dielectric's reflection: its opaque share with the layer's multiple scattering, its
+  // transmissive share compensated as the transmission is.
+  xfloat reflection_scale = (1.0f - m.transmission) * p.layer_scale + m.transmission * p.glass_scale;
+  xfloat3 f_spec = xi_scale3(xi_add3(xi_scale3(fmetal, m.metallic), xi_scale3(fdiel, dielectric * reflection_scale)), spec);
   xfloat pdf_r = xi_ggx_visible_pdf(wo, hr, a) / (4.0f * cr);
   xmask refl = above && rough;
 

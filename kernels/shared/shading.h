@@ -20,7 +20,7 @@
 #define XI_USE_ENVIRONMENT 512u  // an environment map (environment.h) instead of a constant background
 #define XI_USE_PUNCTUAL 1024u    // point, spot and directional lights
 #define XI_USE_ALPHA 2048u       // cut-out (alpha mask) and stochastically transparent surfaces
-#define XI_USE_MULTIPLE_SCATTERING 4096u  // the metal's multiple-scattering lobe (microfacet.h)
+#define XI_USE_MULTIPLE_SCATTERING 4096u  // the metal's multiple-scattering lobe and the layer's scale (microfacet.h)
 #define XI_USE_ALBEDO_SCALING 8192u       // the dielectric layer's albedo scaling of the base (microfacet.h)
 #define XI_USE_SPECULAR 16384u            // KHR_materials_specular: a tinted or weakened dielectric layer
 #define XI_USE_CLEARCOAT 32768u           // KHR_materials_clearcoat

@@ -159,8 +159,8 @@ struct RenderSettings {
   int max_depth = 8;
   uint32_t seed = 0;
   std::string sampler = "sobol";
-  // The metal's multiple scattering restored (microfacet.h, Kulla–Conty); false: single-scattering
-  // GGX, as Mitsuba 3's and pbrt-v4's conductors.
+  // Multiple scattering restored to the metal and the dielectric layer (microfacet.h, Kulla–Conty);
+  // false: single-scattering GGX, as Mitsuba 3's and pbrt-v4's.
   bool multiple_scattering = true;
   // How the metallic-roughness material's dielectric layer weighs the diffuse base (microfacet.h).
   Layering layering = Layering::AlbedoScaling;
