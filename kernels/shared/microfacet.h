@@ -173,14 +173,21 @@ static inline xfloat xi_albedo_lookup(__constant const float* table, xfloat mu, 
   return xi_albedo_lookup_from(table, XI_GGX_ALBEDO_SIZE, (xuint)0u, mu, r);
 }
 static inline xfloat xi_ggx_albedo(xfloat mu, xfloat r) { return xi_albedo_lookup(xi_ggx_albedo_table, mu, r); }
-// n × n (mu, r) tables in XI_GGX_FRESNEL_SLICES slices from entry `first`, for an ior eta ≥ 1:
-// linear between the slices in z = √((η − 1)/(η + 1)), clamped.
-static inline xfloat xi_sliced_lookup(__constant const float* table, const uint n, xuint first, xfloat mu, xfloat r,
-                                      xfloat eta) {
+// The tables sliced by ior (ggx_albedo.h's XI_GGX_FRESNEL_SLICES slices in z = √((η − 1)/(η + 1)),
+// η ≥ 1): the slice below eta's z and the fraction towards the next, clamped.
+static inline xuint xi_ior_slice(xfloat eta, xfloat* fz) {
   const float last = (float)(XI_GGX_FRESNEL_SLICES - 1);
   xfloat z = clamp(sqrt(fmax((eta - 1.0f) / (eta + 1.0f), (xfloat)0.0f)) * (last / XI_GGX_FRESNEL_Z_MAX), 0.0f, last);
-  xfloat z0 = fmin(floor(z), (xfloat)(last - 1.0f)), fz = z - z0;
-  first += convert_xuint(z0) * (n * n);
+  xfloat z0 = fmin(floor(z), (xfloat)(last - 1.0f));
+  *fz = z - z0;
+  return convert_xuint(z0);
+}
+// n × n (mu, r) tables in slices by ior from entry `first`, for an ior eta ≥ 1: linear between the
+// slices.
+static inline xfloat xi_sliced_lookup(__constant const float* table, const uint n, xuint first, xfloat mu, xfloat r,
+                                      xfloat eta) {
+  xfloat fz;
+  first += xi_ior_slice(eta, &fz) * (n * n);
   xfloat lo = xi_albedo_lookup_from(table, n, first, mu, r), hi = xi_albedo_lookup_from(table, n, first + n * n, mu, r);
   return lo + (hi - lo) * fz;
 }
@@ -268,20 +275,18 @@ static inline xfloat xi_dielectric_layer_albedo(PbrLobes m, xfloat mu) {
 
 // The rough layer's multiple scattering (as the metal's, Kulla and Conty; Blender's Principled BSDF
 // does the same): with albedo scaling and multiple scattering on, a rough layer met from outside is
-// scaled by 1 + F_ms (1 − E(mu_o)) / E(mu_o), F_ms = F_avg² E_avg / (1 − F_avg (1 − E_avg)) over one
-// F_avg (the single-scattering lobe already holds one Fresnel), F_avg = specular (f0' + (1 − f0')
-// s_avg) the layer's mean Fresnel, s_avg its remapped exact Fresnel's mean (ggx_albedo.h, by z).
+// scaled by 1 + F_ms (1 − E(mu_o)) / E(mu_o), F_ms = F_avg E_avg / (1 − F_avg (1 − E_avg)) (Kulla and
+// Conty's over the one F_avg the single-scattering lobe already holds), F_avg = specular (f0' +
+// (1 − f0') s_avg) the layer's mean Fresnel, s_avg its remapped exact Fresnel's mean (ggx_albedo.h).
 // 1 elsewhere.
 static inline xfloat xi_layer_scattering_scale(PbrLobes m, xfloat mu_o) {
   xmask on = m.multiple_scattering > 0.0f && m.albedo_scaling > 0.0f && m.alpha >= XI_DELTA_ALPHA && m.eta >= 1.0f;
   if (!XI_ANY(on)) return 1.0f;
-  const float last = (float)(XI_GGX_FRESNEL_SLICES - 1);
-  xfloat q = (m.eta - 1.0f) / (m.eta + 1.0f);
-  xfloat z = clamp(sqrt(fmax(q, (xfloat)0.0f)) * (last / XI_GGX_FRESNEL_Z_MAX), 0.0f, last);
-  xfloat z0 = fmin(floor(z), (xfloat)(last - 1.0f));
-  xuint k = convert_xuint(z0);
+  xfloat fz;
+  xuint k = xi_ior_slice(m.eta, &fz);
   xfloat lo = xi_gather_table(xi_ggx_fresnel_average_table, k), hi = xi_gather_table(xi_ggx_fresnel_average_table, k + 1u);
-  xfloat s_avg = lo + (hi - lo) * (z - z0);
+  xfloat s_avg = lo + (hi - lo) * fz;
+  xfloat q = (m.eta - 1.0f) / (m.eta + 1.0f);
   xfloat f0 = fmin(q * q * xi_max3(m.specular_color), (xfloat)1.0f);
   xfloat f_avg = m.specular * (f0 + (1.0f - f0) * s_avg);
   xfloat r = sqrt(fmax(m.alpha, (xfloat)0.0f)), e = xi_ggx_albedo(mu_o, r), e_avg = xi_ggx_albedo_average(r);
@@ -313,10 +318,10 @@ static inline xfloat xi_base_weight(PbrLobes m, xfloat base_share, xfloat mu_i) 
 // wi_c are wo and wi in a frame about n_c:
 //   f = coat · D_c(h) G2_c F_c(wo_c·h) / (4 |wo_c.z| |wi.z|) + share_c(wo_c.z) · f_below
 // for wi above both normals (h = normalize(wo_c + wi_c); |wi.z| where a lobe of its own frame has
-// |wi_c.z|, as the renderer multiplies f by the cosine with the base's normal); share_c = 1 − coat · E_c(wo_c.z) with
-// albedo scaling (the coat's albedo from the tables, as above), 1 − coat · F_c(wo_c.z) in the
-// Fresnel mix (the spec's own layering). A coat met from behind is the same coat: it stays on the
-// outside.
+// |wi_c.z|, as the renderer multiplies f by the cosine with the base's normal);
+// share_c = 1 − coat · E_c(wo_c.z) with albedo scaling (the coat's albedo from the tables, as
+// above), 1 − coat · F_c(wo_c.z) in the Fresnel mix (the spec's own layering). A coat met from
+// behind is the same coat: it stays on the outside.
 #define XI_COAT_ETA 1.5f
 
 // The coat's frame: w in a frame about n_c (its tangents from xi_basis), and back.

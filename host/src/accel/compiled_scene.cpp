@@ -171,7 +171,8 @@ CompiledScene compile_scene(const Scene& scene, int bvh_width, bool spatial_spli
     cs.features.sheen |= m.type == MaterialType::Pbr && m.sheen_color != glm::vec3(0.0f);
     cs.features.alpha |= m.cuts_out();
   }
-  // A path's volumes are volume indices + 1 in 8 bits each (shade.cl).
+  // A path's volumes are volume indices + 1 in XI_VOLUME_BITS each of one 32-bit word (shade.cl).
+  static_assert(XI_VOLUME_BITS * XI_VOLUME_LEVELS == 32 && XI_MAX_VOLUMES == (1u << XI_VOLUME_BITS) - 1u);
   if (cs.volumes.size() > XI_MAX_VOLUMES)
     throw Error("a scene holds at most " + std::to_string(XI_MAX_VOLUMES) + " materials with a volume, not " +
                     std::to_string(cs.volumes.size()),
