@@ -263,13 +263,18 @@ static inline xfloat xi_fresnel_layer_albedo(xfloat f0, xfloat mu, xfloat r, xfl
   return f0 * xi_ggx_albedo(mu, r) + (1.0f - f0) * xi_ggx_fresnel_albedo(mu, r, eta);
 }
 
+// The layer's f0' = min(f0 · specular_color, 1) (xi_dielectric_fresnel) in its largest channel.
+static inline xfloat xi_layer_f0(PbrLobes m) {
+  xfloat q = (m.eta - 1.0f) / (m.eta + 1.0f);
+  return fmin(q * q * xi_max3(m.specular_color), (xfloat)1.0f);
+}
+
 // E_spec(mu): the dielectric specular layer's directional albedo at wo.z = mu, where known (its
 // largest channel, as Blender's Principled BSDF dims the base by).
 static inline xfloat xi_dielectric_layer_albedo(PbrLobes m, xfloat mu) {
   xfloat smooth = xi_max3(xi_dielectric_fresnel(m, mu));
   if (!XI_ANY(m.alpha >= XI_DELTA_ALPHA)) return smooth;
-  xfloat q = (m.eta - 1.0f) / (m.eta + 1.0f), r = sqrt(fmax(m.alpha, (xfloat)0.0f));
-  xfloat f0 = fmin(q * q * xi_max3(m.specular_color), (xfloat)1.0f);
+  xfloat f0 = xi_layer_f0(m), r = sqrt(fmax(m.alpha, (xfloat)0.0f));
   return m.alpha >= XI_DELTA_ALPHA ? m.specular * xi_fresnel_layer_albedo(f0, mu, r, m.eta) : smooth;
 }
 
@@ -286,8 +291,7 @@ static inline xfloat xi_layer_scattering_scale(PbrLobes m, xfloat mu_o) {
   xuint k = xi_ior_slice(m.eta, &fz);
   xfloat lo = xi_gather_table(xi_ggx_fresnel_average_table, k), hi = xi_gather_table(xi_ggx_fresnel_average_table, k + 1u);
   xfloat s_avg = lo + (hi - lo) * fz;
-  xfloat q = (m.eta - 1.0f) / (m.eta + 1.0f);
-  xfloat f0 = fmin(q * q * xi_max3(m.specular_color), (xfloat)1.0f);
+  xfloat f0 = xi_layer_f0(m);
   xfloat f_avg = m.specular * (f0 + (1.0f - f0) * s_avg);
   xfloat r = sqrt(fmax(m.alpha, (xfloat)0.0f)), e = xi_ggx_albedo(mu_o, r), e_avg = xi_ggx_albedo_average(r);
   xfloat f_ms = f_avg * e_avg / (1.0f - f_avg * (1.0f - e_avg));
