@@ -357,6 +357,23 @@ TEST(EndToEndDeterminism, SameSeedIsBitwiseIdentical) {
   EXPECT_TRUE(bitwise_equal(a.variance, b.variance)) << differing_pixels(a.variance, b.variance) << " pixels differ";
 }
 
+// `xi render` compiles the scene, frees the scene's triangles, then hands the compiled scene to
+// the renderer: nothing it renders may still read the scene.
+TEST(EndToEndDeterminism, RendererOfACompiledSceneNeedsNoTriangles) {
+  const xi::RenderOptions opt = render_options(4, 42, xi::Strategy::Mis, cornell_depth(), XI_SAMPLER_SOBOL);
+  const Result whole = render(kDetW, kDetH, opt);
+  xi::Scene scene = xi::load_scene(kCornell);
+  scene.width = kDetW;
+  scene.height = kDetH;
+  xi::CompiledScene compiled = xi::Renderer::compile_for(device(), scene, opt);
+  std::vector<xi::Triangle>().swap(scene.triangles);
+  xi::Renderer r(device(), std::move(compiled), opt);
+  r.render();
+  const xi::Film film = r.film();
+  EXPECT_TRUE(bitwise_equal(whole.mean, film.mean)) << differing_pixels(whole.mean, film.mean) << " pixels differ";
+  EXPECT_TRUE(bitwise_equal(whole.variance, film.variance));
+}
+
 TEST(EndToEndDeterminism, DifferentSeedDiffers) {
   const Result a = render(kDetW, kDetH, render_options(4, 42, xi::Strategy::Mis, cornell_depth(), XI_SAMPLER_SOBOL));
   const Result b = render(kDetW, kDetH, render_options(4, 43, xi::Strategy::Mis, cornell_depth(), XI_SAMPLER_SOBOL));

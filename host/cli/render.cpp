@@ -295,7 +295,8 @@ const std::chrono::steady_clock::time_point g_started = std::chrono::steady_cloc
 struct Job {
   std::filesystem::path scene_path;
   bool asset = false;
-  Scene scene;
+  Scene scene;       // its triangles freed once compiled (open_renderer)
+  size_t triangles = 0;
   RenderOptions opt;
   std::filesystem::path out, png, convergence, trace;
   PngView png_view;  // how the PNG shows the image (--view, --exposure)
@@ -515,7 +516,10 @@ std::vector<std::filesystem::path> check_outputs(const Job& job, const Team& tea
 // The slow part of setup: the device, the BVH and the kernels, and the checkpoint to resume from.
 void open_renderer(Job& job, const Args& args, const Team& team) {
   job.device.emplace(Device::open(device_selector(args, team)));
-  job.renderer.emplace(*job.device, job.scene, job.opt);
+  CompiledScene compiled = Renderer::compile_for(*job.device, job.scene, job.opt);
+  job.triangles = job.scene.triangles.size();
+  std::vector<Triangle>().swap(job.scene.triangles);  // from here the compiled copy is the one rendered
+  job.renderer.emplace(*job.device, std::move(compiled), job.opt);
   if (args.has("--denoise") && team.leader()) job.denoiser.emplace(read_denoise_options(args, &*job.device));
   if (!job.checkpoint.empty()) job.key = checkpoint_key(*job.renderer, job.scene_path, job.device->info().name);
   if (!job.resume.empty() && team.leader()) job.resumed = read_checkpoint(job.resume, job.key);
@@ -561,7 +565,7 @@ void print_devices(const Job& job, const Team& team, const std::vector<std::stri
 void print_scene(const Job& job) {
   const Renderer& renderer = *job.renderer;
   std::printf("scene: %s, %zu triangles, %zu lights, features: %s\n", job.scene_path.string().c_str(),
-              job.scene.triangles.size(), (size_t)renderer.light_count(),
+              job.triangles, (size_t)renderer.light_count(),
               renderer.kernels().features.describe().c_str());
   for (const std::string& note : job.scene.notes) std::printf("%s\n", note.c_str());
   if (job.asset)

@@ -131,11 +131,18 @@ float pixel_relative_error(const glm::vec4& sum, const glm::vec4& sum_sq) {
 
 int adaptive_check_after(int count) { return count + std::max(1, count / 4); }
 
+CompiledScene Renderer::compile_for(Device& device, const Scene& scene, const RenderOptions& options) {
+  return compile_scene(scene, KernelConfig::bvh_width_for(device.info(), options), options.spatial_splits,
+                       options.build_threads);
+}
+
 Renderer::Renderer(Device& device, const Scene& scene, const RenderOptions& options)
+    : Renderer(device, compile_for(device, scene, options), options) {}
+
+Renderer::Renderer(Device& device, CompiledScene&& scene, const RenderOptions& options)
     : device_(device),
       options_(options),
-      scene_(compile_scene(scene, KernelConfig::bvh_width_for(device.info(), options), options.spatial_splits,
-                           options.build_threads)),
+      scene_(std::move(scene)),
       kernels_(KernelConfig::make(device.info(), scene_, options)) {
   if (options.spp < 1) throw Error("spp must be at least 1", "--spp");
   if (options.max_depth < 1 || options.max_depth > 64) throw Error("max depth must be in 1..64", "--max-depth");
