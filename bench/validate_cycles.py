@@ -11,7 +11,9 @@ roughnesses; (textured) a base colour image and a tangent-space normal map, both
 Coat Weight and Coat Roughness; (sheen) Sheen Weight, Tint and Roughness; (specular) Specular IOR Level and
 Specular Tint; (transmission) Transmission Weight 1, with and without a Volume Absorption node on the
 material output and the exporter's "glTF Material Output" group giving a thickness (KHR_materials_volume);
-(anisotropy) Anisotropic and Anisotropic Rotation; (emissive) a control where the two models coincide, black
+(anisotropy) Anisotropic and Anisotropic Rotation, and the same file again as anisotropy-gltf, where Cycles'
+Principled BSDFs are given glTF's alphas after the import (Blender's importer passes the extension's strength
+as its own Anisotropic, a different mapping); (emissive) a control where the two models coincide, black
 spheres emitting radiance 1, 4 and 10 (KHR_materials_emissive_strength). The extensions each file holds are
 read back from its JSON and printed: what the exporter chose to write, not what was asked for. Where Debian's
 assimp-testmodels are installed, ClearCoatTest.gltf and BoxTextured.gltf are added, copied with their
@@ -141,13 +143,18 @@ GROUPS = {
                                             "Anisotropic": 0.9}),
                    ("aniso0.9-rot0.25-metal", {"Base Color": SILVER, "Metallic": 1.0, "Roughness": 0.4,
                                                "Anisotropic": 0.9, "Anisotropic Rotation": 0.25}),
-                   ("aniso0.9-grey-r0.3", {"Base Color": GREY, "Roughness": 0.3, "Anisotropic": 0.9})],
+                   ("aniso0.9-grey-r0.3", {"Base Color": GREY, "Roughness": 0.3, "Anisotropic": 0.9}),
+                   ("aniso0.9-rot0.25-grey", {"Base Color": GREY, "Roughness": 0.3, "Anisotropic": 0.9,
+                                              "Anisotropic Rotation": 0.25})],
     # a control where the two models coincide: emission (black bases, so that little else is seen)
     "emissive": [("emit-white-1", {"Base Color": (0, 0, 0), "Emission Color": (1, 1, 1), "Emission Strength": 1.0}),
                  ("emit-white-4", {"Base Color": (0, 0, 0), "Emission Color": (1, 1, 1), "Emission Strength": 4.0}),
                  ("emit-orange-10", {"Base Color": (0, 0, 0), "Emission Color": (1.0, 0.5, 0.1),
                                      "Emission Strength": 10.0})],
 }
+# The anisotropy file again, Cycles' Principled BSDFs given glTF's alphas instead of its importer's reading
+# (see gltf_anisotropy): where the two models coincide.
+GLTF_ANISOTROPY = "anisotropy-gltf"
 RADIUS, SPACING = 0.45, 1.05
 
 
@@ -272,10 +279,28 @@ def bounds(bpy, req):
     return dict(min=p.min(axis=0).tolist(), max=p.max(axis=0).tolist())
 
 
+def gltf_anisotropy(bpy):
+    """Blender's importer passes KHR_materials_anisotropy's strength s as the Principled BSDF's Anisotropic A,
+    whose alphas are r^2 / a and r^2 a, a = sqrt(1 - 0.9 A); glTF's are r^2 + (1 - r^2) s^2 along the
+    direction and r^2 across it. Sets each Principled's Roughness and Anisotropic to give glTF's (possible
+    where the ratio of the two alphas is at least 0.1)."""
+    for m in bpy.data.materials:
+        for node in (m.node_tree.nodes if m.node_tree else []):
+            if node.type != "BSDF_PRINCIPLED" or node.inputs["Anisotropic"].default_value <= 0.0:
+                continue
+            s, r = node.inputs["Anisotropic"].default_value, node.inputs["Roughness"].default_value
+            along, across = r * r + (1.0 - r * r) * s * s, max(r * r, 1e-4)
+            node.inputs["Roughness"].default_value = (along * across) ** 0.25
+            node.inputs["Anisotropic"].default_value = min((1.0 - across / along) / 0.9, 1.0)
+
+
 def load(bpy, cs, req):
-    """Imports REQ['file'] as Cycles' scene: the file's camera, the environment, the material index pass."""
+    """Imports REQ['file'] as Cycles' scene: the file's camera, the environment, the material index pass (and,
+    with REQ['gltf_anisotropy'], glTF's anisotropic alphas)."""
     bpy.ops.wm.read_factory_settings(use_empty=True)
     bpy.ops.import_scene.gltf(filepath=req["file"])
+    if req.get("gltf_anisotropy"):
+        gltf_anisotropy(bpy)
     scene = cs.settings(bpy, req["width"], req["height"], req["max_depth"])
     cameras = [o for o in bpy.data.objects if o.type == "CAMERA"]
     if not cameras:
@@ -480,7 +505,7 @@ def fmt_ratio(r):
 
 def main():
     p = c.parser(__doc__)
-    p.add_argument("--files", type=c.str_list, default=list(GROUPS) + list(DEBIAN_FILES),
+    p.add_argument("--files", type=c.str_list, default=list(GROUPS) + [GLTF_ANISOTROPY] + list(DEBIAN_FILES),
                    help="groups built in Blender and Debian's files, comma-separated")
     p.add_argument("--resolution", default="256x256")
     p.add_argument("--spp", type=int, default=256, help="xi's spp; Cycles' in all its runs together")
@@ -494,9 +519,9 @@ def main():
     p.add_argument("--block", type=int, default=8, help="the block z-tests' tile size in pixels")
     p.add_argument("--worker-timeout", type=float, default=900, help="seconds a Cycles request may take")
     a = p.parse_args()
-    unknown = [f for f in a.files if f not in GROUPS and f not in DEBIAN_FILES]
+    unknown = [f for f in a.files if f not in GROUPS and f != GLTF_ANISOTROPY and f not in DEBIAN_FILES]
     if unknown:
-        p.error(f"unknown files {', '.join(unknown)} (known: {', '.join(list(GROUPS) + list(DEBIAN_FILES))})")
+        p.error(f"unknown files {', '.join(unknown)} (known: {', '.join(list(GROUPS) + [GLTF_ANISOTROPY] + list(DEBIAN_FILES))})")
     if a.spp % a.cycles_runs or a.cycles_runs < 2:
         p.error("--spp must be a multiple of --cycles-runs, which must be 2 at least")
     if not CYCLES_PYTHON.exists():
@@ -521,12 +546,13 @@ def main():
 
     files = []
     for name in a.files:
-        if name in GROUPS:
+        if name in GROUPS or name == GLTF_ANISOTROPY:
             path = d / f"{name}.glb"
             # each file from a fresh Blender: its exporter's caches outlive a scene, and a file written after
             # others may share index accessors between meshes that one written alone does not
             builder = start()
-            ask(builder, cmd="build", group=name, out=str(path), width=width, height=height)
+            ask(builder, cmd="build", group="anisotropy" if name == GLTF_ANISOTROPY else name, out=str(path),
+                width=width, height=height)
             builder.close()
             files.append((name, path, "Blender " + blender.split()[0]))
         elif DEBIAN_FILES[name].exists():
@@ -552,7 +578,7 @@ def main():
         for line in [xi_camera] + warnings:
             log(f"  xi: {line}")
         loaded = ask(w, cmd="load", file=str(path), width=width, height=height, max_depth=a.max_depth,
-                     env=str(a.env), env_rotate=a.env_rotate)
+                     env=str(a.env), env_rotate=a.env_rotate, gltf_anisotropy=name == GLTF_ANISOTROPY)
         cy_mean, cy_var, index, cy_seconds = render_cycles(a, w, d / f"{name}-cycles.exr")
         exr.write(d / f"{name}-cycles.exr", cy_mean, dict(spp=a.spp, renderer="cycles"))
         subprocess.run([str(xi), "tonemap", str(d / f"{name}-cycles.exr"), str(d / f"{name}-cycles.png"),

@@ -49,16 +49,46 @@ static inline XI_INLINE PbrInputs xi_pbr_inputs(XI_SCENE_PARAMS, uint shading, x
   return in;
 }
 
+// The tangent frame of texture coordinate set `set` at the hit, about n: the file's tangent (glTF's
+// TANGENT, interpolated; the bitangent w · n × tangent) where it has one, else the direction of
+// increasing u from the triangle's coordinates of the set, as glTF viewers do. False in lanes where
+// neither gives a direction.
+static inline XI_INLINE xmask xi_surface_tangent(XI_SCENE_PARAMS, xuint tri, xuint set, xfloat b1, xfloat b2, xfloat3 n,
+                                                 xfloat3 p0, xfloat3 p1, xfloat3 p2, xfloat3* tangent,
+                                                 xfloat3* bitangent) {
+  xfloat w0, w1, w2;
+  xfloat3 ta = xi_gather_xyz(tri_uv, 3u * tri, &w0), tb = xi_gather_xyz(tri_uv, 3u * tri + 1u, &w1),
+          tc = xi_gather_xyz(tri_uv, 3u * tri + 2u, &w2);
+  // The set's (u, v) at the three vertices.
+  xfloat ua = set == 1u ? ta.z : ta.x, va = set == 1u ? w0 : ta.y;
+  xfloat ub = set == 1u ? tb.z : tb.x, vb = set == 1u ? w1 : tb.y;
+  xfloat uc = set == 1u ? tc.z : tc.x, vc = set == 1u ? w2 : tc.y;
+  xfloat du1 = ub - ua, dv1 = vb - va, du2 = uc - ua, dv2 = vc - va;
+  xfloat det = du1 * dv2 - du2 * dv1;
+  xfloat3 dp1 = xi_sub3(p1, p0), dp2 = xi_sub3(p2, p0);
+  xfloat3 dpdu = xi_scale3(xi_sub3(xi_scale3(dp1, dv2), xi_scale3(dp2, dv1)), 1.0f / (det != 0.0f ? det : (xfloat)1.0f));
+  // The file's tangent (w: the bitangent's sign; 0 where it has none).
+  xfloat sign;
+  xfloat3 ft = xi_scale3(xi_gather_xyz(tri_tangents, 3u * tri, &sign), 1.0f - b1 - b2);
+  ft = xi_add3(xi_add3(ft, xi_scale3(xi_gather_xyz(tri_tangents, 3u * tri + 1u, 0), b1)),
+               xi_scale3(xi_gather_xyz(tri_tangents, 3u * tri + 2u, 0), b2));
+  xmask from_file = sign != 0.0f;
+  xfloat3 along = xi_select3(from_file, ft, dpdu);
+  xfloat3 t = xi_sub3(along, xi_scale3(n, xi_dot3(n, along)));
+  xfloat tl = xi_length3(t);
+  *tangent = xi_scale3(t, 1.0f / (tl > 0.0f ? tl : (xfloat)1.0f));
+  *bitangent = xi_scale3(xi_cross3(n, *tangent), from_file ? sign : (xfloat)1.0f);
+  return (from_file || det != 0.0f) && tl > 0.0f;
+}
+
 // The shading normal with the normal map of material mi's texture slot `slot` applied (tangent
-// space: the file's tangents, glTF's TANGENT interpolated, with the bitangent w · n × tangent; where
-// the file has none, the tangent along increasing u of the map's texture coordinates, from the
-// triangle, as glTF viewers do), then turned where it would face away from wo or mirror wo below
-// the surface: a shading normal seen from behind would make the lobes' local frame invalid (black
-// fringes) or light leak through, and one that mirrors wo into the surface loses the specular
-// light a bumped glossy surface reflects (a strong normal map went dark). As Cycles does, it is
-// turned so that wo's mirror direction keeps the azimuth about the geometric normal it had but
-// rises to just above the surface. (Sample directions are still checked against the geometric
-// normal.)
+// space: xi_surface_tangent's frame of the map's coordinates), then turned where it would face away
+// from wo or mirror wo below the surface: a shading normal seen from behind would make the lobes'
+// local frame invalid (black fringes) or light leak through, and one that mirrors wo into the
+// surface loses the specular light a bumped glossy surface reflects (a strong normal map went
+// dark). As Cycles does, it is turned so that wo's mirror direction keeps the azimuth about the
+// geometric normal it had but rises to just above the surface. (Sample directions are still
+// checked against the geometric normal.)
 static inline XI_INLINE xfloat3 xi_pbr_normal(XI_SCENE_PARAMS, uint shading, xuint mi, xuint tri, int slot, xfloat b1,
                                               xfloat b2, xfloat3 n, xfloat3 n_geo, xfloat3 wo, xfloat normal_scale,
                                               xfloat3 p0, xfloat3 p1, xfloat3 p2, xfloat2 uv0, xfloat2 uv1) {
@@ -69,30 +99,9 @@ static inline XI_INLINE xfloat3 xi_pbr_normal(XI_SCENE_PARAMS, uint shading, xui
       xfloat a;
       xfloat3 t = xi_texture(texture_refs, images, texels, ref, uv0, uv1, &a);
       xuint r = mapped ? ref : (xuint)0u;
-      xuint set = XI_GATHER_UINT_FIELD(texture_refs, r, texcoord);
-      xfloat w0, w1, w2;
-      xfloat3 ta = xi_gather_xyz(tri_uv, 3u * tri, &w0), tb = xi_gather_xyz(tri_uv, 3u * tri + 1u, &w1),
-              tc = xi_gather_xyz(tri_uv, 3u * tri + 2u, &w2);
-      // The set's (u, v) at the three vertices.
-      xfloat ua = set == 1u ? ta.z : ta.x, va = set == 1u ? w0 : ta.y;
-      xfloat ub = set == 1u ? tb.z : tb.x, vb = set == 1u ? w1 : tb.y;
-      xfloat uc = set == 1u ? tc.z : tc.x, vc = set == 1u ? w2 : tc.y;
-      xfloat du1 = ub - ua, dv1 = vb - va, du2 = uc - ua, dv2 = vc - va;
-      xfloat det = du1 * dv2 - du2 * dv1;
-      xfloat3 dp1 = xi_sub3(p1, p0), dp2 = xi_sub3(p2, p0);
-      xfloat3 dpdu = xi_scale3(xi_sub3(xi_scale3(dp1, dv2), xi_scale3(dp2, dv1)), 1.0f / (det != 0.0f ? det : (xfloat)1.0f));
-      // The file's tangent (w: the bitangent's sign; 0 where it has none).
-      xfloat sign;
-      xfloat3 ft = xi_scale3(xi_gather_xyz(tri_tangents, 3u * tri, &sign), 1.0f - b1 - b2);
-      ft = xi_add3(xi_add3(ft, xi_scale3(xi_gather_xyz(tri_tangents, 3u * tri + 1u, 0), b1)),
-                   xi_scale3(xi_gather_xyz(tri_tangents, 3u * tri + 2u, 0), b2));
-      xmask from_file = sign != 0.0f;
-      xfloat3 along = xi_select3(from_file, ft, dpdu);
-      xfloat3 tangent = xi_sub3(along, xi_scale3(n, xi_dot3(n, along)));
-      xfloat tl = xi_length3(tangent);
-      mapped = mapped && (from_file || det != 0.0f) && tl > 0.0f;
-      tangent = xi_scale3(tangent, 1.0f / (tl > 0.0f ? tl : (xfloat)1.0f));
-      xfloat3 bitangent = xi_scale3(xi_cross3(n, tangent), from_file ? sign : (xfloat)1.0f);
+      xfloat3 tangent, bitangent;
+      mapped = mapped && xi_surface_tangent(XI_SCENE_ARGS, tri, XI_GATHER_UINT_FIELD(texture_refs, r, texcoord), b1, b2,
+                                            n, p0, p1, p2, &tangent, &bitangent);
       xfloat x = (2.0f * t.x - 1.0f) * normal_scale, y = (2.0f * t.y - 1.0f) * normal_scale, z = 2.0f * t.z - 1.0f;
       xfloat3 nm = xi_add3(xi_add3(xi_scale3(tangent, x), xi_scale3(bitangent, y)), xi_scale3(n, z));
       xfloat nl = xi_length3(nm);
@@ -145,6 +154,7 @@ static inline XI_INLINE Bsdf xi_surface_bsdf(XI_SCENE_PARAMS, uint shading, Shad
   // The metallic-roughness material: its inputs, shading normal and local frame (n = +z, wo above).
   b.pbr.base_color = m.albedo;
   b.pbr.metallic = b.pbr.alpha = b.pbr.transmission = 0.0f;
+  b.pbr.stretch_x = b.pbr.stretch_y = 1.0f;
   b.pbr.multiple_scattering = xi_uses(shading, XI_USE_MULTIPLE_SCATTERING) ? 1.0f : 0.0f;
   b.pbr.albedo_scaling = xi_uses(shading, XI_USE_ALBEDO_SCALING) ? 1.0f : 0.0f;
   b.pbr.specular_color = make_xfloat3((xfloat)1.0f, (xfloat)1.0f, (xfloat)1.0f);
@@ -173,6 +183,40 @@ static inline XI_INLINE Bsdf xi_surface_bsdf(XI_SCENE_PARAMS, uint shading, Shad
       // roughness in G, the sheen's and the specular layer's strength in A).
       const bool textured = xi_uses(shading, XI_USE_TEXTURES);
       xfloat a;
+      if (xi_uses(shading, XI_USE_ANISOTROPY)) {
+        // KHR_materials_anisotropy: the frame's x turned to the anisotropy direction, the texture's
+        // RG (a direction in the tangent frame of its coordinates, else that frame's u) rotated by
+        // the material's angle, projected onto the shading plane; the lobes' alphas from its
+        // strength (xi_set_anisotropy). Lanes without a tangent frame stay isotropic.
+        xfloat3 anisotropy = XI_GATHER_XYZ_FIELD(materials, mi, anisotropy, 0);  // strength, cos and sin of the angle
+        xfloat strength = pbr ? anisotropy.x : (xfloat)0.0f, dx = 1.0f, dy = 0.0f;
+        xuint set = 0u;
+        if (textured) {
+          xuint ref = XI_GATHER_UINT_FIELD(materials, mi, textures[XI_TEXTURE_ANISOTROPY]);
+          xmask mapped = ref != XI_NO_TEXTURE;
+          if (XI_ANY(mapped)) {
+            xfloat3 t = xi_texture(texture_refs, images, texels, ref, uv0, uv1, &a);
+            dx = mapped ? 2.0f * t.x - 1.0f : dx;
+            dy = mapped ? 2.0f * t.y - 1.0f : dy;
+            strength = mapped ? strength * t.z : strength;
+            set = XI_GATHER_UINT_FIELD(texture_refs, mapped ? ref : (xuint)0u, texcoord);
+            set = mapped ? set : (xuint)0u;
+          }
+        }
+        if (XI_ANY(strength > 0.0f)) {
+          xfloat3 tangent, bitangent;
+          xmask framed = xi_surface_tangent(XI_SCENE_ARGS, tri, set, b1, b2, b.n, p0, p1, p2, &tangent, &bitangent);
+          xfloat3 d = xi_add3(xi_scale3(tangent, anisotropy.y * dx - anisotropy.z * dy),
+                              xi_scale3(bitangent, anisotropy.z * dx + anisotropy.y * dy));
+          d = xi_sub3(d, xi_scale3(b.n, xi_dot3(b.n, d)));
+          xfloat dl = xi_length3(d);
+          xmask turned = strength > 0.0f && framed && dl > 0.0f;
+          d = xi_scale3(d, 1.0f / (dl > 0.0f ? dl : (xfloat)1.0f));
+          b.frame_t = xi_select3(turned, d, b.frame_t);
+          b.frame_b = xi_select3(turned, xi_cross3(b.n, d), b.frame_b);
+          xi_set_anisotropy(&b.pbr, turned ? strength : (xfloat)0.0f);
+        }
+      }
       if (xi_uses(shading, XI_USE_SPECULAR)) {
         b.pbr.specular_color = XI_GATHER_XYZ_FIELD(materials, mi, specular, &b.pbr.specular);
         if (textured) {
@@ -412,10 +456,9 @@ static inline XI_INLINE ShadeResult xi_shade_paths(XI_PATH_PARAMS xuint slot, xm
     // deep: a deeper one forgets the outermost); one out of it pops back to the one around it.
     // Reflections, thin surfaces and cut-outs keep the media the ray is in.
     xmask transmitted = at_surface && (bs.lobe & (xuint)XI_LOBE_TRANSMISSION) != 0u;
-    xfloat volume;
-    XI_GATHER_XYZ_FIELD(materials, mi, absorption, &volume);
-    xmask bounds = transmitted && volume > 0.0f;
-    xuint pushed = (media << XI_VOLUME_BITS) | convert_xuint(volume);
+    xuint volume = XI_GATHER_UINT_FIELD(materials, mi, volume);
+    xmask bounds = transmitted && volume != 0u;
+    xuint pushed = (media << XI_VOLUME_BITS) | volume;
     media_out = xi_as_float(bounds ? (front ? pushed : media >> XI_VOLUME_BITS) : media);
   }
   xi_scatter4(ray_org, slot, xi_offset_ray_origin(p, p_error, bsdf.n_geo, wi), (xfloat)0.0f, goes_on);

@@ -60,6 +60,8 @@ struct Case {
   glm::vec3 sheen = glm::vec3(0.0f);                  // KHR_materials_sheen
   float sheen_roughness = 0.0f;
   glm::vec3 specular_color = glm::vec3(1.0f);
+  float anisotropy = 0.0f;       // KHR_materials_anisotropy's strength
+  float anisotropy_turn = 0.0f;  // degrees from wo's azimuth to the anisotropy direction
   bool entering = true;  // glass and PBR transmission: wo outside
   glm::vec3 n = kUp, n_geo = kUp;
   bool white = false;  // the furnace expects a mean weight of 1
@@ -71,7 +73,7 @@ struct Case {
 // rough coat, a sheen.
 bool non_delta(const Case& c) {
   return c.kind == Kind::Diffuse ||
-         (c.kind == Kind::Pbr && (c.roughness > 0.0f || (c.metallic < 1.0f && c.transmission < 1.0f) ||
+         (c.kind == Kind::Pbr && (c.roughness > 0.0f || c.anisotropy > 0.0f || (c.metallic < 1.0f && c.transmission < 1.0f) ||
                                   (c.coat > 0.0f && c.coat_roughness > 0.0f) || c.sheen != glm::vec3(0.0f)));
 }
 
@@ -87,6 +89,7 @@ std::string describe(const Case& c) {
     k += std::snprintf(buf + k, sizeof buf - k, " coat r %.2f%s", c.coat_roughness, c.coat_normal != kUp ? " own n" : "");
   if (c.sheen != glm::vec3(0.0f))
     k += std::snprintf(buf + k, sizeof buf - k, " sheen %.2g r %.2f", c.sheen.x, c.sheen_roughness);
+  if (c.anisotropy > 0.0f) k += std::snprintf(buf + k, sizeof buf - k, " aniso %.1f at %.0f", c.anisotropy, c.anisotropy_turn);
   if (c.specular != 1.0f || c.specular_color != glm::vec3(1.0f))
     k += std::snprintf(buf + k, sizeof buf - k, " specular %.2g (%.2g %.2g %.2g)", c.specular, c.specular_color.x,
                        c.specular_color.y, c.specular_color.z);
@@ -131,6 +134,10 @@ Case specular(Case c, float strength, glm::vec3 colour) {
 }
 Case sheened(Case c, glm::vec3 colour, float roughness) {
   c.sheen = colour, c.sheen_roughness = roughness;
+  return c;
+}
+Case anisotropic(Case c, float strength, float turn_degrees) {
+  c.anisotropy = strength, c.anisotropy_turn = turn_degrees;
   return c;
 }
 Case fresnel_mix(Case c) {
@@ -197,6 +204,18 @@ std::vector<Case> all_cases() {
     m.push_back(white(sheened(pbr(kWhite, 0.5f, 0.0f, 0.0f, true), glm::vec3(1.0f), sr)));
   }
   m.push_back(pbr(kColour, 0.3f, 0.0f, 1.0f, true, false));
+  // KHR_materials_anisotropy: a metal, a dielectric and glass, along wo's azimuth and turned from it;
+  // a nearly smooth metal made rough along one direction; the reciprocal Fresnel mix; white ones
+  // (whose approximate compensation is not expected to reflect exactly all).
+  m.push_back(anisotropic(pbr(kColour, 0.3f, 1.0f, 0.0f, true), 0.5f, 0.0f));
+  m.push_back(anisotropic(pbr(kColour, 0.3f, 1.0f, 0.0f, false), 0.9f, 30.0f));
+  m.push_back(anisotropic(pbr(kColour, 0.2f, 0.0f, 0.0f, true), 0.9f, 90.0f));
+  m.push_back(anisotropic(pbr(kColour, 0.3f, 0.0f, 1.0f, true), 0.6f, 45.0f));
+  m.push_back(anisotropic(pbr(kColour, 0.3f, 0.0f, 1.0f, true, false), 0.6f, 120.0f));
+  m.push_back(anisotropic(pbr(kColour, 0.15f, 1.0f, 0.0f, true), 0.8f, 60.0f));
+  m.push_back(anisotropic(fresnel_mix(pbr(kColour, 0.3f, 0.0f, 0.0f, true)), 0.7f, 20.0f));
+  m.push_back(anisotropic(pbr(kWhite, 0.3f, 1.0f, 0.0f, true), 0.7f, 30.0f));
+  m.push_back(anisotropic(pbr(kWhite, 0.3f, 0.0f, 0.0f, true), 0.7f, 30.0f));
   // A shading normal with its own frame (the geometric normal alike), and a bumped one.
   for (Case c : {diffuse(kColour), mirror(kColour), glass(kColour, true), pbr(kColour, 0.3f, 0.5f, 1.0f, true)})
     m.push_back(normals(c, kTilted, kTilted));
@@ -212,16 +231,16 @@ std::vector<Case> all_cases() {
 }
 
 // The material as shade builds it (n and n_geo on wo's side, the frame from xi_basis), with wo at
-// c.degrees from n towards frame_t.
+// c.degrees from n towards x of the frame (t, b, n) the tests bin in. The lobes' frame is that one
+// turned by c.anisotropy_turn about n: an anisotropic lobe's direction is its x.
 struct Surface {
   Bsdf b;
   uint shading;
   glm::vec3 wo, wo_local;
   float eta;
-  glm::vec3 to_world(glm::vec3 l) const { return b.frame_t * l.x + b.frame_b * l.y + b.n * l.z; }
-  glm::vec3 to_local(glm::vec3 w) const {
-    return {glm::dot(w, b.frame_t), glm::dot(w, b.frame_b), glm::dot(w, b.n)};
-  }
+  glm::vec3 t, bt;  // the test's frame (t, bt, b.n)
+  glm::vec3 to_world(glm::vec3 l) const { return t * l.x + bt * l.y + b.n * l.z; }
+  glm::vec3 to_local(glm::vec3 w) const { return {glm::dot(w, t), glm::dot(w, bt), glm::dot(w, b.n)}; }
 };
 
 Surface surface(const Case& c, bool at_surface = true) {
@@ -235,7 +254,10 @@ Surface surface(const Case& c, bool at_surface = true) {
   b.entering = c.entering;
   b.n = c.n;
   b.n_geo = c.n_geo;
-  xi_basis(b.n, &b.frame_t, &b.frame_b);
+  xi_basis(b.n, &s.t, &s.bt);
+  const double turn = c.anisotropy_turn * kPi / 180.0;
+  b.frame_t = s.t * (float)std::cos(turn) + s.bt * (float)std::sin(turn);
+  b.frame_b = s.bt * (float)std::cos(turn) - s.t * (float)std::sin(turn);
   s.eta = c.entering ? kIor : 1.0f / kIor;
   b.pbr.base_color = c.tint;
   b.pbr.metallic = c.metallic;
@@ -251,8 +273,11 @@ Surface surface(const Case& c, bool at_surface = true) {
   b.pbr.specular_color = c.specular_color;
   b.pbr.sheen_color = c.sheen;
   b.pbr.sheen_alpha = c.sheen_roughness * c.sheen_roughness;
+  b.pbr.stretch_x = b.pbr.stretch_y = 1.0f;
+  xi_set_anisotropy(&b.pbr, c.anisotropy);
   s.shading = XI_USE_MIRROR | XI_USE_DIELECTRIC | XI_USE_PBR | (c.multiple_scattering ? XI_USE_MULTIPLE_SCATTERING : 0u) |
-              (c.albedo_scaling ? XI_USE_ALBEDO_SCALING : 0u) | XI_USE_SPECULAR | XI_USE_CLEARCOAT | XI_USE_SHEEN;
+              (c.albedo_scaling ? XI_USE_ALBEDO_SCALING : 0u) | XI_USE_SPECULAR | XI_USE_CLEARCOAT | XI_USE_SHEEN |
+              XI_USE_ANISOTROPY;
   double t = c.degrees * kPi / 180.0;
   s.wo_local = glm::vec3((float)std::sin(t), 0.0f, (float)std::cos(t));
   s.wo = glm::normalize(s.to_world(s.wo_local));
@@ -389,18 +414,23 @@ TEST(BsdfChi2Power, WrongDensitiesAreRejected) {
 
   // The layers: a coat sampled at roughness 0.3 against the density of one at 0.45; a sheen's and
   // a weakened specular layer's samples against the density of the material without them (their
-  // albedos change how often each lobe is chosen).
+  // albedos change how often each lobe is chosen); an anisotropic metal's against the isotropic
+  // density and against the density of its direction turned 90°.
   struct Wrong {
     const char* what;
     Case sampled, density;
   };
   Case coat = coated(pbr(kColour, 0.5f, 0.0f, 0.0f, true), 0.3f), rougher_coat = coated(coat, 0.45f);
   Case base = pbr(kColour, 0.5f, 0.0f, 0.0f, true);
+  Case metal = pbr(kColour, 0.3f, 1.0f, 0.0f, false);
   const Wrong wrong[] = {{"coat r 0.30 against r 0.45", coat, rougher_coat},
                          {"coat with its own normal against the base's", coat_normal(coat, kCoatNormal), coat},
                          {"sheen against none", sheened(base, glm::vec3(1.0f), 0.8f), base},
                          {"specular 0.2 against 1", specular(pbr(kColour, 0.2f, 0.0f, 0.0f, true), 0.2f, glm::vec3(1.0f)),
-                          pbr(kColour, 0.2f, 0.0f, 0.0f, true)}};
+                          pbr(kColour, 0.2f, 0.0f, 0.0f, true)},
+                         {"anisotropic metal against the isotropic one", anisotropic(metal, 0.6f, 30.0f), metal},
+                         {"anisotropy at 30 deg against at 120 deg", anisotropic(metal, 0.6f, 30.0f),
+                          anisotropic(metal, 0.6f, 120.0f)}};
   for (const Wrong& w : wrong) {
     Case a = w.sampled, b = w.density;
     a.degrees = b.degrees = 60.0f;
@@ -525,10 +555,9 @@ TEST(BsdfFurnace, WhiteReflectsAllAndNoneGains) {
                                                 ((c.roughness > 0.0f || c.coat_roughness > 0.0f || c.sheen != glm::vec3(0.0f)) &&
                                                  !reciprocal(c)));
     double slack = tables ? 0.01 : 1e-4;
-    if (c.white) {
+    if (c.white || c.anisotropy > 0.0f)
       std::printf("[ furnace  ] %-52s %.5f ± %.1e\n", describe(c).c_str(), f.mean.x, f.se.x);
-      ++white;
-    }
+    white += c.white;
     for (int ch = 0; ch < 3; ++ch) {
       double tol = z * f.se[ch] + slack;
       EXPECT_LE(f.mean[ch], 1.0 + tol) << describe(c) << " channel " << ch << ": " << f.mean[ch] << " ± " << f.se[ch];

@@ -397,6 +397,7 @@ TEST(MaterialFurnace, MetallicRoughnessSphereAlbedo) {
           m.coat_normal = glm::vec3(0.0f, 0.0f, 1.0f);
           m.sheen_color = glm::vec3(0.0f);
           m.sheen_alpha = 0.0f;
+          m.stretch_x = m.stretch_y = 1.0f;
           albedo += directional_albedo(m, wo) / 4.0;
           m.alpha = float(k.roughness);
           wrong += directional_albedo(m, wo) / 4.0;
@@ -1227,7 +1228,8 @@ TEST(MaterialVolume, BeerLambertThroughASlab) {
 
 // The layers' glTF extensions are read as the spec defines them: KHR_materials_clearcoat's factors
 // (default 0), KHR_materials_specular's (default 1, white), KHR_materials_sheen's (default 0),
-// KHR_materials_pbrSpecularGlossiness as a specular tint, KHR_materials_volume's absorption
+// KHR_materials_pbrSpecularGlossiness as a specular tint, KHR_materials_anisotropy's strength
+// (default 0), rotation and texture, KHR_materials_volume's absorption
 // −ln(attenuationColor) / attenuationDistance where thicknessFactor > 0 (0: thin-walled, none; an
 // infinite distance: clear), none without transmission. Each turns on its kernel feature only.
 TEST(MaterialGltf, LayerExtensions) {
@@ -1265,8 +1267,11 @@ TEST(MaterialGltf, LayerExtensions) {
                        {"sheenRoughnessTexture", tex}};
   const int sheen = g.add("materials", {{"name", "sheen"}, {"pbrMetallicRoughness", plain},
                                         {"extensions", {{"KHR_materials_sheen", fibres}}}});
+  const json brushed = {{"anisotropyStrength", 0.6}, {"anisotropyRotation", 1.25}, {"anisotropyTexture", tex}};
+  const int aniso = g.add("materials", {{"name", "aniso"}, {"pbrMetallicRoughness", plain},
+                                        {"extensions", {{"KHR_materials_anisotropy", brushed}}}});
   int i = 0;
-  for (int m : {coat, spec, vol, thin, opaque, gloss, sheen}) {
+  for (int m : {coat, spec, vol, thin, opaque, gloss, sheen, aniso}) {
     const float x = float(2 * i++);
     g.node({{"mesh", g.mesh({{x, 0, 0}, {x + 1, 0, 0}, {x, 1, 0}}, m)}});
   }
@@ -1294,10 +1299,14 @@ TEST(MaterialGltf, LayerExtensions) {
   EXPECT_EQ(material("sheen").sheen_color, glm::vec3(0.9f, 0.5f, 0.1f));
   EXPECT_FLOAT_EQ(material("sheen").sheen_roughness, 0.4f);
   EXPECT_EQ(material("coat").sheen_color, glm::vec3(0.0f));
+  EXPECT_FLOAT_EQ(material("aniso").anisotropy_strength, 0.6f);
+  EXPECT_FLOAT_EQ(material("aniso").anisotropy_rotation, 1.25f);
+  EXPECT_EQ(material("coat").anisotropy_strength, 0.0f);
   // Their textures, each in its slot (colour ones sRGB-decoded).
   const std::pair<const char*, int> slots[] = {{"coat", XI_TEXTURE_CLEARCOAT}, {"coat", XI_TEXTURE_CLEARCOAT_ROUGHNESS},
                                                {"spec", XI_TEXTURE_SPECULAR}, {"spec", XI_TEXTURE_SPECULAR_COLOR},
-                                               {"sheen", XI_TEXTURE_SHEEN_COLOR}, {"sheen", XI_TEXTURE_SHEEN_ROUGHNESS}};
+                                               {"sheen", XI_TEXTURE_SHEEN_COLOR}, {"sheen", XI_TEXTURE_SHEEN_ROUGHNESS},
+                                               {"aniso", XI_TEXTURE_ANISOTROPY}};
   for (const auto& [name, k] : slots) {
     EXPECT_TRUE(material(name).textures[k].used()) << name << " slot " << k;
     EXPECT_FALSE(material("vol").textures[k].used()) << "slot " << k;
@@ -1312,8 +1321,9 @@ TEST(MaterialGltf, LayerExtensions) {
   EXPECT_NEAR(f0.y, 0.1f, 1e-6f);
   EXPECT_NEAR(f0.z, 0.04f, 1e-6f);
   const xi::Features f = xi::compile_scene(s).features;
-  EXPECT_TRUE(f.clearcoat && f.specular && f.volume && f.sheen);
-  EXPECT_FALSE(xi::compile_scene(xi::load_asset(kModels / "BoxTextured-glTF/BoxTextured.gltf")).features.clearcoat);
+  EXPECT_TRUE(f.clearcoat && f.specular && f.volume && f.sheen && f.anisotropy);
+  const xi::Features box = xi::compile_scene(xi::load_asset(kModels / "BoxTextured-glTF/BoxTextured.gltf")).features;
+  EXPECT_FALSE(box.clearcoat || box.anisotropy);
 }
 
 // Transmission is tinted by √base_color at each crossing: through the slab of MaterialVolume (ior 1,
@@ -1416,6 +1426,46 @@ TEST(MaterialLayers, CoatKeepsItsOwnNormal) {
     }
   }
   EXPECT_GT(moved, 0) << "the coat's own normal map changes nothing";
+}
+
+// KHR_materials_anisotropy's direction is the tangent (the direction of increasing u) turned by the
+// rotation towards the bitangent n × tangent. A brushed metal square seen obliquely under the sky,
+// twice: u along +x with rotation 0, and u along +y with rotation π/2 (its direction n × y = −x, the
+// same axis), then u along +x with rotation π/2 and u along +y with rotation 0 (both along y). Each
+// pair's four quarters' means, per channel, agree within the Šidák z of their standard errors plus
+// 1e-4. Must-fail: a direction along x against one along y differs in some quarter by more.
+TEST(MaterialAnisotropy, DirectionIsTheTangentTurnedByTheRotation) {
+  const fs::path dir = temp_dir();
+  const int W = 24, H = 24;
+  const json along_x = {{-1, -1, 0}, {1, -1, 0}, {1, 1, 0}, {-1, 1, 0}};  // a quad's u runs from its first corner to its second
+  const json along_y = {{1, -1, 0}, {1, 1, 0}, {-1, 1, 0}, {-1, -1, 0}};
+  auto render = [&](const json& corners, double rotation) {
+    const json brushed = {{"type", "pbr"}, {"base_color", {0.9, 0.9, 0.9}}, {"metallic", 1}, {"roughness", 0.25},
+                          {"anisotropy_strength", 0.8}, {"anisotropy_rotation", rotation}};
+    const json scene = {{"camera", camera_json({0, 1.5, 3}, {0, 0, 0}, {0, 1, 0}, 40)},
+                        {"film", {{"width", W}, {"height", H}}},
+                        {"environment", {{"file", (fs::path(XI_SCENE_DIR) / "sky.hdr").string()}}},
+                        {"materials", {{"m", brushed}}},
+                        {"shapes", {{{"type", "quad"}, {"material", "m"}, {"vertices", corners}}}}};
+    return xi::test::render_shot(load_json(dir, scene), options(64, 11, XI_SAMPLER_RANDOM, 3));
+  };
+  const double quarter_turn = 1.5707963267948966;
+  const xi::test::Shot x0 = render(along_x, 0.0), x1 = render(along_y, quarter_turn);
+  const xi::test::Shot y0 = render(along_x, quarter_turn), y1 = render(along_y, 0.0);
+  const double z = xi::stats::sidak_critical_z(0.01, 24);
+  int differ = 0;
+  for (int q = 0; q < 4; ++q) {
+    const int x = (q % 2) * W / 2, y = (q / 2) * H / 2;
+    for (int ch = 0; ch < 3; ++ch) {
+      auto mean = [&](const xi::test::Shot& s) { return xi::test::block_mean(s, x, y, x + W / 2, y + H / 2, ch); };
+      const xi::test::MeanSe a = mean(x0), b = mean(x1), c = mean(y0), d = mean(y1);
+      EXPECT_NEAR(b.mean, a.mean, z * std::hypot(a.se, b.se) + 1e-4) << "along x: quarter " << q << " channel " << ch;
+      EXPECT_NEAR(d.mean, c.mean, z * std::hypot(c.se, d.se) + 1e-4) << "along y: quarter " << q << " channel " << ch;
+      differ += std::abs(c.mean - a.mean) > z * std::hypot(a.se, c.se) + 1e-4;
+    }
+  }
+  std::printf("[ aniso    ] a direction along x against one along y: %d of 12 quarter-channels differ\n", differ);
+  EXPECT_GT(differ, 0) << "the anisotropy direction changes nothing";
 }
 
 // Volumes inside one another (ice in a drink in a glass in a tank), as deep as a path follows them

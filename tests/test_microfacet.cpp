@@ -52,6 +52,7 @@ PbrLobes lobes(float roughness, float metallic, float transmission, float eta, g
   m.coat_normal = glm::vec3(0.0f, 0.0f, 1.0f);
   m.sheen_color = glm::vec3(0.0f);
   m.sheen_alpha = 0.0f;
+  m.stretch_x = m.stretch_y = 1.0f;
   return m;
 }
 

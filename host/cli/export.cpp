@@ -109,6 +109,7 @@ nlohmann::json material_json(const Material& m) {
                       {"specular", m.specular}, {"specular_color", vec(m.specular_color)},
                       {"clearcoat", m.clearcoat}, {"clearcoat_roughness", m.clearcoat_roughness},
                       {"sheen_color", vec(m.sheen_color)}, {"sheen_roughness", m.sheen_roughness},
+                      {"anisotropy_strength", m.anisotropy_strength}, {"anisotropy_rotation", m.anisotropy_rotation},
                       {"absorption", vec(m.volume_absorption())}};
   nlohmann::json textures = nlohmann::json::object();
   for (int k = 0; k < XI_TEXTURE_SLOTS; ++k)

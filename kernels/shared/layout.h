@@ -27,7 +27,8 @@
 #define XI_TEXTURE_SPECULAR 8             // A: the specular layer's strength
 #define XI_TEXTURE_SPECULAR_COLOR 9
 #define XI_TEXTURE_CLEARCOAT_NORMAL 10    // tangent space: the coat's own normal
-#define XI_TEXTURE_SLOTS 11
+#define XI_TEXTURE_ANISOTROPY 11          // RG: the direction in tangent space, B: the strength
+#define XI_TEXTURE_SLOTS 12
 #define XI_TEXTURE_SLOTS_PADDED 12  // the array's length: the struct's float4s stay 16-byte aligned
 
 // A path carries the volumes it is in (KHR_materials_volume), nested: each its index in the scene's
@@ -47,8 +48,10 @@ typedef struct {
   uint textures[XI_TEXTURE_SLOTS_PADDED];  // TextureRef index or XI_NO_TEXTURE, by XI_TEXTURE_*
   float4 specular;   // KHR_materials_specular (pbr): rgb the f0 tint, w the layer's strength (1, 1: none)
   float4 coat;       // KHR_materials_clearcoat (pbr): x weight (0: none), y roughness (perceptual), z the coat's normal map scale; w unused
-  float4 absorption; // KHR_materials_volume (pbr): rgb σa per unit length of the volume inside (0: none); w its index in volumes + 1
   float4 sheen;      // KHR_materials_sheen (pbr): rgb colour (0: none), w roughness (perceptual)
+  float4 anisotropy; // KHR_materials_anisotropy (pbr): x strength (0: none), y and z the cosine and sine of its rotation; w unused
+  uint volume;       // KHR_materials_volume (pbr): the index of its σa in volumes + 1 (0: none)
+  uint unused[3];
 } MaterialData;
 
 // Textures: every image's texels in one buffer of uints (RGBA, 8 bits each, red in the low byte),

@@ -13,12 +13,12 @@
 //   btdf(h) = η² |wi·h| |wo·h| D(h) G2 / (|wo.z| |wi.z| (wo·h + η wi·h)²)  Walter et al. 2007, with
 //             h = normalize(wo + η wi) turned to +z                       transmission (wi.z < 0)
 //
-// D is GGX, G2 the height-correlated Smith term 1 / (1 + Λ(wo) + Λ(wi)), F the exact dielectric
-// Fresnel of η, as Blender's Principled BSDF, Mitsuba and pbrt use (Schlick's approximation, which
-// the glTF spec's sample code uses, reflects less on average: 0.086 against 0.092 at η = 1.5, which
-// shows where the base is dark). The dielectric specular reflection and the rough transmission
-// share D, G2 and the microfacet's F, so together they keep at most the energy that arrives
-// (F + (1 − F) per microfacet, G2 ≤ G1).
+// D is GGX (anisotropic under KHR_materials_anisotropy: below), G2 the height-correlated Smith term
+// 1 / (1 + Λ(wo) + Λ(wi)), F the exact dielectric Fresnel of η, as Blender's Principled BSDF,
+// Mitsuba and pbrt use (Schlick's approximation, which the glTF spec's sample code uses, reflects
+// less on average: 0.086 against 0.092 at η = 1.5, which shows where the base is dark). The
+// dielectric specular reflection and the rough transmission share D, G2 and the microfacet's F, so
+// together they keep at most the energy that arrives (F + (1 − F) per microfacet, G2 ≤ G1).
 //
 // The layering of the dielectric specular over the base (PbrLobes.albedo_scaling):
 // - albedo scaling (1, the default; Blender's Principled BSDF and OpenPBR do the same): the base
@@ -78,6 +78,9 @@ typedef struct {
   xfloat3 base_color;   // linear RGB
   xfloat metallic;      // [0, 1]
   xfloat alpha;         // GGX alpha = roughness² (the caller squares); below XI_DELTA_ALPHA: delta lobes
+  // KHR_materials_anisotropy: the base's alphas along the frame's x and y are alpha · stretch_x and
+  // alpha · stretch_y (1, 1: isotropic); alpha is then their geometric mean (xi_set_anisotropy).
+  xfloat stretch_x, stretch_y;
   xfloat eta;           // n on the far side of the surface / n on wo's side (ior entering, 1/ior leaving)
   xfloat transmission;  // [0, 1] (KHR_materials_transmission)
   xfloat multiple_scattering;  // 1: the metal's and the layer's multiple scattering restored (above); 0: single scattering
@@ -137,6 +140,49 @@ static inline xfloat3 xi_ggx_sample_visible(xfloat3 wo, xfloat alpha, xfloat2 u)
 static inline xfloat xi_ggx_visible_pdf(xfloat3 wo, xfloat3 h, xfloat alpha) {
   return xi_ggx_g1(wo, alpha) * fmax(xi_dot3(wo, h), (xfloat)0.0f) * xi_ggx_d(h, alpha) /
          fmax(wo.z, (xfloat)XI_MIN_COS);
+}
+
+// --- Anisotropic GGX: the base's lobes (the coat stays isotropic)
+//
+// Alphas αx = alpha·sx along x and αy = alpha·sy along y (sx = m.stretch_x, sy = m.stretch_y) give
+//   D(h) = 1 / (π αx αy (hx²/αx² + hy²/αy² + hz²)²),   Λ(w) from αx² wx² + αy² wy² in place of α² (wx² + wy²),
+// which are the isotropic functions of alpha at h scaled by (1/sx, 1/sy, 1) (D over sx sy) and at w
+// scaled by (sx, sy, 1); the visible normals are sampled as isotropic ones from wo scaled the same
+// way, then scaled back (Heitz 2018 stretches by αx, αy). With sx = sy = 1 every scale is exact, so
+// isotropic lobes are computed bit for bit as by the isotropic functions.
+
+// glTF's mapping: the alpha along the anisotropy direction (frame x) rises from alpha towards 1 with
+// the strength squared; across it alpha stays (at least XI_DELTA_ALPHA: an anisotropic lobe is never
+// a delta). The albedo tables then take the geometric mean of the two, as Cycles does: their
+// compensation of the metal and the layer is approximate (xi_pbr_at leaves anisotropic glass
+// uncompensated: there the tables overshoot at grazing angles).
+static inline void xi_set_anisotropy(PbrLobes* m, xfloat strength) {
+  xfloat ay = fmax(m->alpha, (xfloat)XI_DELTA_ALPHA), ax = ay + (1.0f - ay) * strength * strength;
+  xmask on = strength > 0.0f;
+  xfloat mean = sqrt(ax * ay);
+  m->stretch_x = on ? ax / mean : (xfloat)1.0f;
+  m->stretch_y = on ? ay / mean : (xfloat)1.0f;
+  m->alpha = on ? mean : m->alpha;
+}
+
+static inline xfloat3 xi_stretch(xfloat3 w, xfloat sx, xfloat sy) { return make_xfloat3(w.x * sx, w.y * sy, w.z); }
+static inline xfloat xi_base_d(PbrLobes m, xfloat3 h) {
+  return xi_ggx_d(make_xfloat3(h.x / m.stretch_x, h.y / m.stretch_y, h.z), m.alpha) / (m.stretch_x * m.stretch_y);
+}
+static inline xfloat xi_base_g1(PbrLobes m, xfloat3 w) {
+  return xi_ggx_g1(xi_stretch(w, m.stretch_x, m.stretch_y), m.alpha);
+}
+static inline xfloat xi_base_g2(PbrLobes m, xfloat3 wo, xfloat3 wi) {
+  return xi_ggx_g2(xi_stretch(wo, m.stretch_x, m.stretch_y), xi_stretch(wi, m.stretch_x, m.stretch_y), m.alpha);
+}
+static inline xfloat3 xi_base_sample_visible(PbrLobes m, xfloat3 wo, xfloat2 u) {
+  xfloat3 h = xi_ggx_sample_visible(xi_stretch(wo, m.stretch_x, m.stretch_y), m.alpha, u);
+  xmask anisotropic = m.stretch_x != 1.0f || m.stretch_y != 1.0f;
+  if (XI_ANY(anisotropic)) h = xi_select3(anisotropic, xi_normalize3(xi_stretch(h, m.stretch_x, m.stretch_y)), h);
+  return h;
+}
+static inline xfloat xi_base_visible_pdf(PbrLobes m, xfloat3 wo, xfloat3 h) {
+  return xi_base_g1(m, wo) * fmax(xi_dot3(wo, h), (xfloat)0.0f) * xi_base_d(m, h) / fmax(wo.z, (xfloat)XI_MIN_COS);
 }
 
 // --- Fresnel
@@ -414,7 +460,7 @@ static inline PbrAtWo xi_pbr_at(PbrLobes m, xfloat3 wo) {
   if (XI_ANY(m.coat > 0.0f)) coat_mu = fmax(xi_dot3(wo, m.coat_normal), (xfloat)XI_MIN_COS);
   at.coat_share = xi_coat_share(m, coat_mu);
   at.glass_scale = 1.0f;
-  xmask compensated = m.transmission > 0.0f && m.alpha >= XI_DELTA_ALPHA && m.albedo_scaling > 0.0f;
+  xmask compensated = m.transmission > 0.0f && m.alpha >= XI_DELTA_ALPHA && m.albedo_scaling > 0.0f && m.stretch_x == 1.0f;
   if (XI_ANY(compensated)) {
     xfloat e = xi_glass_albedo(wo.z, sqrt(fmax(m.alpha, (xfloat)0.0f)), m.eta);
     at.glass_scale = compensated ? 1.0f / fmax(e, (xfloat)0.05f) : (xfloat)1.0f;
@@ -450,10 +496,9 @@ static inline PbrAtWo xi_pbr_at(PbrLobes m, xfloat3 wo) {
 // produces wi (non-delta lobes, the probabilities of `at` = xi_pbr_at(m, wo)).
 static inline xfloat3 xi_pbr_eval_pdf_at(PbrLobes m, PbrAtWo p, xfloat3 wo, xfloat3 wi, xfloat* pdf) {
   xmask rough = m.alpha >= XI_DELTA_ALPHA;
-  xfloat a = fmax(m.alpha, (xfloat)XI_DELTA_ALPHA);
   xfloat zo = fmax(wo.z, (xfloat)XI_MIN_COS), zi = fmax(fabs(wi.z), (xfloat)XI_MIN_COS);
   xmask above = wi.z > 0.0f, below = wi.z < 0.0f;
-  xfloat g2 = xi_ggx_g2(wo, wi, a);
+  xfloat g2 = xi_base_g2(m, wo, wi);
   xfloat dielectric = 1.0f - m.metallic;
   xfloat3 zero = make_xfloat3((xfloat)0.0f, (xfloat)0.0f, (xfloat)0.0f);
 
@@ -464,14 +509,14 @@ static inline xfloat3 xi_pbr_eval_pdf_at(PbrLobes m, PbrAtWo p, xfloat3 wo, xflo
   // The Fresnel terms' cosine, the same whichever of wo and wi comes first, so that f stays
   // reciprocal where the dielectric's Fresnel is steep (near the critical angle).
   xfloat cf = 0.5f * (xi_dot3(wo, hr) + xi_dot3(wi, hr));
-  xfloat spec = xi_ggx_d(hr, a) * g2 / (4.0f * zo * zi);
+  xfloat spec = xi_base_d(m, hr) * g2 / (4.0f * zo * zi);
   xfloat3 fmetal = xi_schlick_color(m.base_color, cf);
   xfloat3 fdiel = xi_dielectric_fresnel(m, cf);
   // The dielectric's reflection: its opaque share with the layer's multiple scattering, its
   // transmissive share compensated as the transmission is.
   xfloat reflection_scale = (1.0f - m.transmission) * p.layer_scale + m.transmission * p.glass_scale;
   xfloat3 f_spec = xi_scale3(xi_add3(xi_scale3(fmetal, m.metallic), xi_scale3(fdiel, dielectric * reflection_scale)), spec);
-  xfloat pdf_r = xi_ggx_visible_pdf(wo, hr, a) / (4.0f * cr);
+  xfloat pdf_r = xi_base_visible_pdf(m, wo, hr) / (4.0f * cr);
   xmask refl = above && rough;
 
   // Diffuse.
@@ -493,10 +538,10 @@ static inline xfloat3 xi_pbr_eval_pdf_at(PbrLobes m, PbrAtWo p, xfloat3 wo, xflo
     xfloat cot = xi_dot3(wo, ht), cit = xi_dot3(wi, ht);
     trans = below && rough && cot > 0.0f && cit < 0.0f && len2 > 1e-12f;
     xfloat jac = m.eta * m.eta * fabs(cit) / fmax(len2, (xfloat)1e-12f);  // dω_h / dω_i, the denominator (wo·h + η wi·h)² = len2
-    xfloat bt = fabs(cot) * xi_ggx_d(ht, a) * g2 * jac / (zo * zi);
+    xfloat bt = fabs(cot) * xi_base_d(m, ht) * g2 * jac / (zo * zi);
     xfloat3 passed = xi_sub3(make_xfloat3((xfloat)1.0f, (xfloat)1.0f, (xfloat)1.0f), xi_dielectric_fresnel(m, cot));
     f_trans = xi_scale3(xi_mul3(xi_transmission_tint(m), passed), dielectric * m.transmission * bt * p.glass_scale);
-    pdf_t = xi_ggx_visible_pdf(wo, ht, a) * jac;
+    pdf_t = xi_base_visible_pdf(m, wo, ht) * jac;
   }
 
   *pdf = (refl ? p.reflect * pdf_r : (xfloat)0.0f) + (above ? p.diffuse * pdf_d : (xfloat)0.0f) +
@@ -559,7 +604,7 @@ static inline xfloat3 xi_pbr_sample_lobe_at(PbrLobes m, PbrAtWo p, xfloat3 wo, x
   xfloat3 n = make_xfloat3((xfloat)0.0f, (xfloat)0.0f, (xfloat)1.0f);
 
   // Rough lobes (the coat's microfacet normal, in its own frame, only where some path has a coat).
-  xfloat3 h = xi_ggx_sample_visible(wo, m.alpha, u);
+  xfloat3 h = xi_base_sample_visible(m, wo, u);
   xmask coat_smooth = m.coat_alpha < XI_DELTA_ALPHA;
   xfloat coat_mu = 1.0f;
   xfloat3 nc = n;

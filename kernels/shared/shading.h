@@ -26,6 +26,7 @@
 #define XI_USE_CLEARCOAT 32768u           // KHR_materials_clearcoat
 #define XI_USE_VOLUME 65536u              // KHR_materials_volume: absorption inside transmissive meshes
 #define XI_USE_SHEEN 131072u              // KHR_materials_sheen
+#define XI_USE_ANISOTROPY 262144u         // KHR_materials_anisotropy
 // (Feature bits stay below the sampler's: kernel_config.cpp checks that they do.)
 #define XI_SAMPLER_SHIFT 24u     // the sampler (XI_SAMPLER_*) in the bits above
 
@@ -48,6 +49,7 @@
   F(clearcoat, XI_USE_CLEARCOAT, "clearcoat", 1)                \
   F(volume, XI_USE_VOLUME, "volume", 1)                         \
   F(sheen, XI_USE_SHEEN, "sheen", 1)                            \
+  F(anisotropy, XI_USE_ANISOTROPY, "anisotropy", 1)             \
   F(multiple_scattering, XI_USE_MULTIPLE_SCATTERING, "multiple-scattering", 0) \
   F(albedo_scaling, XI_USE_ALBEDO_SCALING, "albedo-scaling", 0)
 

@@ -39,8 +39,8 @@ struct CompiledScene {
   std::vector<ImageHeader> images;
   std::vector<uint32_t> texels;        // every image's RGBA8 texels
   std::vector<PunctualLightData> punctual;  // one unused entry when there are none
-  // σa (rgb) of each material with a volume, in the order of their MaterialData's absorption.w
-  // (volume index + 1); one unused entry when there are none.
+  // σa (rgb) of each material with a volume, in the order of their MaterialData's volume (index +
+  // 1); one unused entry when there are none.
   std::vector<glm::vec4> volumes;
   // The environment (one unused texel and CDF entry when there is none):
   EnvironmentData environment{};

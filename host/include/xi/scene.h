@@ -64,6 +64,7 @@ inline constexpr TextureSlotInfo kTextureSlots[XI_TEXTURE_SLOTS] = {
     {"specular_texture", false},             // A: the specular layer's strength
     {"specular_color_texture", true},
     {"clearcoat_normal_texture", false},     // tangent space: the coat's own normal
+    {"anisotropy_texture", false},           // RG: a direction in tangent space, B: the strength
 };
 
 struct Material {
@@ -89,6 +90,11 @@ struct Material {
   // KHR_materials_sheen: fibres over the material, their colour (0: none) and roughness.
   glm::vec3 sheen_color{0.0f};
   float sheen_roughness = 0.0f;
+  // KHR_materials_anisotropy: the base's microfacets stretched along a direction in the tangent
+  // plane, anisotropy_rotation radians counter-clockwise from the tangent (the texture's direction
+  // where it has one): the alpha along it rises from roughness² towards 1 with the strength squared.
+  float anisotropy_strength = 0.0f;
+  float anisotropy_rotation = 0.0f;
   // KHR_materials_volume: a transmissive mesh's inside absorbs, Beer–Lambert: light that travels
   // attenuation_distance in it keeps attenuation_color of itself (infinite distance: clear).
   glm::vec3 attenuation_color{1.0f};

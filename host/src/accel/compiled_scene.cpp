@@ -11,9 +11,10 @@
 #include "xi/error.h"
 
 // shade's xi_gather_material (bsdf.h) reads a material as three float4s with the type first in the third.
-static_assert(sizeof(MaterialData) == 176 && offsetof(MaterialData, sheen) == 160 && offsetof(MaterialData, type) == 32 && offsetof(MaterialData, pbr) == 48 &&
+static_assert(sizeof(MaterialData) == 192 && offsetof(MaterialData, type) == 32 && offsetof(MaterialData, pbr) == 48 &&
                   offsetof(MaterialData, textures) == 64 && offsetof(MaterialData, specular) == 112 &&
-                  offsetof(MaterialData, coat) == 128 && offsetof(MaterialData, absorption) == 144,
+                  offsetof(MaterialData, coat) == 128 && offsetof(MaterialData, sheen) == 144 &&
+                  offsetof(MaterialData, anisotropy) == 160 && offsetof(MaterialData, volume) == 176,
               "MaterialData layout");
 static_assert(sizeof(TextureRef) == 48 && sizeof(EnvironmentData) == 80 && sizeof(PunctualLightData) == 64, "layout");
 
@@ -148,9 +149,12 @@ CompiledScene compile_scene(const Scene& scene, int bvh_width, bool spatial_spli
     md.specular = glm::vec4(m.specular_color, m.specular);
     md.coat = glm::vec4(m.clearcoat, m.clearcoat_roughness, m.clearcoat_normal_scale, 0.0f);
     const bool has_volume = m.type == MaterialType::Pbr && m.volume_absorption() != glm::vec3(0.0f);
-    md.absorption = glm::vec4(m.volume_absorption(), has_volume ? float(cs.volumes.size() + 1) : 0.0f);
+    md.volume = has_volume ? (uint32_t)cs.volumes.size() + 1u : 0u;
     if (has_volume) cs.volumes.push_back(glm::vec4(m.volume_absorption(), 0.0f));
     md.sheen = glm::vec4(m.sheen_color, m.sheen_roughness);
+    const bool anisotropic = m.type == MaterialType::Pbr && m.anisotropy_strength > 0.0f;
+    md.anisotropy = glm::vec4(anisotropic ? m.anisotropy_strength : 0.0f, std::cos(m.anisotropy_rotation),
+                              std::sin(m.anisotropy_rotation), 0.0f);
     for (int k = 0; k < XI_TEXTURE_SLOTS; ++k) {
       const TextureSlot& slot = m.textures[k];
       md.textures[k] = XI_NO_TEXTURE;
@@ -169,6 +173,7 @@ CompiledScene compile_scene(const Scene& scene, int bvh_width, bool spatial_spli
     cs.features.clearcoat |= m.type == MaterialType::Pbr && m.clearcoat > 0.0f;
     cs.features.volume |= has_volume;
     cs.features.sheen |= m.type == MaterialType::Pbr && m.sheen_color != glm::vec3(0.0f);
+    cs.features.anisotropy |= anisotropic;
     cs.features.alpha |= m.cuts_out();
   }
   // A path's volumes are volume indices + 1 in XI_VOLUME_BITS each of one 32-bit word (shade.cl).
@@ -212,7 +217,9 @@ CompiledScene compile_scene(const Scene& scene, int bvh_width, bool spatial_spli
   gather(0);
   for (std::thread& t : pool) t.join();
   for (char has : normals) cs.features.normals |= has != 0;
-  if (cs.features.textures) {
+  // Texture coordinates where a texture or an anisotropy direction is read, tangents where a normal
+  // map or an anisotropy direction is (both give the tangent frame).
+  if (cs.features.textures || cs.features.anisotropy) {
     cs.tri_uv.resize(3 * n);
     for (size_t i = 0; i < n; ++i) {
       const Triangle& t = scene.triangles[cs.bvh.order[i]];
@@ -222,7 +229,7 @@ CompiledScene compile_scene(const Scene& scene, int bvh_width, bool spatial_spli
   const bool normal_maps = std::any_of(cs.materials.begin(), cs.materials.end(), [](const MaterialData& m) {
     return m.textures[XI_TEXTURE_NORMAL] != XI_NO_TEXTURE;
   });
-  if (normal_maps) {
+  if (normal_maps || cs.features.anisotropy) {
     cs.tri_tangents.resize(3 * n);
     for (size_t i = 0; i < n; ++i)
       for (int k = 0; k < 3; ++k) cs.tri_tangents[3 * i + k] = scene.triangles[cs.bvh.order[i]].tangent[k];

@@ -171,13 +171,20 @@ class Reader {
         out.clearcoat_normal_scale = float(number(*member(*e, "clearcoatNormalTexture"), "scale", 1.0));
     }
 
+    if (const json* e = extension(m, "KHR_materials_anisotropy")) {
+      out.anisotropy_strength = std::clamp(float(number(*e, "anisotropyStrength", 0.0)), 0.0f, 1.0f);
+      out.anisotropy_rotation = float(number(*e, "anisotropyRotation", 0.0));
+      if (!std::isfinite(out.anisotropy_rotation))
+        throw Error("material '" + out.name + "' has a non-finite anisotropy rotation", file_.path.string());
+      read_slot(XI_TEXTURE_ANISOTROPY, *e, "anisotropyTexture");
+    }
+
     const std::string mode = member(m, "alphaMode") && m["alphaMode"].is_string() ? m["alphaMode"].get<std::string>() : "OPAQUE";
     out.alpha_mode = mode == "MASK" ? AlphaMode::Mask : mode == "BLEND" ? AlphaMode::Blend : AlphaMode::Opaque;
     out.alpha_cutoff = float(number(m, "alphaCutoff", 0.5));
 
     static const std::map<std::string, std::string> unmodelled = {
         {"KHR_materials_iridescence", "iridescence is not modelled: the base layer alone is rendered"},
-        {"KHR_materials_anisotropy", "anisotropy is not modelled: rendered isotropic"},
         {"KHR_materials_unlit", "unlit materials are not modelled: rendered as lit metallic-roughness"},
         {"KHR_materials_dispersion", "dispersion needs spectral rendering, which xi does not do: one ior for every wavelength"},
         {"KHR_materials_diffuse_transmission", "diffuse transmission is not modelled: the surface is opaque"},

@@ -278,7 +278,7 @@ void read_pbr(const Node& n, Material& m, ImageFiles& images) {
                                         "normal_scale", "radiance", "two_sided", "alpha", "alpha_mode", "alpha_cutoff",
                                         "specular", "specular_color", "clearcoat", "clearcoat_roughness",
                                         "attenuation_color", "attenuation_distance", "sheen_color", "sheen_roughness",
-                                        "clearcoat_normal_scale"};
+                                        "clearcoat_normal_scale", "anisotropy_strength", "anisotropy_rotation"};
   for (const TextureSlotInfo& slot : kTextureSlots) keys.push_back(slot.key);
   n.expect_object(keys);
   m.type = MaterialType::Pbr;
@@ -293,6 +293,8 @@ void read_pbr(const Node& n, Material& m, ImageFiles& images) {
   m.clearcoat_roughness = n.number_in("clearcoat_roughness", 0.0f, 0.0f, 1.0f);
   m.sheen_color = n.rgb("sheen_color", glm::vec3(0.0f), 1.0f);
   m.sheen_roughness = n.number_in("sheen_roughness", 0.0f, 0.0f, 1.0f);
+  m.anisotropy_strength = n.number_in("anisotropy_strength", 0.0f, 0.0f, 1.0f);
+  m.anisotropy_rotation = n.number_in("anisotropy_rotation", 0.0f, -1e3f, 1e3f);
   m.attenuation_color = n.rgb("attenuation_color", glm::vec3(1.0f), 1.0f);
   m.attenuation_distance = n.number_in("attenuation_distance", m.attenuation_distance, 1e-30f, kInf);
   if ((n.has("attenuation_color") || n.has("attenuation_distance")) && m.transmission <= 0.0f)
