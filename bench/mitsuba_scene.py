@@ -93,6 +93,43 @@ def texture(slot, export_dir, factor, what):
             "to_uv": mi.ScalarTransform3f(mi.ScalarMatrix3f([slot["transform"][3 * r:3 * r + 3] for r in range(3)]))}
 
 
+def data_channel(slot, export_dir, channel, factor, out_name):
+    """Channel CHANNEL (1: G, 2: B) of a data texture times FACTOR, written as a one-channel linear EXR and
+    read back as Mitsuba's raw `bitmap`: glTF packs roughness (G) and metallic (B) in one image, a Mitsuba
+    parameter reads one value."""
+    import mitsuba as mi
+    import numpy as np
+    if slot["texcoord"] != 0 or slot["wrap_s"] != slot["wrap_t"]:
+        raise Unsupported(f"{out_name}: texture coordinate set {slot['texcoord']} or mixed wrap modes")
+    pixels = np.array(mi.Bitmap(str(Path(export_dir) / slot["file"])), dtype=np.float32) / 255.0
+    path = Path(export_dir) / f"mitsuba-{out_name}.exr"
+    mi.Bitmap(np.ascontiguousarray(pixels[..., channel:channel + 1] * factor)).write(str(path))
+    return {"type": "bitmap", "filename": str(path), "filter_type": "bilinear", "wrap_mode": slot["wrap_s"],
+            "raw": True,
+            "to_uv": mi.ScalarTransform3f(mi.ScalarMatrix3f([slot["transform"][3 * r:3 * r + 3] for r in range(3)]))}
+
+
+def normal_mapped(b, m, export_dir, name):
+    """B under Mitsuba's `normalmap` of the material's tangent-space normal texture, its xy scaled by
+    normal_scale as glTF's (Mitsuba's tangent frame is dp/du of the texture coordinates: xi's where the file
+    has no tangents)."""
+    import mitsuba as mi
+    import numpy as np
+    slot = m["textures"]["normal_texture"]
+    if slot["texcoord"] != 0 or slot["wrap_s"] != slot["wrap_t"]:
+        raise Unsupported(f"material '{m['name']}': normal texture set {slot['texcoord']} or mixed wrap modes")
+    t = np.array(mi.Bitmap(str(Path(export_dir) / slot["file"])), dtype=np.float32)[..., :3] / 255.0
+    n = (2.0 * t - 1.0) * np.array([m["normal_scale"], m["normal_scale"], 1.0], dtype=np.float32)
+    n /= np.maximum(np.linalg.norm(n, axis=-1, keepdims=True), 1e-6)
+    path = Path(export_dir) / f"mitsuba-{name}-normal.exr"
+    mi.Bitmap(np.ascontiguousarray(0.5 * n + 0.5)).write(str(path))
+    return {"type": "normalmap", "bsdf": b,
+            "normalmap": {"type": "bitmap", "filename": str(path), "filter_type": "bilinear", "raw": True,
+                          "wrap_mode": slot["wrap_s"],
+                          "to_uv": mi.ScalarTransform3f(mi.ScalarMatrix3f(
+                              [slot["transform"][3 * r:3 * r + 3] for r in range(3)]))}}
+
+
 def conductor_eta_k(f0):
     """Real eta, k = 0 per channel whose normal-incidence Fresnel reflectance is F0 (Gulbrandsen 2014 with
     edge tint 0: n = (1 + sqrt r) / (1 - sqrt r)): exact Fresnel rising to 1 at grazing as Schlick's does."""
@@ -102,15 +139,22 @@ def conductor_eta_k(f0):
 
 def pbr_bsdf(m, export_dir):
     """xi's glTF metallic-roughness material as the closest Mitsuba BSDF (bench/README.md says how each
-    differs): metallic 1 -> roughconductor, metallic 0 -> roughplastic, between -> principled."""
+    differs): metallic 1 -> roughconductor, metallic 0 -> roughplastic, between or with a metallic-roughness
+    texture -> principled; a normal texture -> Mitsuba's normalmap over it."""
     tex = m["textures"]
-    for slot in ("metallic_roughness_texture", "normal_texture"):
-        if slot in tex:
-            raise Unsupported(f"material '{m['name']}': {slot}")
     if m["transmission"] > 0:
         raise Unsupported(f"material '{m['name']}': transmission")
     base = texture(tex.get("base_color_texture"), export_dir, m["albedo"], m["name"])
     r, metallic = m["roughness"], m["metallic"]
+    name = f"material-{m['index']}"
+    if "metallic_roughness_texture" in tex:
+        slot = tex["metallic_roughness_texture"]
+        b = {"type": "principled", "base_color": base, "eta": m["ior"], "spec_tint": 0.0, "spec_trans": 0.0,
+             "sheen": 0.0, "clearcoat": 0.0,
+             "roughness": data_channel(slot, export_dir, 1, r, f"{name}-roughness"),
+             "metallic": data_channel(slot, export_dir, 2, metallic, f"{name}-metallic")}
+        b = normal_mapped(b, m, export_dir, name) if "normal_texture" in tex else b
+        return {"type": "twosided", "bsdf": b}
     delta = r < 0.01  # xi's delta lobes
     alpha = r * r
     rough = {"distribution": "ggx", "alpha": alpha, "sample_visible": True}
@@ -131,6 +175,7 @@ def pbr_bsdf(m, export_dir):
             raise Unsupported(f"material '{m['name']}': a textured partly metallic material")
         b = {"type": "principled", "base_color": base, "metallic": metallic, "roughness": max(r, 0.01),
              "eta": m["ior"], "spec_tint": 0.0, "spec_trans": 0.0, "sheen": 0.0, "clearcoat": 0.0}
+    b = normal_mapped(b, m, export_dir, name) if "normal_texture" in tex else b
     return {"type": "twosided", "bsdf": b}
 
 
@@ -141,8 +186,8 @@ def bsdf(m, export_dir):
     kind, emitter = m["type"], None
     if m["alpha_mode"] != "opaque":
         raise Unsupported(f"material '{m['name']}': alpha mode {m['alpha_mode']}")
-    if "normal_texture" in m["textures"] or "emissive_texture" in m["textures"]:
-        raise Unsupported(f"material '{m['name']}': normal or emissive texture")
+    if "emissive_texture" in m["textures"] or ("normal_texture" in m["textures"] and kind != "pbr"):
+        raise Unsupported(f"material '{m['name']}': an emissive texture, or a normal texture on a {kind} material")
     if max(m["emission"]) > 0:
         if m["two_sided"]:
             raise Unsupported("two-sided emitters (Mitsuba's area lights emit from the front face only)")
@@ -246,7 +291,8 @@ def convert(scene_file, export_dir, width, height, max_depth, sampler):
         d[f"light-{i}"] = light(l)
 
     for i, mesh in enumerate(manifest["meshes"]):
-        b, emitter = bsdf(manifest["materials"][mesh["material_index"]], export_dir)
+        b, emitter = bsdf(dict(manifest["materials"][mesh["material_index"]], index=mesh["material_index"]),
+                          export_dir)
         v, n, uv = read_ply(export_dir / mesh["file"])
         # The first flat_triangles have no vertex normals in xi (their face normal at each vertex): they go
         # to Mitsuba without normals too, so that each renderer interpolates normals on the same triangles.

@@ -32,8 +32,13 @@ import mitsuba_scene as ms  # noqa: E402
 
 DEFAULT_SCENES = ["cornell-box", "bench/scenes/engine.json"]
 # Short names for the bench's own scenes (--scenes material): textured floor, GGX metals, rough dielectric,
-# the sky as environment (bench/make_material_scene.py writes it).
+# the sky as environment (bench/make_material_scene.py writes it); a product shot of a glTF asset, textured
+# and normal-mapped, under the sky, and the same camera turned to the sky alone, every camera ray escaping
+# (bench/make_product_scene.py); a textured glTF still life
+# (bench/make_asset_scene.py).
 BENCH_SCENES = {"engine": "bench/scenes/engine.json", "material": "bench/scenes/material.json",
+                "product": "bench/scenes/product.json", "product-sky": "bench/scenes/product-sky.json",
+                "textured": "bench/scenes/textured.json",
                 "env-sky": "bench/scenes/env-sky.json", "env-sun": "bench/scenes/env-sun.json"}
 ENV_SCENES = ["env-sky", "env-sun"]  # --env's (bench/make_env_scenes.py writes them)
 # --env's defaults: the resolution, spp, reference spp and seeds its numbers are quoted at.

@@ -44,9 +44,9 @@ __kernel void generate(XI_PATH_PARAMS __global uint* restrict queue, __global ui
   const xfloat zero = 0.0f;
   xi_scatter4(ray_org, slot, org, zero, active);
   xi_scatter4(ray_dir, slot, dir, zero, active);
-  xi_scatter4(throughput, slot, xi_splat3(make_float3(1.0f, 1.0f, 1.0f)), zero, active);
+  // (No throughput or radiance: shade starts a camera ray with its known 1 and 0, most of an asset
+  // shot's camera rays escaping with no more than one lookup.)
   const xfloat3 none = xi_splat3(make_float3(0.0f, 0.0f, 0.0f));
-  xi_scatter4(radiance, slot, none, zero, active);
   xi_scatter_uint(item_pixel, slot, pixel, active);  // shade draws its samples for them without redoing the divisions
   xi_scatter_uint(item_sample, slot, sample_index, active);
   xi_scatter4(aov_albedo, slot, none, zero, active);

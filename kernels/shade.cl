@@ -298,13 +298,19 @@ static inline XI_INLINE ShadeResult xi_shade_paths(XI_PATH_PARAMS xuint slot, xm
   xfloat tri_bits;
   xfloat3 h = xi_gather_xyz(hit, slot, &tri_bits);  // t (< 0: missed), barycentrics u, v
   xmask escaped = h.x < 0.0f;
+  // A camera ray (bounce 0) carries throughput 1 and no radiance yet, which generate does not write:
+  // here they are known, not read, and every camera ray's radiance is written below.
+  xfloat prev_pdf = 0.0f;  // 0 after a camera ray or a specular bounce
+  xfloat3 beta = xi_splat3(make_float3(1.0f, 1.0f, 1.0f)), L = xi_splat3(make_float3(0.0f, 0.0f, 0.0f));
+  if (d > 0u) {
+    beta = xi_gather_xyz(throughput, slot, &prev_pdf);
+    L = xi_gather_xyz(radiance, slot, 0);
+  }
   if (!xi_lit_from_afar(shading, env, background)) {  // an escaped path gathers nothing more
+    if (d == 0u) xi_scatter4(radiance, slot, L, (xfloat)0.0f, active && escaped);
     active = active && !escaped;
     if (!XI_ANY(active)) return r;
   }
-  xfloat prev_pdf;  // 0 after a camera ray or a specular bounce
-  xfloat3 beta = xi_gather_xyz(throughput, slot, &prev_pdf);
-  xfloat3 L = xi_gather_xyz(radiance, slot, 0);
   // The volumes the ray is in (layout.h's ray_dir.w, XI_VOLUME_BITS each): the innermost, medium,
   // in the lowest bits (0: none).
   xuint media = 0u, medium = 0u;
@@ -517,8 +523,10 @@ __kernel void shade(XI_PATH_PARAMS __global const uint* restrict queue_in, __glo
   for (uint at = ahead_first; at < ahead_end; ++at) {
     uint ahead = partitioned ? group_slots[at] : queue_in[at];
     XI_PREFETCH(&hit[ahead], 0);
-    XI_PREFETCH(&throughput[ahead], 1);
-    XI_PREFETCH(&radiance[ahead], 1);
+    if (bounce > 0u) {
+      XI_PREFETCH(&throughput[ahead], 1);
+      XI_PREFETCH(&radiance[ahead], 1);
+    }
     XI_PREFETCH(&ray_dir[ahead], 1);
   }
 #endif
