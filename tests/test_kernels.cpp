@@ -701,8 +701,9 @@ TEST_F(Kernel, ShadeFirstHitsFromTheCamera) {
   }
   std::vector<uint32_t> identity(slots);
   std::iota(identity.begin(), identity.end(), 0u);
-  for (const vec4 background : {vec4(0.25f, 0.5f, 0.75f, 0.0f), vec4(0.0f)})
-  for (int lanes : {1, 8}) {
+  for (int run = 0; run < 4; ++run) {  // a coloured and a black background, 1 and 8 lanes each
+    const vec4 background = run < 2 ? vec4(0.25f, 0.5f, 0.75f, 0.0f) : vec4(0.0f);
+    const int lanes = run % 2 ? 8 : 1;
     SCOPED_TRACE(testing::Message() << lanes << " lanes, background " << background.x);
     PathBuffers b = upload(state);
     cl::Buffer queue_in = buffer(identity), queue_out = buffer(garbage<uint32_t>(slots));
