@@ -75,22 +75,28 @@ def rgb(value):
     return {"type": "rgb", "value": [float(x) for x in value]}
 
 
-def texture(slot, export_dir, factor, what):
-    """A texture slot of the manifest as Mitsuba's `bitmap` (bilinear, sRGB-decoded unless it is data),
-    times FACTOR, or FACTOR as an RGB where there is no texture. Mitsuba reads the PLY's u, v and the image
-    as glTF does ((0, 0) the top-left corner, v down), so the transform goes unchanged."""
+def bitmap(slot, filename, raw, what):
+    """Mitsuba's `bitmap` of FILENAME read through a texture slot of the manifest: bilinear, the slot's wrap
+    mode and KHR_texture_transform. Mitsuba reads the PLY's u, v and the image as glTF does ((0, 0) the
+    top-left corner, v down), so the transform goes unchanged. RAW: data, not sRGB-decoded."""
     import mitsuba as mi
-    if slot is None:
-        return rgb(factor)
-    if any(abs(f - 1) > 1e-6 for f in factor):
-        raise Unsupported(f"{what}: a texture times a factor other than 1")
     if slot["texcoord"] != 0:
         raise Unsupported(f"{what}: texture coordinate set {slot['texcoord']} (the export has set 0)")
     if slot["wrap_s"] != slot["wrap_t"]:
         raise Unsupported(f"{what}: different wrap modes in u and v")
-    return {"type": "bitmap", "filename": str(Path(export_dir) / slot["file"]), "filter_type": "bilinear",
-            "wrap_mode": slot["wrap_s"], "raw": False,
+    return {"type": "bitmap", "filename": str(filename), "filter_type": "bilinear", "wrap_mode": slot["wrap_s"],
+            "raw": raw,
             "to_uv": mi.ScalarTransform3f(mi.ScalarMatrix3f([slot["transform"][3 * r:3 * r + 3] for r in range(3)]))}
+
+
+def texture(slot, export_dir, factor, what):
+    """A colour texture slot as Mitsuba's sRGB-decoded `bitmap` times FACTOR, or FACTOR as an RGB where there
+    is no texture."""
+    if slot is None:
+        return rgb(factor)
+    if any(abs(f - 1) > 1e-6 for f in factor):
+        raise Unsupported(f"{what}: a texture times a factor other than 1")
+    return bitmap(slot, Path(export_dir) / slot["file"], False, what)
 
 
 def data_channel(slot, export_dir, channel, factor, out_name):
@@ -99,14 +105,10 @@ def data_channel(slot, export_dir, channel, factor, out_name):
     parameter reads one value."""
     import mitsuba as mi
     import numpy as np
-    if slot["texcoord"] != 0 or slot["wrap_s"] != slot["wrap_t"]:
-        raise Unsupported(f"{out_name}: texture coordinate set {slot['texcoord']} or mixed wrap modes")
     pixels = np.array(mi.Bitmap(str(Path(export_dir) / slot["file"])), dtype=np.float32) / 255.0
     path = Path(export_dir) / f"mitsuba-{out_name}.exr"
     mi.Bitmap(np.ascontiguousarray(pixels[..., channel:channel + 1] * factor)).write(str(path))
-    return {"type": "bitmap", "filename": str(path), "filter_type": "bilinear", "wrap_mode": slot["wrap_s"],
-            "raw": True,
-            "to_uv": mi.ScalarTransform3f(mi.ScalarMatrix3f([slot["transform"][3 * r:3 * r + 3] for r in range(3)]))}
+    return bitmap(slot, path, True, out_name)
 
 
 def normal_mapped(b, m, export_dir, name):
@@ -116,18 +118,12 @@ def normal_mapped(b, m, export_dir, name):
     import mitsuba as mi
     import numpy as np
     slot = m["textures"]["normal_texture"]
-    if slot["texcoord"] != 0 or slot["wrap_s"] != slot["wrap_t"]:
-        raise Unsupported(f"material '{m['name']}': normal texture set {slot['texcoord']} or mixed wrap modes")
     t = np.array(mi.Bitmap(str(Path(export_dir) / slot["file"])), dtype=np.float32)[..., :3] / 255.0
     n = (2.0 * t - 1.0) * np.array([m["normal_scale"], m["normal_scale"], 1.0], dtype=np.float32)
     n /= np.maximum(np.linalg.norm(n, axis=-1, keepdims=True), 1e-6)
     path = Path(export_dir) / f"mitsuba-{name}-normal.exr"
     mi.Bitmap(np.ascontiguousarray(0.5 * n + 0.5)).write(str(path))
-    return {"type": "normalmap", "bsdf": b,
-            "normalmap": {"type": "bitmap", "filename": str(path), "filter_type": "bilinear", "raw": True,
-                          "wrap_mode": slot["wrap_s"],
-                          "to_uv": mi.ScalarTransform3f(mi.ScalarMatrix3f(
-                              [slot["transform"][3 * r:3 * r + 3] for r in range(3)]))}}
+    return {"type": "normalmap", "bsdf": b, "normalmap": bitmap(slot, path, True, f"material '{m['name']}'")}
 
 
 def conductor_eta_k(f0):

@@ -152,18 +152,9 @@ static inline XI_INLINE Bsdf xi_surface_bsdf(XI_SCENE_PARAMS, uint shading, Shad
   }
 
   // The metallic-roughness material: its inputs, shading normal and local frame (n = +z, wo above).
-  b.pbr.base_color = m.albedo;
-  b.pbr.metallic = b.pbr.alpha = b.pbr.transmission = 0.0f;
-  b.pbr.stretch_x = b.pbr.stretch_y = 1.0f;
+  b.pbr = xi_plain_pbr_lobes(m.albedo);
   b.pbr.multiple_scattering = xi_uses(shading, XI_USE_MULTIPLE_SCATTERING) ? 1.0f : 0.0f;
   b.pbr.albedo_scaling = xi_uses(shading, XI_USE_ALBEDO_SCALING) ? 1.0f : 0.0f;
-  b.pbr.specular_color = make_xfloat3((xfloat)1.0f, (xfloat)1.0f, (xfloat)1.0f);
-  b.pbr.specular = 1.0f;
-  b.pbr.coat = b.pbr.coat_alpha = 0.0f;
-  b.pbr.coat_normal = make_xfloat3((xfloat)0.0f, (xfloat)0.0f, (xfloat)1.0f);
-  b.pbr.sheen_color = make_xfloat3((xfloat)0.0f, (xfloat)0.0f, (xfloat)0.0f);
-  b.pbr.sheen_alpha = 0.0f;
-  b.pbr.eta = 1.5f;
   b.frame_t = b.frame_b = b.n;
   if (xi_uses(shading, XI_USE_PBR)) {
     xmask pbr = at_surface && m.type == XI_MATERIAL_PBR;

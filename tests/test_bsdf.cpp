@@ -259,7 +259,7 @@ Surface surface(const Case& c, bool at_surface = true) {
   b.frame_t = s.t * (float)std::cos(turn) + s.bt * (float)std::sin(turn);
   b.frame_b = s.bt * (float)std::cos(turn) - s.t * (float)std::sin(turn);
   s.eta = c.entering ? kIor : 1.0f / kIor;
-  b.pbr.base_color = c.tint;
+  b.pbr = xi_plain_pbr_lobes(c.tint);
   b.pbr.metallic = c.metallic;
   b.pbr.alpha = c.roughness * c.roughness;
   b.pbr.eta = s.eta;
@@ -273,7 +273,6 @@ Surface surface(const Case& c, bool at_surface = true) {
   b.pbr.specular_color = c.specular_color;
   b.pbr.sheen_color = c.sheen;
   b.pbr.sheen_alpha = c.sheen_roughness * c.sheen_roughness;
-  b.pbr.stretch_x = b.pbr.stretch_y = 1.0f;
   xi_set_anisotropy(&b.pbr, c.anisotropy);
   s.shading = XI_USE_MIRROR | XI_USE_DIELECTRIC | XI_USE_PBR | (c.multiple_scattering ? XI_USE_MULTIPLE_SCATTERING : 0u) |
               (c.albedo_scaling ? XI_USE_ALBEDO_SCALING : 0u) | XI_USE_SPECULAR | XI_USE_CLEARCOAT | XI_USE_SHEEN |

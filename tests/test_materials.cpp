@@ -383,21 +383,11 @@ TEST(MaterialFurnace, MetallicRoughnessSphereAlbedo) {
           ASSERT_GT(c, 0.0);
           // Local frame: n = +z; wo = (sin θo, 0, cos θo) (the lobes are isotropic).
           const glm::vec3 wo(float(std::sqrt(std::max(0.0, 1.0 - c * c))), 0.0f, float(c));
-          PbrLobes m;
-          m.base_color = glm::vec3(float(k.base));
+          PbrLobes m = xi_plain_pbr_lobes(glm::vec3(float(k.base)));
           m.metallic = float(k.metallic);
           m.alpha = float(k.roughness * k.roughness);
-          m.eta = 1.5f;
-          m.transmission = 0.0f;
           m.multiple_scattering = k.multiple_scattering ? 1.0f : 0.0f;
           m.albedo_scaling = 1.0f;  // the scene's default layering
-          m.specular_color = glm::vec3(1.0f);
-          m.specular = 1.0f;
-          m.coat = m.coat_alpha = 0.0f;
-          m.coat_normal = glm::vec3(0.0f, 0.0f, 1.0f);
-          m.sheen_color = glm::vec3(0.0f);
-          m.sheen_alpha = 0.0f;
-          m.stretch_x = m.stretch_y = 1.0f;
           albedo += directional_albedo(m, wo) / 4.0;
           m.alpha = float(k.roughness);
           wrong += directional_albedo(m, wo) / 4.0;

@@ -38,21 +38,13 @@ glm::vec3 wo_at(double degrees) {
 // The material as shade builds it; multiple scattering and albedo scaling on, as by default.
 PbrLobes lobes(float roughness, float metallic, float transmission, float eta, glm::vec3 base,
                float multiple_scattering = 1.0f, float albedo_scaling = 1.0f) {
-  PbrLobes m;
-  m.base_color = base;
+  PbrLobes m = xi_plain_pbr_lobes(base);
   m.metallic = metallic;
   m.alpha = roughness * roughness;
   m.eta = eta;
   m.transmission = transmission;
   m.multiple_scattering = multiple_scattering;
   m.albedo_scaling = albedo_scaling;
-  m.specular_color = glm::vec3(1.0f);
-  m.specular = 1.0f;
-  m.coat = m.coat_alpha = 0.0f;
-  m.coat_normal = glm::vec3(0.0f, 0.0f, 1.0f);
-  m.sheen_color = glm::vec3(0.0f);
-  m.sheen_alpha = 0.0f;
-  m.stretch_x = m.stretch_y = 1.0f;
   return m;
 }
 

@@ -94,6 +94,25 @@ typedef struct {
   xfloat sheen_alpha;          // the sheen's alpha, roughness²
 } PbrLobes;
 
+// A metallic-roughness material of a base colour and nothing else: a smooth dielectric of ior 1.5
+// seen from outside, isotropic, none of the layers (the specular layer's 1, no coat, no sheen),
+// single scattering and the Fresnel mix. shade and the tests start from it and set what they use.
+static inline PbrLobes xi_plain_pbr_lobes(xfloat3 base_color) {
+  PbrLobes m;
+  m.base_color = base_color;
+  m.metallic = m.alpha = m.transmission = 0.0f;
+  m.stretch_x = m.stretch_y = 1.0f;
+  m.eta = 1.5f;
+  m.multiple_scattering = m.albedo_scaling = 0.0f;
+  m.specular_color = make_xfloat3((xfloat)1.0f, (xfloat)1.0f, (xfloat)1.0f);
+  m.specular = 1.0f;
+  m.coat = m.coat_alpha = 0.0f;
+  m.coat_normal = make_xfloat3((xfloat)0.0f, (xfloat)0.0f, (xfloat)1.0f);
+  m.sheen_color = make_xfloat3((xfloat)0.0f, (xfloat)0.0f, (xfloat)0.0f);
+  m.sheen_alpha = 0.0f;
+  return m;
+}
+
 // --- GGX
 
 // D(h) = 1 / (π α² (sin²θ/α² + cos²θ)²) for h above the surface, 0 below. (The form of sin² taken
@@ -195,6 +214,10 @@ static inline xfloat3 xi_schlick_color(xfloat3 f0, xfloat cos_o) {
 
 static inline xfloat xi_luminance(xfloat3 c) { return 0.2126f * c.x + 0.7152f * c.y + 0.0722f * c.z; }
 
+// The albedo tables' roughness coordinate r = √alpha (alpha the lobes' GGX alpha, for an anisotropic
+// lobe the geometric mean of its two).
+static inline xfloat xi_table_roughness(PbrLobes m) { return sqrt(fmax(m.alpha, (xfloat)0.0f)); }
+
 // --- multiple scattering
 
 // The tables' roughness axis (ggx_albedo.h's layout, n entries): r = √α's row below it and the
@@ -270,7 +293,7 @@ static inline xfloat3 xi_ggx_multiple_scattering(PbrLobes m, xfloat mu_o, xfloat
   *albedo = make_xfloat3((xfloat)0.0f, (xfloat)0.0f, (xfloat)0.0f);
   // Off, nothing is looked up (a constant, where the shading word is the program's).
   if (!XI_ANY(m.multiple_scattering > 0.0f)) return *albedo;
-  xfloat r = sqrt(fmax(m.alpha, (xfloat)0.0f)), e_avg = xi_ggx_albedo_average(r);
+  xfloat r = xi_table_roughness(m), e_avg = xi_ggx_albedo_average(r);
   xfloat3 f_ms = xi_ggx_multiple_scattering_fresnel(m.base_color, e_avg);
   xfloat lost = m.alpha >= XI_DELTA_ALPHA ? m.multiple_scattering * (1.0f - xi_ggx_albedo(mu_o, r)) : (xfloat)0.0f;
   *albedo = xi_scale3(f_ms, lost);
@@ -320,7 +343,7 @@ static inline xfloat xi_layer_f0(PbrLobes m) {
 static inline xfloat xi_dielectric_layer_albedo(PbrLobes m, xfloat mu) {
   xfloat smooth = xi_max3(xi_dielectric_fresnel(m, mu));
   if (!XI_ANY(m.alpha >= XI_DELTA_ALPHA)) return smooth;
-  xfloat f0 = xi_layer_f0(m), r = sqrt(fmax(m.alpha, (xfloat)0.0f));
+  xfloat f0 = xi_layer_f0(m), r = xi_table_roughness(m);
   return m.alpha >= XI_DELTA_ALPHA ? m.specular * xi_fresnel_layer_albedo(f0, mu, r, m.eta) : smooth;
 }
 
@@ -339,7 +362,7 @@ static inline xfloat xi_layer_scattering_scale(PbrLobes m, xfloat mu_o) {
   xfloat s_avg = lo + (hi - lo) * fz;
   xfloat f0 = xi_layer_f0(m);
   xfloat f_avg = m.specular * (f0 + (1.0f - f0) * s_avg);
-  xfloat r = sqrt(fmax(m.alpha, (xfloat)0.0f)), e = xi_ggx_albedo(mu_o, r), e_avg = xi_ggx_albedo_average(r);
+  xfloat r = xi_table_roughness(m), e = xi_ggx_albedo(mu_o, r), e_avg = xi_ggx_albedo_average(r);
   xfloat f_ms = f_avg * e_avg / (1.0f - f_avg * (1.0f - e_avg));
   return on ? 1.0f + f_ms * (1.0f - e) / fmax(e, (xfloat)1e-4f) : (xfloat)1.0f;
 }
@@ -462,7 +485,7 @@ static inline PbrAtWo xi_pbr_at(PbrLobes m, xfloat3 wo) {
   at.glass_scale = 1.0f;
   xmask compensated = m.transmission > 0.0f && m.alpha >= XI_DELTA_ALPHA && m.albedo_scaling > 0.0f && m.stretch_x == 1.0f;
   if (XI_ANY(compensated)) {
-    xfloat e = xi_glass_albedo(wo.z, sqrt(fmax(m.alpha, (xfloat)0.0f)), m.eta);
+    xfloat e = xi_glass_albedo(wo.z, xi_table_roughness(m), m.eta);
     at.glass_scale = compensated ? 1.0f / fmax(e, (xfloat)0.05f) : (xfloat)1.0f;
   }
 
