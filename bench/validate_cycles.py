@@ -13,7 +13,9 @@ Specular Tint; (transmission) Transmission Weight 1, with and without a Volume A
 material output and the exporter's "glTF Material Output" group giving a thickness (KHR_materials_volume);
 (anisotropy) Anisotropic and Anisotropic Rotation, and the same file again as anisotropy-gltf, where Cycles'
 Principled BSDFs are given glTF's alphas after the import (Blender's importer passes the extension's strength
-as its own Anisotropic, a different mapping); (emissive) a control where the two models coincide, black
+as its own Anisotropic, a different mapping); (iridescence) Thin Film Thickness and IOR, which Blender's
+exporter does not write nor its importer read: the driver adds KHR_materials_iridescence to the file and gives
+Cycles' imported Principled BSDFs their Thin Film inputs back; (emissive) a control where the two models coincide, black
 spheres emitting radiance 1, 4 and 10 (KHR_materials_emissive_strength). The extensions each file holds are
 read back from its JSON and printed: what the exporter chose to write, not what was asked for. Where Debian's
 assimp-testmodels are installed, ClearCoatTest.gltf and BoxTextured.gltf are added, copied with their
@@ -146,6 +148,15 @@ GROUPS = {
                    ("aniso0.9-grey-r0.3", {"Base Color": GREY, "Roughness": 0.3, "Anisotropic": 0.9}),
                    ("aniso0.9-rot0.25-grey", {"Base Color": GREY, "Roughness": 0.3, "Anisotropic": 0.9,
                                               "Anisotropic Rotation": 0.25})],
+    # Thin Film Thickness (nm) and IOR: Blender's exporter does not write KHR_materials_iridescence (nor does
+    # its importer read it), so the driver adds it to the file (add_thin_films) and gives the imported
+    # Principled BSDFs their Thin Film inputs back (load): where the two models coincide
+    "iridescence": [("film300-grey-r0.2", {"Base Color": GREY, "Roughness": 0.2, "film": (300.0, 1.3)}),
+                    ("film500-ior1.8-black-r0.1", {"Base Color": (0.02, 0.02, 0.02), "Roughness": 0.1,
+                                                   "film": (500.0, 1.8)}),
+                    ("film400-silver-r0.2", {"Base Color": SILVER, "Metallic": 1.0, "Roughness": 0.2,
+                                             "film": (400.0, 1.3)}),
+                    ("film350-red-r0.3", {"Base Color": RED, "Roughness": 0.3, "film": (350.0, 1.3)})],
     # a control where the two models coincide: emission (black bases, so that little else is seen)
     "emissive": [("emit-white-1", {"Base Color": (0, 0, 0), "Emission Color": (1, 1, 1), "Emission Strength": 1.0}),
                  ("emit-white-4", {"Base Color": (0, 0, 0), "Emission Color": (1, 1, 1), "Emission Strength": 4.0}),
@@ -168,11 +179,13 @@ def _principled_material(bpy, name, spec, texdir):
     nodes, links = m.node_tree.nodes, m.node_tree.links
     p, out = nodes["Principled BSDF"], nodes["Material Output"]
     for key, value in spec.items():
-        if key in ("texture", "normal_map", "volume"):
+        if key in ("texture", "normal_map", "volume", "film"):
             continue
         p.inputs[key].default_value = (*value, 1.0) if isinstance(value, tuple) else value
     n = 256
     u, v = np.meshgrid((np.arange(n) + 0.5) / n, (np.arange(n) + 0.5) / n)
+    if spec.get("film"):
+        p.inputs["Thin Film Thickness"].default_value, p.inputs["Thin Film IOR"].default_value = spec["film"]
     if spec.get("texture"):
         # 8 x 4 checker cells (the UV sphere's u runs round it, v pole to pole), two sRGB colours with a
         # gradient across each cell so that a flip or a filtering difference would show
@@ -296,11 +309,17 @@ def gltf_anisotropy(bpy):
 
 def load(bpy, cs, req):
     """Imports REQ['file'] as Cycles' scene: the file's camera, the environment, the material index pass (and,
-    with REQ['gltf_anisotropy'], glTF's anisotropic alphas)."""
+    with REQ['gltf_anisotropy'], glTF's anisotropic alphas; REQ['thin_films'], {material: (thickness, ior)},
+    the Principled BSDFs' Thin Film inputs)."""
     bpy.ops.wm.read_factory_settings(use_empty=True)
     bpy.ops.import_scene.gltf(filepath=req["file"])
     if req.get("gltf_anisotropy"):
         gltf_anisotropy(bpy)
+    for m in bpy.data.materials:
+        film = req.get("thin_films", {}).get(m.name)
+        for node in (m.node_tree.nodes if film and m.node_tree else []):
+            if node.type == "BSDF_PRINCIPLED":
+                node.inputs["Thin Film Thickness"].default_value, node.inputs["Thin Film IOR"].default_value = film
     scene = cs.settings(bpy, req["width"], req["height"], req["max_depth"])
     cameras = [o for o in bpy.data.objects if o.type == "CAMERA"]
     if not cameras:
@@ -371,6 +390,29 @@ def gltf_json(path):
     if kind != b"JSON":
         raise ValueError(f"{path}: the first chunk is not JSON")
     return json.loads(data[20:20 + length])
+
+
+def add_thin_films(path, group):
+    """Writes KHR_materials_iridescence into the .glb PATH for GROUP's spheres with a film (factor 1, the
+    film's ior and thickness, no textures); returns {material: (thickness, ior)}."""
+    films = {name: spec["film"] for name, spec in GROUPS[group] if "film" in spec}
+    if not films:
+        return films
+    data = Path(path).read_bytes()
+    doc = gltf_json(path)
+    length = struct.unpack_from("<I", data, 12)[0]
+    for m in doc.get("materials", []):
+        if m.get("name") in films:
+            thickness, ior = films[m["name"]]
+            m.setdefault("extensions", {})["KHR_materials_iridescence"] = {
+                "iridescenceFactor": 1.0, "iridescenceIor": ior, "iridescenceThicknessMaximum": thickness}
+    doc.setdefault("extensionsUsed", []).append("KHR_materials_iridescence")
+    chunk = json.dumps(doc, separators=(",", ":")).encode()
+    chunk += b" " * (-len(chunk) % 4)  # chunks are 4-byte aligned, JSON padded with spaces
+    rest = data[20 + length:]
+    Path(path).write_bytes(struct.pack("<4sII", b"glTF", 2, 12 + 8 + len(chunk) + len(rest))
+                           + struct.pack("<I4s", len(chunk), b"JSON") + chunk + rest)
+    return films
 
 
 def extensions(doc):
@@ -554,16 +596,16 @@ def main():
             ask(builder, cmd="build", group="anisotropy" if name == GLTF_ANISOTROPY else name, out=str(path),
                 width=width, height=height)
             builder.close()
-            files.append((name, path, "Blender " + blender.split()[0]))
+            files.append((name, path, "Blender " + blender.split()[0], add_thin_films(path, name) if name in GROUPS else {}))
         elif DEBIAN_FILES[name].exists():
             box = ask(w, cmd="bounds", file=str(DEBIAN_FILES[name]))
             files.append((name, debian_copy(name, DEBIAN_FILES[name], d / name, box, width / height),
-                          f"Debian {DEBIAN_FILES[name]}"))
+                          f"Debian {DEBIAN_FILES[name]}", {}))
         else:
             log(f"{name}: {DEBIAN_FILES[name]} is not installed (Debian's assimp-testmodels): left out")
 
     results = []
-    for name, path, origin in files:
+    for name, path, origin, thin_films in files:
         used, per_material = extensions(gltf_json(path))
         log(f"{name}: {origin}; extensionsUsed: {', '.join(used) or 'none'}")
         for m, ext in per_material.items():
@@ -578,7 +620,8 @@ def main():
         for line in [xi_camera] + warnings:
             log(f"  xi: {line}")
         loaded = ask(w, cmd="load", file=str(path), width=width, height=height, max_depth=a.max_depth,
-                     env=str(a.env), env_rotate=a.env_rotate, gltf_anisotropy=name == GLTF_ANISOTROPY)
+                     env=str(a.env), env_rotate=a.env_rotate, gltf_anisotropy=name == GLTF_ANISOTROPY,
+                     thin_films=thin_films)
         cy_mean, cy_var, index, cy_seconds = render_cycles(a, w, d / f"{name}-cycles.exr")
         exr.write(d / f"{name}-cycles.exr", cy_mean, dict(spp=a.spp, renderer="cycles"))
         subprocess.run([str(xi), "tonemap", str(d / f"{name}-cycles.exr"), str(d / f"{name}-cycles.png"),

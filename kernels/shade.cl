@@ -243,6 +243,20 @@ static inline XI_INLINE Bsdf xi_surface_bsdf(XI_SCENE_PARAMS, uint shading, Shad
         b.pbr.sheen_color = xi_select3(pbr, sheen, b.pbr.sheen_color);
         b.pbr.sheen_alpha = roughness * roughness;
       }
+      if (xi_uses(shading, XI_USE_IRIDESCENCE)) {
+        // KHR_materials_iridescence: the film's weight times its texture's R; its thickness from the
+        // minimum to the maximum by the thickness texture's G (an absent texture reads 1: the maximum).
+        xfloat maximum;
+        xfloat3 film = XI_GATHER_XYZ_FIELD(materials, mi, iridescence, &maximum);  // weight, ior, minimum
+        xfloat g = 1.0f;
+        if (textured) {
+          film.x *= xi_material_texture(materials, texture_refs, images, texels, mi, XI_TEXTURE_IRIDESCENCE, uv0, uv1, &a).x;
+          g = xi_material_texture(materials, texture_refs, images, texels, mi, XI_TEXTURE_IRIDESCENCE_THICKNESS, uv0, uv1, &a).y;
+        }
+        b.pbr.iridescence = pbr ? film.x : (xfloat)0.0f;
+        b.pbr.iridescence_ior = film.y;
+        b.pbr.iridescence_thickness = film.z + (maximum - film.z) * g;
+      }
       m.albedo = xi_select3(pbr, in.base_color, m.albedo);
       b.pbr_at = xi_bsdf_at_wo(b, wo);
     }

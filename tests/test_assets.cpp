@@ -774,12 +774,12 @@ TEST_F(AssetCli, AnyAssimpFormatAndUnknownExtension) {
 }
 
 // Warnings: one line per kind on stderr, whatever the number of materials and triangles that have
-// it: three materials with KHR_materials_iridescence, two with KHR_materials_dispersion (unmodelled, one
+// it: three materials with KHR_materials_unlit, two with KHR_materials_dispersion (unmodelled, one
 // line each), and rough partial transmission (modelled: no warning).
 TEST_F(AssetCli, OneWarningLinePerKind) {
   Gltf g;
   for (int i = 0; i < 5; ++i) {
-    const char* ext = i < 3 ? "KHR_materials_iridescence" : "KHR_materials_dispersion";
+    const char* ext = i < 3 ? "KHR_materials_unlit" : "KHR_materials_dispersion";
     const int m = g.add("materials", {{"name", "coated" + std::to_string(i)}, {"pbrMetallicRoughness", {{"metallicFactor", 1.0}, {"roughnessFactor", 0.3}}},
                                       {"extensions", {{ext, json::object()}}}});
     g.node({{"mesh", g.mesh({{float(i), 0, 0}, {float(i) + 1, 0, 0}, {float(i), 1, 0}, {float(i), 0, 1}, {float(i) + 1, 0, 1}, {float(i), 1, 1}}, m)}});
@@ -787,7 +787,7 @@ TEST_F(AssetCli, OneWarningLinePerKind) {
   const int glass = g.add("materials", {{"name", "frosted"}, {"pbrMetallicRoughness", {{"metallicFactor", 0.0}, {"roughnessFactor", 0.5}}},
                                         {"extensions", {{"KHR_materials_transmission", {{"transmissionFactor", 0.5}}}}}});
   g.node({{"mesh", g.mesh({{0, 2, 0}, {1, 2, 0}, {0, 3, 0}}, glass)}});
-  g.doc["extensionsUsed"] = {"KHR_materials_transmission", "KHR_materials_iridescence", "KHR_materials_dispersion"};
+  g.doc["extensionsUsed"] = {"KHR_materials_transmission", "KHR_materials_unlit", "KHR_materials_dispersion"};
   g.write(work_ / "warn.gltf");
   const auto r = run_xi(xi_test::concat({"render", "warn.gltf"}, xi_test::kFast));
   ASSERT_EQ(r.code, 0) << r.err;
@@ -797,7 +797,7 @@ TEST_F(AssetCli, OneWarningLinePerKind) {
     for (size_t p = r.err.find(needle); p != std::string::npos; p = r.err.find(needle, p + 1)) ++n;
     return n;
   };
-  EXPECT_EQ(lines_with("xi: warning: iridescence is not modelled: the base layer alone is rendered"), 1) << r.err;
+  EXPECT_EQ(lines_with("xi: warning: unlit materials are not modelled"), 1) << r.err;
   EXPECT_EQ(lines_with("xi: warning: dispersion needs spectral rendering"), 1) << r.err;
   EXPECT_EQ(lines_with("transmission"), 0) << r.err;
 }

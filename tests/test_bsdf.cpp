@@ -62,6 +62,7 @@ struct Case {
   glm::vec3 specular_color = glm::vec3(1.0f);
   float anisotropy = 0.0f;       // KHR_materials_anisotropy's strength
   float anisotropy_turn = 0.0f;  // degrees from wo's azimuth to the anisotropy direction
+  float iridescence = 0.0f, film_thickness = 400.0f;  // KHR_materials_iridescence (film ior 1.3)
   bool entering = true;  // glass and PBR transmission: wo outside
   glm::vec3 n = kUp, n_geo = kUp;
   bool white = false;  // the furnace expects a mean weight of 1
@@ -90,6 +91,7 @@ std::string describe(const Case& c) {
   if (c.sheen != glm::vec3(0.0f))
     k += std::snprintf(buf + k, sizeof buf - k, " sheen %.2g r %.2f", c.sheen.x, c.sheen_roughness);
   if (c.anisotropy > 0.0f) k += std::snprintf(buf + k, sizeof buf - k, " aniso %.1f at %.0f", c.anisotropy, c.anisotropy_turn);
+  if (c.iridescence > 0.0f) k += std::snprintf(buf + k, sizeof buf - k, " film %.1f %.0f nm", c.iridescence, c.film_thickness);
   if (c.specular != 1.0f || c.specular_color != glm::vec3(1.0f))
     k += std::snprintf(buf + k, sizeof buf - k, " specular %.2g (%.2g %.2g %.2g)", c.specular, c.specular_color.x,
                        c.specular_color.y, c.specular_color.z);
@@ -138,6 +140,10 @@ Case sheened(Case c, glm::vec3 colour, float roughness) {
 }
 Case anisotropic(Case c, float strength, float turn_degrees) {
   c.anisotropy = strength, c.anisotropy_turn = turn_degrees;
+  return c;
+}
+Case iridescent(Case c, float weight, float thickness) {
+  c.iridescence = weight, c.film_thickness = thickness;
   return c;
 }
 Case fresnel_mix(Case c) {
@@ -216,6 +222,16 @@ std::vector<Case> all_cases() {
   m.push_back(anisotropic(fresnel_mix(pbr(kColour, 0.3f, 0.0f, 0.0f, true)), 0.7f, 20.0f));
   m.push_back(anisotropic(pbr(kWhite, 0.3f, 1.0f, 0.0f, true), 0.7f, 30.0f));
   m.push_back(anisotropic(pbr(kWhite, 0.3f, 0.0f, 0.0f, true), 0.7f, 30.0f));
+  // KHR_materials_iridescence: a film over a rough and a smooth dielectric, a metal, glass from
+  // outside and inside (where it has none), and the reciprocal Fresnel mix.
+  m.push_back(iridescent(pbr(kColour, 0.3f, 0.0f, 0.0f, true), 1.0f, 400.0f));
+  m.push_back(iridescent(pbr(kColour, 0.0f, 0.0f, 0.0f, true), 0.8f, 250.0f));
+  m.push_back(iridescent(pbr(kColour, 0.3f, 1.0f, 0.0f, true), 0.7f, 300.0f));
+  m.push_back(iridescent(pbr(kColour, 0.0f, 1.0f, 0.0f, true), 1.0f, 500.0f));
+  m.push_back(iridescent(pbr(kColour, 0.3f, 0.0f, 1.0f, true), 1.0f, 400.0f));
+  m.push_back(iridescent(pbr(kColour, 0.3f, 0.0f, 1.0f, true, false), 1.0f, 400.0f));
+  m.push_back(iridescent(fresnel_mix(pbr(kColour, 0.3f, 0.0f, 0.0f, true)), 1.0f, 600.0f));
+  m.push_back(iridescent(pbr(kWhite, 0.3f, 0.0f, 0.0f, true), 1.0f, 400.0f));
   // A shading normal with its own frame (the geometric normal alike), and a bumped one.
   for (Case c : {diffuse(kColour), mirror(kColour), glass(kColour, true), pbr(kColour, 0.3f, 0.5f, 1.0f, true)})
     m.push_back(normals(c, kTilted, kTilted));
@@ -274,9 +290,11 @@ Surface surface(const Case& c, bool at_surface = true) {
   b.pbr.sheen_color = c.sheen;
   b.pbr.sheen_alpha = c.sheen_roughness * c.sheen_roughness;
   xi_set_anisotropy(&b.pbr, c.anisotropy);
+  b.pbr.iridescence = c.iridescence;
+  b.pbr.iridescence_thickness = c.film_thickness;
   s.shading = XI_USE_MIRROR | XI_USE_DIELECTRIC | XI_USE_PBR | (c.multiple_scattering ? XI_USE_MULTIPLE_SCATTERING : 0u) |
               (c.albedo_scaling ? XI_USE_ALBEDO_SCALING : 0u) | XI_USE_SPECULAR | XI_USE_CLEARCOAT | XI_USE_SHEEN |
-              XI_USE_ANISOTROPY;
+              XI_USE_ANISOTROPY | XI_USE_IRIDESCENCE;
   double t = c.degrees * kPi / 180.0;
   s.wo_local = glm::vec3((float)std::sin(t), 0.0f, (float)std::cos(t));
   s.wo = glm::normalize(s.to_world(s.wo_local));
@@ -554,7 +572,7 @@ TEST(BsdfFurnace, WhiteReflectsAllAndNoneGains) {
                                                 ((c.roughness > 0.0f || c.coat_roughness > 0.0f || c.sheen != glm::vec3(0.0f)) &&
                                                  !reciprocal(c)));
     double slack = tables ? 0.01 : 1e-4;
-    if (c.white || c.anisotropy > 0.0f)
+    if (c.white || c.anisotropy > 0.0f || c.iridescence > 0.0f)
       std::printf("[ furnace  ] %-52s %.5f ± %.1e\n", describe(c).c_str(), f.mean.x, f.se.x);
     white += c.white;
     for (int ch = 0; ch < 3; ++ch) {

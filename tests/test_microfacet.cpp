@@ -624,4 +624,103 @@ TEST(MicrofacetEdges, FiniteEverywhere) {
           }
 }
 
+// ---------------------------------------------------------------------------------------------
+// KHR_materials_iridescence's thin film (thin_film.h) against the physics it approximates: the
+// exact reflectance of a film between air and a base, Airy's sum of every order for each
+// polarisation, integrated over 360–830 nm against the CIE 1931 colour matching functions (Wyman,
+// Sloan and Shirley's analytic fit, "Simple Analytic Approximations to the CIE XYZ Color Matching
+// Functions", JCGT 2013: a fit independent of the kernel's Gaussian one), taken to linear Rec. 709
+// and white-balanced as the kernel is (a flat spectrum is white). Deterministic, no statistics.
+
+double cie_lobe(double l, double mu, double below, double above) {
+  double t = (l - mu) / (l < mu ? below : above);
+  return std::exp(-0.5 * t * t);
+}
+glm::dvec3 cie_xyz(double l) {
+  return {1.056 * cie_lobe(l, 599.8, 37.9, 31.0) + 0.362 * cie_lobe(l, 442.0, 16.0, 26.7) - 0.065 * cie_lobe(l, 501.1, 20.4, 26.2),
+          0.821 * cie_lobe(l, 568.8, 46.9, 40.5) + 0.286 * cie_lobe(l, 530.9, 16.3, 31.1),
+          1.217 * cie_lobe(l, 437.0, 11.8, 36.0) + 0.681 * cie_lobe(l, 459.0, 26.0, 13.8)};
+}
+glm::dvec3 xyz_to_rec709(glm::dvec3 c) {
+  return {3.2404542 * c.x - 1.5371385 * c.y - 0.4985314 * c.z, -0.9692660 * c.x + 1.8760108 * c.y + 0.0415560 * c.z,
+          0.0556434 * c.x - 0.2040259 * c.y + 1.0572252 * c.z};
+}
+// Airy's reflectance of a film of phase thickness delta between interfaces of amplitude
+// coefficients r12 and r23 (one sign convention for both).
+double airy(double r12, double r23, double delta) {
+  double c = 2.0 * r12 * r23 * std::cos(delta);
+  return (r12 * r12 + r23 * r23 + c) / (1.0 + r12 * r12 * r23 * r23 + c);
+}
+// The film's RGB reflectance, spectrally; each channel with its own base ior.
+glm::dvec3 film_spectral(double cos1, double film, double nm, glm::dvec3 base) {
+  double cos2 = std::sqrt(1.0 - (1.0 - cos1 * cos1) / (film * film));
+  double r12s = (cos1 - film * cos2) / (cos1 + film * cos2), r12p = (film * cos1 - cos2) / (film * cos1 + cos2);
+  glm::dvec3 out;
+  for (int ch = 0; ch < 3; ++ch) {
+    double n3 = base[ch], cos3 = std::sqrt(1.0 - film * film * (1.0 - cos2 * cos2) / (n3 * n3));
+    double r23s = (film * cos2 - n3 * cos3) / (film * cos2 + n3 * cos3);
+    double r23p = (n3 * cos2 - film * cos3) / (n3 * cos2 + film * cos3);
+    glm::dvec3 xyz(0.0), flat(0.0);
+    for (int l = 360; l <= 830; ++l) {
+      double delta = 2.0 * kPi * 2.0 * film * nm * cos2 / l;
+      xyz += cie_xyz(l) * (0.5 * (airy(r12s, r23s, delta) + airy(r12p, r23p, delta)));
+      flat += cie_xyz(l);
+    }
+    out[ch] = xyz_to_rec709(xyz)[ch] / xyz_to_rec709(flat)[ch];
+  }
+  return out;
+}
+
+struct FilmCase {
+  float film;
+  glm::vec3 base;
+};
+const FilmCase kFilms[] = {{1.3f, glm::vec3(1.5f)}, {1.8f, glm::vec3(1.5f)}, {1.3f, glm::vec3(3.0f, 2.0f, 1.6f)}};
+const float kThicknesses[] = {50.0f, 150.0f, 300.0f, 400.0f, 600.0f, 1000.0f};
+const float kFilmCosines[] = {1.0f, 0.5f, 0.1f};
+
+// Over films of ior 1.3 and 1.8 on glass and 1.3 on a metal-like base (iors 3, 2, 1.6), 50 nm to
+// 1 µm, at 0°, 60° and 84°: every channel within 0.025 of the spectral integral (the kernel keeps
+// three orders and the two fits differ: 0.02 at most here, at 84° over the metal). Must-fail: the
+// same against the integral for films 50 nm thinner is off by more somewhere.
+TEST(ThinFilm, MatchesTheSpectralIntegral) {
+  double worst = 0.0, worst_thinner = 0.0;
+  for (const FilmCase& f : kFilms)
+    for (float nm : kThicknesses)
+      for (float c : kFilmCosines) {
+        glm::vec3 got = xi_thin_film_fresnel(c, f.film, nm, f.base);
+        glm::dvec3 want = film_spectral(c, f.film, nm, glm::dvec3(f.base));
+        glm::dvec3 thinner = film_spectral(c, f.film, nm - 50.0, glm::dvec3(f.base));
+        for (int ch = 0; ch < 3; ++ch) {
+          EXPECT_NEAR(got[ch], want[ch], 0.025) << "film " << f.film << " " << nm << " nm cos " << c << " channel " << ch;
+          worst = std::max(worst, std::abs(got[ch] - want[ch]));
+          worst_thinner = std::max(worst_thinner, std::abs(got[ch] - thinner[ch]));
+        }
+      }
+  std::printf("[ film     ] largest difference from the spectral integral %.4f; from a film 50 nm thinner %.4f\n", worst,
+              worst_thinner);
+  EXPECT_GT(worst_thinner, 0.025);
+}
+
+// Where a film is invisible: of no thickness (its ior fades to the air's), or of the base's own ior
+// (no bottom interface), the film's reflectance is the exact Fresnel of the interface that remains.
+TEST(ThinFilm, InvisibleFilmsLeaveTheFresnel) {
+  for (float c : {1.0f, 0.7f, 0.3f, 0.05f}) {
+    glm::vec3 none = xi_thin_film_fresnel(c, 1.8f, 0.0f, glm::vec3(1.5f));
+    glm::vec3 same = xi_thin_film_fresnel(c, 1.5f, 500.0f, glm::vec3(1.5f));
+    for (int ch = 0; ch < 3; ++ch) {
+      EXPECT_NEAR(none[ch], xi_fresnel_dielectric(c, 1.5f), 1e-5f) << "cos " << c;
+      EXPECT_NEAR(same[ch], xi_fresnel_dielectric(c, 1.5f), 1e-5f) << "cos " << c;
+    }
+  }
+  // A film's share of 0 leaves the material's own Fresnel bit for bit.
+  PbrLobes m = lobes(0.3f, 0.5f, 0.0f, 1.5f, glm::vec3(0.8f, 0.5f, 0.2f));
+  PbrLobes with = m;
+  with.iridescence_thickness = 321.0f;
+  for (float c : {1.0f, 0.4f}) {
+    EXPECT_EQ(xi_dielectric_fresnel(with, c), xi_dielectric_fresnel(m, c));
+    EXPECT_EQ(xi_metal_fresnel(with, c), xi_metal_fresnel(m, c));
+  }
+}
+
 }  // namespace

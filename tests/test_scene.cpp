@@ -331,14 +331,15 @@ TEST(Scene, LayeringChoice) {
   EXPECT_EQ(xi::parse_layering(xi::layering_name(xi::Layering::FresnelMix)), xi::Layering::FresnelMix);
 }
 
-// A pbr material's layers in JSON: specular, clear coat, sheen, anisotropy and volume keys, their defaults (none
+// A pbr material's layers in JSON: specular, clear coat, sheen, anisotropy, iridescence and volume keys, their defaults (none
 // of them), each turning on its kernel feature; out-of-range values and a volume without
 // transmission are refused, naming the key.
 TEST(Scene, PbrLayers) {
   const std::string layered = R"("materials": {"white": {"type": "pbr", "base_color": [0.5, 0.5, 0.5],
       "transmission": 1, "specular": 0.5, "specular_color": [1, 0.5, 2], "clearcoat": 0.8, "clearcoat_roughness": 0.1,
       "sheen_color": [0.2, 0.3, 0.4], "sheen_roughness": 0.6, "attenuation_color": [0.5, 0.5, 0.25],
-      "attenuation_distance": 2, "anisotropy_strength": 0.5, "anisotropy_rotation": -0.75}})";
+      "attenuation_distance": 2, "anisotropy_strength": 0.5, "anisotropy_rotation": -0.75, "iridescence": 0.9,
+      "iridescence_ior": 1.8, "iridescence_thickness_minimum": 200, "iridescence_thickness_maximum": 500}})";
   const xi::Scene s = parse(scene_text(kQuad, layered));
   const xi::Material& m = s.materials.at(0);
   EXPECT_EQ(m.specular, 0.5f);
@@ -350,16 +351,22 @@ TEST(Scene, PbrLayers) {
   EXPECT_NEAR(m.volume_absorption().z, std::log(4.0) / 2.0, 1e-6);
   EXPECT_FLOAT_EQ(m.anisotropy_strength, 0.5f);
   EXPECT_FLOAT_EQ(m.anisotropy_rotation, -0.75f);
+  EXPECT_FLOAT_EQ(m.iridescence, 0.9f);
+  EXPECT_FLOAT_EQ(m.iridescence_ior, 1.8f);
+  EXPECT_FLOAT_EQ(m.iridescence_thickness_minimum, 200.0f);
+  EXPECT_FLOAT_EQ(m.iridescence_thickness_maximum, 500.0f);
   const xi::Features f = xi::compile_scene(s).features;
-  EXPECT_TRUE(f.specular && f.clearcoat && f.sheen && f.volume && f.anisotropy);
+  EXPECT_TRUE(f.specular && f.clearcoat && f.sheen && f.volume && f.anisotropy && f.iridescence);
   const xi::Features plain = xi::compile_scene(parse(scene_text(kQuad, R"("materials": {"white": {"type": "pbr"}})"))).features;
-  EXPECT_FALSE(plain.specular || plain.clearcoat || plain.sheen || plain.volume || plain.anisotropy);
+  EXPECT_FALSE(plain.specular || plain.clearcoat || plain.sheen || plain.volume || plain.anisotropy || plain.iridescence);
   auto with = [&](const std::string& keys) {
     return scene_text(kQuad, R"("materials": {"white": {"type": "pbr", )" + keys + "}}");
   };
   expect_parse_error(with(R"("sheen_roughness": 2)"), "/materials/white/sheen_roughness");
   expect_parse_error(with(R"("clearcoat": -1)"), "/materials/white/clearcoat");
   expect_parse_error(with(R"("anisotropy_strength": 1.5)"), "/materials/white/anisotropy_strength");
+  expect_parse_error(with(R"("iridescence_ior": 0.5)"), "/materials/white/iridescence_ior");
+  expect_parse_error(with(R"("iridescence_thickness_maximum": -1)"), "/materials/white/iridescence_thickness_maximum");
   expect_parse_error(with(R"("attenuation_distance": 0, "transmission": 1)"), "/materials/white/attenuation_distance");
   expect_parse_error(with(R"("attenuation_color": [0.5, 0.5, 0.5])"), "needs transmission");
 }

@@ -110,6 +110,9 @@ nlohmann::json material_json(const Material& m) {
                       {"clearcoat", m.clearcoat}, {"clearcoat_roughness", m.clearcoat_roughness},
                       {"sheen_color", vec(m.sheen_color)}, {"sheen_roughness", m.sheen_roughness},
                       {"anisotropy_strength", m.anisotropy_strength}, {"anisotropy_rotation", m.anisotropy_rotation},
+                      {"iridescence", m.iridescence}, {"iridescence_ior", m.iridescence_ior},
+                      {"iridescence_thickness_minimum", m.iridescence_thickness_minimum},
+                      {"iridescence_thickness_maximum", m.iridescence_thickness_maximum},
                       {"absorption", vec(m.volume_absorption())}};
   nlohmann::json textures = nlohmann::json::object();
   for (int k = 0; k < XI_TEXTURE_SLOTS; ++k)

@@ -235,6 +235,8 @@ static inline xuint xi_compact_index(uint at, xmask m) { return at; }
 #endif
 
 static inline xfloat xi_max3(xfloat3 v) { return fmax(v.x, fmax(v.y, v.z)); }
+// a + (b − a) t
+static inline xfloat3 xi_mix3(xfloat3 a, xfloat3 b, xfloat t) { return xi_add3(a, xi_scale3(xi_sub3(b, a), t)); }
 // sqrt of a value that rounding may have pushed slightly below zero.
 static inline xfloat xi_safe_sqrt(xfloat x) { return sqrt(fmax(x, (xfloat)0.0f)); }
 

@@ -28,8 +28,10 @@
 #define XI_TEXTURE_SPECULAR_COLOR 9
 #define XI_TEXTURE_CLEARCOAT_NORMAL 10    // tangent space: the coat's own normal
 #define XI_TEXTURE_ANISOTROPY 11          // RG: the direction in tangent space, B: the strength
-#define XI_TEXTURE_SLOTS 12
-#define XI_TEXTURE_SLOTS_PADDED 12  // the array's length: the struct's float4s stay 16-byte aligned
+#define XI_TEXTURE_IRIDESCENCE 12         // R: the film's weight
+#define XI_TEXTURE_IRIDESCENCE_THICKNESS 13  // G: the film's thickness from its minimum to its maximum
+#define XI_TEXTURE_SLOTS 14
+#define XI_TEXTURE_SLOTS_PADDED 16  // the array's length: the struct's float4s stay 16-byte aligned
 
 // A path carries the volumes it is in (KHR_materials_volume), nested: each its index in the scene's
 // volumes + 1 in XI_VOLUME_BITS bits of a 32-bit word, the innermost lowest, XI_VOLUME_LEVELS deep.
@@ -50,6 +52,7 @@ typedef struct {
   float4 coat;       // KHR_materials_clearcoat (pbr): x weight (0: none), y roughness (perceptual), z the coat's normal map scale; w unused
   float4 sheen;      // KHR_materials_sheen (pbr): rgb colour (0: none), w roughness (perceptual)
   float4 anisotropy; // KHR_materials_anisotropy (pbr): x strength (0: none), y and z the cosine and sine of its rotation; w unused
+  float4 iridescence;  // KHR_materials_iridescence (pbr): x weight (0: none), y the film's ior, z and w its thickness's minimum and maximum (nm)
   uint volume;       // KHR_materials_volume (pbr): the index of its σa in volumes + 1 (0: none)
   uint unused[3];
 } MaterialData;

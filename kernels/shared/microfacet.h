@@ -69,6 +69,8 @@
 #include "ggx_albedo.h"
 #include "sheen_albedo.h"
 #include "lanes.h"
+#include "shading.h"
+#include "thin_film.h"
 #include "warps.h"
 
 #define XI_DELTA_ALPHA 1e-4f  // GGX alpha (roughness²) below which the specular lobes are delta
@@ -92,6 +94,9 @@ typedef struct {
   xfloat3 coat_normal;         // the coat's own normal in this frame (+z: the base's), wo above it
   xfloat3 sheen_color;         // KHR_materials_sheen (0: none)
   xfloat sheen_alpha;          // the sheen's alpha, roughness²
+  xfloat iridescence;          // KHR_materials_iridescence: the thin film's weight (0: none)
+  xfloat iridescence_ior;      // the film's ior
+  xfloat iridescence_thickness;  // the film's thickness in nanometres
 } PbrLobes;
 
 // A metallic-roughness material of a base colour and nothing else: a smooth dielectric of ior 1.5
@@ -110,6 +115,9 @@ static inline PbrLobes xi_plain_pbr_lobes(xfloat3 base_color) {
   m.coat_normal = make_xfloat3((xfloat)0.0f, (xfloat)0.0f, (xfloat)1.0f);
   m.sheen_color = make_xfloat3((xfloat)0.0f, (xfloat)0.0f, (xfloat)0.0f);
   m.sheen_alpha = 0.0f;
+  m.iridescence = 0.0f;
+  m.iridescence_ior = 1.3f;
+  m.iridescence_thickness = 400.0f;
   return m;
 }
 
@@ -308,17 +316,44 @@ static inline xfloat3 xi_transmission_tint(PbrLobes m) {
 
 // --- the dielectric layer over the base
 
+// KHR_materials_iridescence: a thin film over the base (thin_film.h) whose reflectance replaces the
+// Fresnel in the share `iridescence` of the surface, as glTF mixes them. Over a dielectric the base's
+// ior is that of the layer's f0' (below) per channel, the film's reflectance then times the layer's
+// strength; over a metal it is the ior of the base colour as f0. The film is met from outside only:
+// a surface seen from inside a denser medium keeps its Fresnel.
+static inline bool xi_has_film(PbrLobes m) { return XI_COMPILED(XI_USE_IRIDESCENCE) && XI_ANY(m.iridescence > 0.0f); }
+static inline xfloat xi_film_weight(PbrLobes m) { return m.eta >= 1.0f ? m.iridescence : (xfloat)0.0f; }
+static inline xfloat3 xi_film_fresnel(PbrLobes m, xfloat cos_o, xfloat3 f0) {
+  return xi_thin_film_fresnel(cos_o, m.iridescence_ior, m.iridescence_thickness, xi_ior_of_f0(f0));
+}
+
+// The metal's Fresnel: Schlick's with f0 = base_color, or the film's over it.
+static inline xfloat3 xi_metal_fresnel(PbrLobes m, xfloat cos_o) {
+  xfloat3 f = xi_schlick_color(m.base_color, cos_o);
+  if (!xi_has_film(m)) return f;
+  return xi_mix3(f, xi_film_fresnel(m, cos_o, m.base_color), xi_film_weight(m));
+}
+
+// The dielectric layer's f0' = min(f0 · specular_color, 1) per channel, f0 = ((η − 1)/(η + 1))².
+static inline xfloat3 xi_layer_f0_color(PbrLobes m) {
+  xfloat q = (m.eta - 1.0f) / (m.eta + 1.0f), f0 = q * q;
+  return make_xfloat3(fmin(f0 * m.specular_color.x, (xfloat)1.0f), fmin(f0 * m.specular_color.y, (xfloat)1.0f),
+                      fmin(f0 * m.specular_color.z, (xfloat)1.0f));
+}
+
 // The dielectric layer's Fresnel at a microfacet cosine cos_o, with KHR_materials_specular as
 // Blender reads it: the exact Fresnel F of eta remapped to run from F0 = min(f0 · specular_color, 1)
 // · specular at normal incidence to specular at grazing, specular · (f0' + (1 − f0') s) with
 // f0' = min(f0 · specular_color, 1), f0 = ((η − 1)/(η + 1))² = F(1) and s = (F − f0) / (1 − f0)
 // (1 under total internal reflection). Without the extension (both 1) it is F in every channel.
+// With a film, the film's reflectance over f0' in its share (above).
 static inline xfloat3 xi_dielectric_fresnel(PbrLobes m, xfloat cos_o) {
   xfloat q = (m.eta - 1.0f) / (m.eta + 1.0f), f0 = q * q;
   xfloat s = clamp((xi_fresnel_dielectric(cos_o, m.eta) - f0) / (1.0f - f0), (xfloat)0.0f, (xfloat)1.0f);
-  xfloat fx = fmin(f0 * m.specular_color.x, (xfloat)1.0f), fy = fmin(f0 * m.specular_color.y, (xfloat)1.0f),
-         fz = fmin(f0 * m.specular_color.z, (xfloat)1.0f);
-  return xi_scale3(make_xfloat3(fx + (1.0f - fx) * s, fy + (1.0f - fy) * s, fz + (1.0f - fz) * s), m.specular);
+  xfloat3 f0s = xi_layer_f0_color(m);
+  xfloat3 f = make_xfloat3(f0s.x + (1.0f - f0s.x) * s, f0s.y + (1.0f - f0s.y) * s, f0s.z + (1.0f - f0s.z) * s);
+  if (xi_has_film(m)) f = xi_mix3(f, xi_film_fresnel(m, cos_o, f0s), xi_film_weight(m));
+  return xi_scale3(f, m.specular);
 }
 
 // Where the layer's albedo is known: a smooth layer reflects its Fresnel at wo.z (total internal
@@ -333,10 +368,7 @@ static inline xfloat xi_fresnel_layer_albedo(xfloat f0, xfloat mu, xfloat r, xfl
 }
 
 // The layer's f0' = min(f0 · specular_color, 1) (xi_dielectric_fresnel) in its largest channel.
-static inline xfloat xi_layer_f0(PbrLobes m) {
-  xfloat q = (m.eta - 1.0f) / (m.eta + 1.0f);
-  return fmin(q * q * xi_max3(m.specular_color), (xfloat)1.0f);
-}
+static inline xfloat xi_layer_f0(PbrLobes m) { return xi_max3(xi_layer_f0_color(m)); }
 
 // E_spec(mu): the dielectric specular layer's directional albedo at wo.z = mu, where known (its
 // largest channel, as Blender's Principled BSDF dims the base by).
@@ -344,7 +376,17 @@ static inline xfloat xi_dielectric_layer_albedo(PbrLobes m, xfloat mu) {
   xfloat smooth = xi_max3(xi_dielectric_fresnel(m, mu));
   if (!XI_ANY(m.alpha >= XI_DELTA_ALPHA)) return smooth;
   xfloat f0 = xi_layer_f0(m), r = xi_table_roughness(m);
-  return m.alpha >= XI_DELTA_ALPHA ? m.specular * xi_fresnel_layer_albedo(f0, mu, r, m.eta) : smooth;
+  xfloat rough = m.specular * xi_fresnel_layer_albedo(f0, mu, r, m.eta);
+  // No table holds a film's albedo: the layer's, scaled by the film's reflectance at mu over the
+  // layer's own there.
+  if (xi_has_film(m)) {
+    PbrLobes bare = m;
+    bare.iridescence = 0.0f;
+    xfloat plain = xi_max3(xi_dielectric_fresnel(bare, mu));
+    xfloat film = m.specular * xi_max3(xi_film_fresnel(m, mu, xi_layer_f0_color(m)));
+    rough += (rough * film / fmax(plain, (xfloat)1e-6f) - rough) * xi_film_weight(m);
+  }
+  return m.alpha >= XI_DELTA_ALPHA ? rough : smooth;
 }
 
 // The rough layer's multiple scattering (as the metal's, Kulla and Conty; Blender's Principled BSDF
@@ -492,7 +534,7 @@ static inline PbrAtWo xi_pbr_at(PbrLobes m, xfloat3 wo) {
   xfloat fo = xi_max3(xi_dielectric_fresnel(m, wo.z));
   xfloat lum = fmax(xi_luminance(m.base_color), (xfloat)0.0f);
   xfloat dielectric = 1.0f - m.metallic;
-  xfloat wr = fmax(m.metallic * xi_luminance(xi_schlick_color(m.base_color, wo.z)) + dielectric * fo, (xfloat)0.02f);
+  xfloat wr = fmax(m.metallic * xi_luminance(xi_metal_fresnel(m, wo.z)) + dielectric * fo, (xfloat)0.02f);
   xfloat3 ms_albedo;
   xi_ggx_multiple_scattering(m, wo.z, wo.z, &ms_albedo);
   // The diffuse base and the metal's multiple scattering share the cosine distribution.
@@ -533,7 +575,7 @@ static inline xfloat3 xi_pbr_eval_pdf_at(PbrLobes m, PbrAtWo p, xfloat3 wo, xflo
   // reciprocal where the dielectric's Fresnel is steep (near the critical angle).
   xfloat cf = 0.5f * (xi_dot3(wo, hr) + xi_dot3(wi, hr));
   xfloat spec = xi_base_d(m, hr) * g2 / (4.0f * zo * zi);
-  xfloat3 fmetal = xi_schlick_color(m.base_color, cf);
+  xfloat3 fmetal = xi_metal_fresnel(m, cf);
   xfloat3 fdiel = xi_dielectric_fresnel(m, cf);
   // The dielectric's reflection: its opaque share with the layer's multiple scattering, its
   // transmissive share compensated as the transmission is.
@@ -664,7 +706,7 @@ static inline xfloat3 xi_pbr_sample_lobe_at(PbrLobes m, PbrAtWo p, xfloat3 wo, x
   xfloat3 fo = xi_dielectric_fresnel(m, wo.z);
   xfloat dielectric = 1.0f - m.metallic;
   xfloat share = p.coat_share * p.sheen_share;
-  xfloat3 mirror = xi_add3(xi_scale3(xi_schlick_color(m.base_color, wo.z), m.metallic), xi_scale3(fo, dielectric));
+  xfloat3 mirror = xi_add3(xi_scale3(xi_metal_fresnel(m, wo.z), m.metallic), xi_scale3(fo, dielectric));
   xfloat3 weight_r = xi_scale3(mirror, share / fmax(pr, (xfloat)1e-30f));
   xfloat3 passed = xi_sub3(make_xfloat3((xfloat)1.0f, (xfloat)1.0f, (xfloat)1.0f), fo);
   xfloat3 weight_t = xi_scale3(xi_mul3(xi_transmission_tint(m), passed),

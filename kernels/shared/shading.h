@@ -27,6 +27,7 @@
 #define XI_USE_VOLUME 65536u              // KHR_materials_volume: absorption inside transmissive meshes
 #define XI_USE_SHEEN 131072u              // KHR_materials_sheen
 #define XI_USE_ANISOTROPY 262144u         // KHR_materials_anisotropy
+#define XI_USE_IRIDESCENCE 524288u        // KHR_materials_iridescence: a thin film over the base
 // (Feature bits stay below the sampler's: kernel_config.cpp checks that they do.)
 #define XI_SAMPLER_SHIFT 24u     // the sampler (XI_SAMPLER_*) in the bits above
 
@@ -50,6 +51,7 @@
   F(volume, XI_USE_VOLUME, "volume", 1)                         \
   F(sheen, XI_USE_SHEEN, "sheen", 1)                            \
   F(anisotropy, XI_USE_ANISOTROPY, "anisotropy", 1)             \
+  F(iridescence, XI_USE_IRIDESCENCE, "iridescence", 1)          \
   F(multiple_scattering, XI_USE_MULTIPLE_SCATTERING, "multiple-scattering", 0) \
   F(albedo_scaling, XI_USE_ALBEDO_SCALING, "albedo-scaling", 0)
 
@@ -66,6 +68,15 @@ static inline uint xi_shading(uint argument) {
 #endif
 
 static inline bool xi_uses(uint shading, uint feature) { return (shading & feature) != 0u; }
+
+// Whether a feature's code is compiled into this program, for code that does not see the shading
+// word (the BSDFs): in a scene's own program its features only, a constant the compiler folds; in
+// the generic program and on the host, every feature.
+#if defined(XI_DEVICE) && defined(XI_SHADING) && !defined(XI_GENERIC)
+#define XI_COMPILED(feature) ((XI_SHADING & (feature)) != 0u)
+#else
+#define XI_COMPILED(feature) 1
+#endif
 
 static inline int xi_sampler_of(uint shading) { return (int)(shading >> XI_SAMPLER_SHIFT); }
 

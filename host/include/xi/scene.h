@@ -65,6 +65,8 @@ inline constexpr TextureSlotInfo kTextureSlots[XI_TEXTURE_SLOTS] = {
     {"specular_color_texture", true},
     {"clearcoat_normal_texture", false},     // tangent space: the coat's own normal
     {"anisotropy_texture", false},           // RG: a direction in tangent space, B: the strength
+    {"iridescence_texture", false},          // R: the film's weight
+    {"iridescence_thickness_texture", false},  // G: the film's thickness from its minimum to its maximum
 };
 
 struct Material {
@@ -95,6 +97,13 @@ struct Material {
   // where it has one): the alpha along it rises from roughness² towards 1 with the strength squared.
   float anisotropy_strength = 0.0f;
   float anisotropy_rotation = 0.0f;
+  // KHR_materials_iridescence: a thin dielectric film over the base, its weight (0: none), ior and
+  // thickness in nanometres (the maximum, or from the minimum to the maximum by the thickness
+  // texture's G).
+  float iridescence = 0.0f;
+  float iridescence_ior = 1.3f;
+  float iridescence_thickness_minimum = 100.0f;
+  float iridescence_thickness_maximum = 400.0f;
   // KHR_materials_volume: a transmissive mesh's inside absorbs, Beer–Lambert: light that travels
   // attenuation_distance in it keeps attenuation_color of itself (infinite distance: clear).
   glm::vec3 attenuation_color{1.0f};

@@ -11,10 +11,11 @@
 #include "xi/error.h"
 
 // shade's xi_gather_material (bsdf.h) reads a material as three float4s with the type first in the third.
-static_assert(sizeof(MaterialData) == 192 && offsetof(MaterialData, type) == 32 && offsetof(MaterialData, pbr) == 48 &&
-                  offsetof(MaterialData, textures) == 64 && offsetof(MaterialData, specular) == 112 &&
-                  offsetof(MaterialData, coat) == 128 && offsetof(MaterialData, sheen) == 144 &&
-                  offsetof(MaterialData, anisotropy) == 160 && offsetof(MaterialData, volume) == 176,
+static_assert(sizeof(MaterialData) == 224 && offsetof(MaterialData, type) == 32 && offsetof(MaterialData, pbr) == 48 &&
+                  offsetof(MaterialData, textures) == 64 && offsetof(MaterialData, specular) == 128 &&
+                  offsetof(MaterialData, coat) == 144 && offsetof(MaterialData, sheen) == 160 &&
+                  offsetof(MaterialData, anisotropy) == 176 && offsetof(MaterialData, iridescence) == 192 &&
+                  offsetof(MaterialData, volume) == 208,
               "MaterialData layout");
 static_assert(sizeof(TextureRef) == 48 && sizeof(EnvironmentData) == 80 && sizeof(PunctualLightData) == 64, "layout");
 
@@ -155,6 +156,9 @@ CompiledScene compile_scene(const Scene& scene, int bvh_width, bool spatial_spli
     const bool anisotropic = m.type == MaterialType::Pbr && m.anisotropy_strength > 0.0f;
     md.anisotropy = glm::vec4(anisotropic ? m.anisotropy_strength : 0.0f, std::cos(m.anisotropy_rotation),
                               std::sin(m.anisotropy_rotation), 0.0f);
+    const bool iridescent = m.type == MaterialType::Pbr && m.iridescence > 0.0f;
+    md.iridescence = glm::vec4(iridescent ? m.iridescence : 0.0f, m.iridescence_ior, m.iridescence_thickness_minimum,
+                               m.iridescence_thickness_maximum);
     for (int k = 0; k < XI_TEXTURE_SLOTS; ++k) {
       const TextureSlot& slot = m.textures[k];
       md.textures[k] = XI_NO_TEXTURE;
@@ -174,6 +178,7 @@ CompiledScene compile_scene(const Scene& scene, int bvh_width, bool spatial_spli
     cs.features.volume |= has_volume;
     cs.features.sheen |= m.type == MaterialType::Pbr && m.sheen_color != glm::vec3(0.0f);
     cs.features.anisotropy |= anisotropic;
+    cs.features.iridescence |= iridescent;
     cs.features.alpha |= m.cuts_out();
   }
   // A path's volumes are volume indices + 1 in XI_VOLUME_BITS each of one 32-bit word (shade.cl).

@@ -178,13 +178,20 @@ class Reader {
         throw Error("material '" + out.name + "' has a non-finite anisotropy rotation", file_.path.string());
       read_slot(XI_TEXTURE_ANISOTROPY, *e, "anisotropyTexture");
     }
+    if (const json* e = extension(m, "KHR_materials_iridescence")) {
+      out.iridescence = std::clamp(float(number(*e, "iridescenceFactor", 0.0)), 0.0f, 1.0f);
+      out.iridescence_ior = std::clamp(float(number(*e, "iridescenceIor", 1.3)), 1.0f, 4.0f);
+      out.iridescence_thickness_minimum = std::clamp(float(number(*e, "iridescenceThicknessMinimum", 100.0)), 0.0f, 1e5f);
+      out.iridescence_thickness_maximum = std::clamp(float(number(*e, "iridescenceThicknessMaximum", 400.0)), 0.0f, 1e5f);
+      read_slot(XI_TEXTURE_IRIDESCENCE, *e, "iridescenceTexture");
+      read_slot(XI_TEXTURE_IRIDESCENCE_THICKNESS, *e, "iridescenceThicknessTexture");
+    }
 
     const std::string mode = member(m, "alphaMode") && m["alphaMode"].is_string() ? m["alphaMode"].get<std::string>() : "OPAQUE";
     out.alpha_mode = mode == "MASK" ? AlphaMode::Mask : mode == "BLEND" ? AlphaMode::Blend : AlphaMode::Opaque;
     out.alpha_cutoff = float(number(m, "alphaCutoff", 0.5));
 
     static const std::map<std::string, std::string> unmodelled = {
-        {"KHR_materials_iridescence", "iridescence is not modelled: the base layer alone is rendered"},
         {"KHR_materials_unlit", "unlit materials are not modelled: rendered as lit metallic-roughness"},
         {"KHR_materials_dispersion", "dispersion needs spectral rendering, which xi does not do: one ior for every wavelength"},
         {"KHR_materials_diffuse_transmission", "diffuse transmission is not modelled: the surface is opaque"},

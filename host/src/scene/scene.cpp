@@ -278,7 +278,9 @@ void read_pbr(const Node& n, Material& m, ImageFiles& images) {
                                         "normal_scale", "radiance", "two_sided", "alpha", "alpha_mode", "alpha_cutoff",
                                         "specular", "specular_color", "clearcoat", "clearcoat_roughness",
                                         "attenuation_color", "attenuation_distance", "sheen_color", "sheen_roughness",
-                                        "clearcoat_normal_scale", "anisotropy_strength", "anisotropy_rotation"};
+                                        "clearcoat_normal_scale", "anisotropy_strength", "anisotropy_rotation",
+                                        "iridescence", "iridescence_ior", "iridescence_thickness_minimum",
+                                        "iridescence_thickness_maximum"};
   for (const TextureSlotInfo& slot : kTextureSlots) keys.push_back(slot.key);
   n.expect_object(keys);
   m.type = MaterialType::Pbr;
@@ -295,6 +297,10 @@ void read_pbr(const Node& n, Material& m, ImageFiles& images) {
   m.sheen_roughness = n.number_in("sheen_roughness", 0.0f, 0.0f, 1.0f);
   m.anisotropy_strength = n.number_in("anisotropy_strength", 0.0f, 0.0f, 1.0f);
   m.anisotropy_rotation = n.number_in("anisotropy_rotation", 0.0f, -1e3f, 1e3f);
+  m.iridescence = n.number_in("iridescence", 0.0f, 0.0f, 1.0f);
+  m.iridescence_ior = n.number_in("iridescence_ior", 1.3f, 1.0f, 4.0f);
+  m.iridescence_thickness_minimum = n.number_in("iridescence_thickness_minimum", 100.0f, 0.0f, 1e5f);
+  m.iridescence_thickness_maximum = n.number_in("iridescence_thickness_maximum", 400.0f, 0.0f, 1e5f);
   m.attenuation_color = n.rgb("attenuation_color", glm::vec3(1.0f), 1.0f);
   m.attenuation_distance = n.number_in("attenuation_distance", m.attenuation_distance, 1e-30f, kInf);
   if ((n.has("attenuation_color") || n.has("attenuation_distance")) && m.transmission <= 0.0f)
