@@ -133,10 +133,16 @@ def conductor_eta_k(f0):
     return rgb(eta), rgb([0.0, 0.0, 0.0])
 
 
+# Mitsuba's roughplastic loses much of its base's light at high roughness (a base of albedo 0.19 under a
+# white sky reflects 0.207 at alpha 0.09, 0.149 at 0.36, 0.107 at 0.64), which xi's layer and principled keep.
+ROUGHPLASTIC_LIMIT = 0.3
+
+
 def pbr_bsdf(m, export_dir):
     """xi's glTF metallic-roughness material as the closest Mitsuba BSDF (bench/README.md says how each
-    differs): metallic 1 -> roughconductor, metallic 0 -> roughplastic, between or with a metallic-roughness
-    texture -> principled; a normal texture -> Mitsuba's normalmap over it."""
+    differs): metallic 1 -> roughconductor, metallic 0 -> roughplastic up to roughness ROUGHPLASTIC_LIMIT,
+    principled above it, between or with a metallic-roughness texture; a normal texture -> Mitsuba's normalmap
+    over it."""
     tex = m["textures"]
     if m["transmission"] > 0:
         raise Unsupported(f"material '{m['name']}': transmission")
@@ -163,11 +169,11 @@ def pbr_bsdf(m, export_dir):
             eta, k = conductor_eta_k(f0)
             b = {"eta": eta, "k": k}
         b.update({"type": "conductor"} if delta else dict(type="roughconductor", **rough))
-    elif metallic <= 0:
+    elif metallic <= 0 and r <= ROUGHPLASTIC_LIMIT:
         b = {"int_ior": m["ior"], "ext_ior": 1.0, "diffuse_reflectance": base, "nonlinear": False}
         b.update({"type": "plastic"} if delta else dict(type="roughplastic", **rough))
     else:
-        if "base_color_texture" in tex:
+        if "base_color_texture" in tex and metallic > 0:
             raise Unsupported(f"material '{m['name']}': a textured partly metallic material")
         b = {"type": "principled", "base_color": base, "metallic": metallic, "roughness": max(r, 0.01),
              "eta": m["ior"], "spec_tint": 0.0, "spec_trans": 0.0, "sheen": 0.0, "clearcoat": 0.0}
