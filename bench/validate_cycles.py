@@ -15,7 +15,8 @@ material output and the exporter's "glTF Material Output" group giving a thickne
 Principled BSDFs are given glTF's alphas after the import (Blender's importer passes the extension's strength
 as its own Anisotropic, a different mapping); (iridescence) Thin Film Thickness and IOR, which Blender's
 exporter does not write nor its importer read: the driver adds KHR_materials_iridescence to the file and gives
-Cycles' imported Principled BSDFs their Thin Film inputs back; (emissive) a control where the two models coincide, black
+Cycles' imported Principled BSDFs their Thin Film inputs back; (alpha) Alpha below 1, written as alphaMode
+BLEND (stochastic transparency in both); (emissive) a control where the two models coincide, black
 spheres emitting radiance 1, 4 and 10 (KHR_materials_emissive_strength). The extensions each file holds are
 read back from its JSON and printed: what the exporter chose to write, not what was asked for. Where Debian's
 assimp-testmodels are installed, ClearCoatTest.gltf and BoxTextured.gltf are added, copied with their
@@ -34,7 +35,8 @@ K = --cycles-runs images of SPP / K with seeds 1..K, its pixel variance being th
 Both images are linear EXR.
 
 Regions. Cycles' material index pass (each imported material's pass_index set to 1, 2, ... by name; 0 is the
-background) gives, per material, the pixels whose first hit is that material; a pixel counts if every pixel
+background; its alpha threshold 0, so a transparent surface counts) gives, per material, the pixels whose first
+hit is that material; a pixel counts if every pixel
 within --erode pixels (a square) has the same index, which leaves out the edges, where the two renderers'
 pixel footprints differ most. The background (the map seen directly) is a region too: it checks that the
 camera and the map's orientation agree. Per region and channel: the ratio of the means, xi / Cycles, its
@@ -157,6 +159,11 @@ GROUPS = {
                     ("film400-silver-r0.2", {"Base Color": SILVER, "Metallic": 1.0, "Roughness": 0.2,
                                              "film": (400.0, 1.3)}),
                     ("film350-red-r0.3", {"Base Color": RED, "Roughness": 0.3, "film": (350.0, 1.3)})],
+    # Alpha below 1 (the exporter's alphaMode BLEND): stochastic transparency in both
+    "alpha": [("alpha0.5-black-r0.05", {"Base Color": (0.02, 0.02, 0.02), "Roughness": 0.05, "Alpha": 0.5}),
+              ("alpha0.25-red-r0.3", {"Base Color": RED, "Roughness": 0.3, "Alpha": 0.25}),
+              ("alpha0.75-grey-r0.6", {"Base Color": GREY, "Roughness": 0.6, "Alpha": 0.75}),
+              ("alpha0.5-gold-r0.2", {"Base Color": GOLD, "Metallic": 1.0, "Roughness": 0.2, "Alpha": 0.5})],
     # a control where the two models coincide: emission (black bases, so that little else is seen)
     "emissive": [("emit-white-1", {"Base Color": (0, 0, 0), "Emission Color": (1, 1, 1), "Emission Strength": 1.0}),
                  ("emit-white-4", {"Base Color": (0, 0, 0), "Emission Color": (1, 1, 1), "Emission Strength": 4.0}),
@@ -184,6 +191,8 @@ def _principled_material(bpy, name, spec, texdir):
         p.inputs[key].default_value = (*value, 1.0) if isinstance(value, tuple) else value
     n = 256
     u, v = np.meshgrid((np.arange(n) + 0.5) / n, (np.arange(n) + 0.5) / n)
+    if spec.get("Alpha", 1.0) < 1.0:
+        m.surface_render_method = "BLENDED"  # what the exporter writes as alphaMode BLEND
     if spec.get("film"):
         p.inputs["Thin Film Thickness"].default_value, p.inputs["Thin Film IOR"].default_value = spec["film"]
     if spec.get("texture"):
@@ -327,6 +336,7 @@ def load(bpy, cs, req):
     scene.camera = cameras[0]  # xi's choice too: the first perspective camera
     cs.world(bpy, scene, {"environment": {"file": req["env"], "strength": 1.0, "rotation": req["env_rotate"]}})
     scene.view_layers[0].use_pass_material_index = True
+    scene.view_layers[0].pass_alpha_threshold = 0.0  # the first surface hit, however transparent
     materials = {}
     for k, m in enumerate(sorted(bpy.data.materials, key=lambda m: m.name), start=1):
         m.pass_index = k

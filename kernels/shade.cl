@@ -168,7 +168,9 @@ static inline XI_INLINE Bsdf xi_surface_bsdf(XI_SCENE_PARAMS, uint shading, Shad
       b.pbr.base_color = in.base_color;
       b.pbr.metallic = in.metallic;
       b.pbr.alpha = in.roughness * in.roughness;
-      b.pbr.eta = front ? m.ior : 1.0f / m.ior;
+      // Only light that can get in is ever inside: an opaque surface's back face is the same surface
+      // seen from the other side (as glTF's double-sided surfaces and Cycles' Principled BSDF).
+      b.pbr.eta = front || in.transmission <= 0.0f ? m.ior : 1.0f / m.ior;
       b.pbr.transmission = in.transmission;
       // The layers' factors, times their textures (glTF's channels: the coat's weight in R, its
       // roughness in G, the sheen's and the specular layer's strength in A).

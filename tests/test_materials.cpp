@@ -1517,6 +1517,43 @@ TEST(MaterialIridescence, FilmReplacesTheFresnelByItsWeightAndThickness) {
   EXPECT_GT(wrong, 3e-3);
 }
 
+// An opaque metallic-roughness surface's back face is the same surface seen from the other side
+// (glTF's double-sided surfaces, Cycles' Principled BSDF): a rough red dielectric square seen at 70°
+// under the sky looks the same wound towards the camera and away from it: the four quarters' means
+// per channel agree within the Šidák z of their standard errors plus 1e-4. Must-fail: with
+// transmission 0.5, light can be inside, so the back face is the inside of glass (eta 1/ior), and
+// some quarter differs by more.
+TEST(MaterialBackFaces, OpaqueSurfaceLooksTheSameFromBehind) {
+  const fs::path dir = temp_dir();
+  const int W = 24, H = 24;
+  const json towards = {{-1, -1, 0}, {1, -1, 0}, {1, 1, 0}, {-1, 1, 0}}, away = {{-1, -1, 0}, {-1, 1, 0}, {1, 1, 0}, {1, -1, 0}};
+  auto render = [&](const json& corners, double transmission) {
+    const json red = {{"type", "pbr"}, {"base_color", {0.8, 0.1, 0.05}}, {"metallic", 0}, {"roughness", 0.3},
+                      {"transmission", transmission}};
+    const json scene = {{"camera", camera_json({0, -2.75, 1}, {0, 0, 0}, {0, 0, 1}, 30)},
+                        {"film", {{"width", W}, {"height", H}}},
+                        {"environment", {{"file", (fs::path(XI_SCENE_DIR) / "sky.hdr").string()}}},
+                        {"materials", {{"m", red}}},
+                        {"shapes", {{{"type", "quad"}, {"material", "m"}, {"vertices", corners}}}}};
+    return xi::test::render_shot(load_json(dir, scene), options(64, 13, XI_SAMPLER_RANDOM, 3));
+  };
+  const double z = xi::stats::sidak_critical_z(0.01, 24);
+  const xi::test::Shot front = render(towards, 0.0), back = render(away, 0.0);
+  const xi::test::Shot glass_front = render(towards, 0.5), glass_back = render(away, 0.5);
+  int differ = 0;
+  for (int q = 0; q < 4; ++q) {
+    const int x = (q % 2) * W / 2, y = (q / 2) * H / 2;
+    for (int ch = 0; ch < 3; ++ch) {
+      auto mean = [&](const xi::test::Shot& s) { return xi::test::block_mean(s, x, y, x + W / 2, y + H / 2, ch); };
+      const xi::test::MeanSe a = mean(front), b = mean(back), c = mean(glass_front), d = mean(glass_back);
+      EXPECT_NEAR(b.mean, a.mean, z * std::hypot(a.se, b.se) + 1e-4) << "quarter " << q << " channel " << ch;
+      differ += std::abs(d.mean - c.mean) > z * std::hypot(c.se, d.se) + 1e-4;
+    }
+  }
+  std::printf("[ backface ] half-transmissive, front against back: %d of 12 quarter-channels differ\n", differ);
+  EXPECT_GT(differ, 0) << "a transmissive surface's inside looks like its outside";
+}
+
 // Volumes inside one another (ice in a drink in a glass in a tank), as deep as a path follows them
 // (XI_VOLUME_LEVELS, 4): slabs of σ_k, k = 1..4, each inside the one before ([0, −1], [−0.2, −0.8],
 // [−0.3, −0.7], [−0.4, −0.6]; ior 1, smooth, transmission 1). Through them all,
