@@ -89,9 +89,11 @@ static inline XI_INLINE xmask xi_surface_tangent(XI_SCENE_PARAMS, xuint tri, xui
 // dark). As Cycles does, it is turned so that wo's mirror direction keeps the azimuth about the
 // geometric normal it had but rises to just above the surface. (Sample directions are still
 // checked against the geometric normal.)
+// *mapped: the normal map's normal before either turn.
 static inline XI_INLINE xfloat3 xi_pbr_normal(XI_SCENE_PARAMS, uint shading, xuint mi, xuint tri, int slot, xfloat b1,
                                               xfloat b2, xfloat3 n, xfloat3 n_geo, xfloat3 wo, xfloat normal_scale,
-                                              xfloat3 p0, xfloat3 p1, xfloat3 p2, xfloat2 uv0, xfloat2 uv1) {
+                                              xfloat3 p0, xfloat3 p1, xfloat3 p2, xfloat2 uv0, xfloat2 uv1,
+                                              xfloat3* mapped_normal) {
   if (xi_uses(shading, XI_USE_TEXTURES)) {
     xuint ref = XI_GATHER_UINT_FIELD(materials, mi, textures[slot]);
     xmask mapped = ref != XI_NO_TEXTURE;
@@ -109,6 +111,7 @@ static inline XI_INLINE xfloat3 xi_pbr_normal(XI_SCENE_PARAMS, uint shading, xui
       n = xi_select3(mapped, xi_scale3(nm, 1.0f / (nl > 0.0f ? nl : (xfloat)1.0f)), n);
     }
   }
+  *mapped_normal = n;
   // Never above the geometric normal's own cosine, so the geometric normal itself is left as it is.
   xfloat c = xi_dot3(n, wo), least = fmin((xfloat)0.01f, xi_dot3(n_geo, wo));
   n = xi_select3(c < least, xi_normalize3(xi_add3(n, xi_scale3(wo, least - c))), n);
@@ -160,9 +163,9 @@ static inline XI_INLINE Bsdf xi_surface_bsdf(XI_SCENE_PARAMS, uint shading, Shad
     xmask pbr = at_surface && m.type == XI_MATERIAL_PBR;
     if (XI_ANY(pbr)) {
       PbrInputs in = xi_pbr_inputs(XI_SCENE_ARGS, shading, mi, m.albedo, uv0, uv1);
-      xfloat3 n_interpolated = b.n;
+      xfloat3 n_interpolated = b.n, n_mapped;
       xfloat3 np = xi_pbr_normal(XI_SCENE_ARGS, shading, mi, tri, XI_TEXTURE_NORMAL, b1, b2, b.n, b.n_geo, wo,
-                                 in.normal_scale, p0, p1, p2, uv0, uv1);
+                                 in.normal_scale, p0, p1, p2, uv0, uv1, &n_mapped);
       b.n = xi_select3(pbr, np, b.n);
       xi_basis(b.n, &b.frame_t, &b.frame_b);
       b.pbr.base_color = in.base_color;
@@ -229,9 +232,10 @@ static inline XI_INLINE Bsdf xi_surface_bsdf(XI_SCENE_PARAMS, uint shading, Shad
         b.pbr.coat = pbr ? coat.x : (xfloat)0.0f;
         b.pbr.coat_alpha = coat.y * coat.y;
         // The coat's normal: the interpolated one with the coat's own normal map (not the base's).
+        xfloat3 nc_mapped;
         xfloat3 nc = xi_pbr_normal(XI_SCENE_ARGS, shading, mi, tri, XI_TEXTURE_CLEARCOAT_NORMAL, b1, b2, n_interpolated,
-                                   b.n_geo, wo, coat.z, p0, p1, p2, uv0, uv1);
-        b.pbr.coat_normal = xi_normalize3(make_xfloat3(xi_dot3(nc, b.frame_t), xi_dot3(nc, b.frame_b), xi_dot3(nc, b.n)));
+                                   b.n_geo, wo, coat.z, p0, p1, p2, uv0, uv1, &nc_mapped);
+        b.pbr.coat_normal = xi_normalize3(xi_bsdf_to_local(b, nc));
       }
       if (xi_uses(shading, XI_USE_SHEEN)) {
         xfloat roughness;
@@ -259,6 +263,18 @@ static inline XI_INLINE Bsdf xi_surface_bsdf(XI_SCENE_PARAMS, uint shading, Shad
         b.pbr.iridescence_ior = film.y;
         b.pbr.iridescence_thickness = film.z + (maximum - film.z) * g;
       }
+#if XI_DIFFUSE_NORMALS
+      // Under a normal map, the Lambertian base's own normals (xi_diffuse_cosine).
+      if (xi_uses(shading, XI_USE_NORMAL_MAP)) {
+        xmask own = pbr && (n_mapped.x != n_interpolated.x || n_mapped.y != n_interpolated.y || n_mapped.z != n_interpolated.z);
+        if (XI_ANY(own)) {
+          b.pbr.diffuse_normal = xi_select3(own, xi_normalize3(xi_bsdf_to_local(b, n_mapped)), b.pbr.diffuse_normal);
+          b.pbr.smooth_normal = xi_select3(own, xi_normalize3(xi_bsdf_to_local(b, n_interpolated)), b.pbr.smooth_normal);
+        }
+      }
+#else
+      (void)n_mapped;
+#endif
       m.albedo = xi_select3(pbr, in.base_color, m.albedo);
       b.pbr_at = xi_bsdf_at_wo(b, wo);
     }

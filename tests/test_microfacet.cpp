@@ -723,4 +723,39 @@ TEST(ThinFilm, InvisibleFilmsLeaveTheFresnel) {
   }
 }
 
+// Under a normal map the Lambertian base keeps the map's normal from before shade turned it, n_d, and
+// light is shadowed about the interpolated normal n_s (Cycles' Principled BSDF, Chiang et al. 2019): with no specular layer (specular 0) the whole f · wi.z is base colour ·
+// max(wi · n_d, 0) · G / π for wi above the lobes' +z, G = 2 / (1 + √(1 + α² tan² θi)), θi wi's angle
+// to n_s, α² = min(tan²(n_d's angle to n_s) / 8, 1), and 0 where wi and n_d lie on either side of
+// n_s; within 1e-5, relative. Once n_s = n_d (G = 1), once n_s = +z. Must-fail: the
+// cosine with +z alone differs by more somewhere.
+TEST(MicrofacetDiffuse, BaseKeepsItsOwnNormal) {
+  const glm::vec3 base(0.8f, 0.5f, 0.2f), nd = glm::normalize(glm::vec3(0.3f, -0.2f, 1.0f));
+  const glm::vec3 wo = wo_at(50.0);
+  for (glm::vec3 ns : {nd, glm::vec3(0.0f, 0.0f, 1.0f)}) {
+    PbrLobes m = lobes(0.4f, 0.0f, 0.0f, 1.5f, base);
+    m.specular = 0.0f;
+    m.diffuse_normal = nd;
+    m.smooth_normal = ns;
+    Uniform xi(0xd1ffu);
+    double worst = 0.0, worst_plain = 0.0;
+    for (int k = 0; k < 2000; ++k) {
+      glm::vec3 wi = xi_square_to_hemisphere(xi.pair());
+      if (wi.z < 1e-3f) continue;
+      glm::vec3 f = xi_pbr_eval(m, wo, wi) * wi.z;
+      double cd = glm::dot(ns, nd), ci = std::abs(glm::dot(ns, wi)), cm = glm::dot(wi, nd);
+      double a2 = std::min(0.125 * (1.0 / (cd * cd) - 1.0), 1.0);
+      double g = cd >= 1.0 ? 1.0 : 2.0 / (1.0 + std::sqrt(1.0 + a2 * (1.0 / (ci * ci) - 1.0)));
+      if (glm::dot(ns, wi) * cd * cm < 0.0) g = 0.0;
+      for (int ch = 0; ch < 3; ++ch) {
+        double want = base[ch] * std::max(0.0, cm) * g / kPi, plain = base[ch] * wi.z / kPi;
+        worst = std::max(worst, std::abs(f[ch] - want) / std::max(want, 1e-3));
+        worst_plain = std::max(worst_plain, std::abs(f[ch] - plain) / std::max(plain, 1e-3));
+      }
+    }
+    EXPECT_LT(worst, 1e-5) << "n_s " << ns.x << " " << ns.y << " " << ns.z;
+    EXPECT_GT(worst_plain, 1e-2);
+  }
+}
+
 }  // namespace

@@ -73,6 +73,14 @@
 #include "thin_film.h"
 #include "warps.h"
 
+// The diffuse base's own normals (xi_diffuse_cosine) are held only by programs with normal maps: a
+// program without them carries no such fields through its BSDFs.
+#if XI_COMPILED(XI_USE_NORMAL_MAP)
+#define XI_DIFFUSE_NORMALS 1
+#else
+#define XI_DIFFUSE_NORMALS 0
+#endif
+
 #define XI_DELTA_ALPHA 1e-4f  // GGX alpha (roughness²) below which the specular lobes are delta
 #define XI_MIN_COS 1e-9f      // cosines in denominators are clamped here
 
@@ -92,6 +100,11 @@ typedef struct {
   xfloat coat;                 // KHR_materials_clearcoat: the coat's weight (0: none)
   xfloat coat_alpha;           // the coat's GGX alpha
   xfloat3 coat_normal;         // the coat's own normal in this frame (+z: the base's), wo above it
+#if XI_DIFFUSE_NORMALS
+  // Under a normal map, the Lambertian base's own normal in this frame, the map's before shade turned
+  // it, and the interpolated normal (+z, +z: none; xi_diffuse_cosine).
+  xfloat3 diffuse_normal, smooth_normal;
+#endif
   xfloat3 sheen_color;         // KHR_materials_sheen (0: none)
   xfloat sheen_alpha;          // the sheen's alpha, roughness²
   xfloat iridescence;          // KHR_materials_iridescence: the thin film's weight (0: none)
@@ -113,6 +126,9 @@ static inline PbrLobes xi_plain_pbr_lobes(xfloat3 base_color) {
   m.specular = 1.0f;
   m.coat = m.coat_alpha = 0.0f;
   m.coat_normal = make_xfloat3((xfloat)0.0f, (xfloat)0.0f, (xfloat)1.0f);
+#if XI_DIFFUSE_NORMALS
+  m.diffuse_normal = m.smooth_normal = m.coat_normal;
+#endif
   m.sheen_color = make_xfloat3((xfloat)0.0f, (xfloat)0.0f, (xfloat)0.0f);
   m.sheen_alpha = 0.0f;
   m.iridescence = 0.0f;
@@ -557,6 +573,25 @@ static inline PbrAtWo xi_pbr_at(PbrLobes m, xfloat3 wo) {
   return at;
 }
 
+// The Lambertian base's cosine under a normal map, as Cycles' Principled BSDF has it: with the
+// map's normal n_d from before shade turned it to keep wo's mirror direction above the surface
+// (sampled, as the other cosine lobes, about +z), light shadowed as by microfacets about the
+// interpolated normal n_s (Chiang, Li and Burley, "Taming the Shadow Terminator", 2019: GGX's G1 at
+// wi's angle to n_s with α² = tan² of n_d's angle to n_s over 8, at most 1), and none passing from
+// the other side of n_s.
+#if XI_DIFFUSE_NORMALS
+static inline xfloat xi_diffuse_cosine(PbrLobes m, xfloat3 wi) {
+  xfloat cd = xi_dot3(m.smooth_normal, m.diffuse_normal), cs = xi_dot3(m.smooth_normal, wi);
+  xfloat cm = xi_dot3(m.diffuse_normal, wi);
+  xfloat ci = fabs(cs), cd2 = fmax(cd * cd, (xfloat)1e-12f), ci2 = fmax(ci * ci, (xfloat)1e-12f);
+  xfloat alpha2 = clamp(0.125f * (1.0f / cd2 - 1.0f), (xfloat)0.0f, (xfloat)1.0f);
+  xfloat g = 2.0f / (1.0f + sqrt(1.0f + alpha2 * (1.0f / ci2 - 1.0f)));
+  g = cd >= 1.0f || ci >= 1.0f ? (xfloat)1.0f : ci < 1e-6f ? (xfloat)0.0f : g;
+  g = cs * cd * cm < 0.0f ? (xfloat)0.0f : g;
+  return fmax(cm, (xfloat)0.0f) * g;
+}
+#endif
+
 // f (no cosine) of the non-delta lobes and the solid-angle density with which xi_pbr_sample
 // produces wi (non-delta lobes, the probabilities of `at` = xi_pbr_at(m, wo)).
 static inline xfloat3 xi_pbr_eval_pdf_at(PbrLobes m, PbrAtWo p, xfloat3 wo, xfloat3 wi, xfloat* pdf) {
@@ -584,8 +619,12 @@ static inline xfloat3 xi_pbr_eval_pdf_at(PbrLobes m, PbrAtWo p, xfloat3 wo, xflo
   xfloat pdf_r = xi_base_visible_pdf(m, wo, hr) / (4.0f * cr);
   xmask refl = above && rough;
 
-  // Diffuse.
+  // Diffuse; with a normal of its own, its f · |wi.z| is its cosine with it times the bump shadowing.
   xfloat kd = dielectric * (1.0f - m.transmission) * xi_base_weight(m, p.base_share, wi.z) * XI_INV_PI;
+#if XI_DIFFUSE_NORMALS
+  xmask own_normal = m.diffuse_normal.z < 1.0f || m.smooth_normal.z < 1.0f;
+  if (XI_ANY(own_normal)) kd = own_normal ? kd * xi_diffuse_cosine(m, wi) / zi : kd;
+#endif
   xfloat3 ms_albedo;
   xfloat3 f_diff = xi_add3(xi_scale3(m.base_color, kd),
                            xi_scale3(xi_ggx_multiple_scattering(m, wo.z, wi.z, &ms_albedo), m.metallic));

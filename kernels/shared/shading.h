@@ -28,6 +28,7 @@
 #define XI_USE_SHEEN 131072u              // KHR_materials_sheen
 #define XI_USE_ANISOTROPY 262144u         // KHR_materials_anisotropy
 #define XI_USE_IRIDESCENCE 524288u        // KHR_materials_iridescence: a thin film over the base
+#define XI_USE_NORMAL_MAP 1048576u        // a metallic-roughness base's normal map (with XI_USE_TEXTURES)
 // (Feature bits stay below the sampler's: kernel_config.cpp checks that they do.)
 #define XI_SAMPLER_SHIFT 24u     // the sampler (XI_SAMPLER_*) in the bits above
 
@@ -52,6 +53,7 @@
   F(sheen, XI_USE_SHEEN, "sheen", 1)                            \
   F(anisotropy, XI_USE_ANISOTROPY, "anisotropy", 1)             \
   F(iridescence, XI_USE_IRIDESCENCE, "iridescence", 1)          \
+  F(normal_map, XI_USE_NORMAL_MAP, "normal-map", 1)             \
   F(multiple_scattering, XI_USE_MULTIPLE_SCATTERING, "multiple-scattering", 0) \
   F(albedo_scaling, XI_USE_ALBEDO_SCALING, "albedo-scaling", 0)
 

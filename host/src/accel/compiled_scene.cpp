@@ -234,6 +234,7 @@ CompiledScene compile_scene(const Scene& scene, int bvh_width, bool spatial_spli
   const bool normal_maps = std::any_of(cs.materials.begin(), cs.materials.end(), [](const MaterialData& m) {
     return m.textures[XI_TEXTURE_NORMAL] != XI_NO_TEXTURE;
   });
+  cs.features.normal_map = normal_maps;
   if (normal_maps || cs.features.anisotropy) {
     cs.tri_tangents.resize(3 * n);
     for (size_t i = 0; i < n; ++i)
