@@ -1010,6 +1010,10 @@ TEST(ScenePbr, EveryFieldIsRead) {
   EXPECT_EQ(b.alpha_mode, xi::AlphaMode::Blend);
   EXPECT_EQ(b.textures[XI_TEXTURE_EMISSIVE].image, m.textures[XI_TEXTURE_BASE_COLOR].image);
   expect_vec(b.emission, {1, 1, 1}, 0.0f);  // an emissive texture alone: radiance 1 times the texture
+  // A normal texture turns on the normal-map feature; a scene without one compiles none of it.
+  EXPECT_TRUE(xi::compile_scene(s).features.normal_map);
+  const xi::Scene plain = parse(pbr_scene(R"("m": {"type": "pbr", "base_color_texture": "base.png"})"), dir);
+  EXPECT_FALSE(xi::compile_scene(plain).features.normal_map);
 }
 
 TEST(ScenePbr, DiffuseAlbedoMayBeAnImage) {
