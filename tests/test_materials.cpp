@@ -1396,6 +1396,20 @@ TEST(MaterialLayers, TexturesScaleTheirFactors) {
   EXPECT_TRUE(same(weak, render({{"specular_texture", "black.png"}})));
 }
 
+// What two renders' means over one part of an image may differ by: the Šidák z of their standard
+// errors plus 1e-4 (float accumulation).
+double allowed(const xi::test::MeanSe& a, const xi::test::MeanSe& b, double z) { return z * std::hypot(a.se, b.se) + 1e-4; }
+// f(quarter, channel, mean) over the four quarters of a W × H image and its three channels, mean(shot)
+// that shot's mean and standard error there.
+template <class F>
+void for_each_quarter(int W, int H, F f) {
+  for (int q = 0; q < 4; ++q)
+    for (int ch = 0; ch < 3; ++ch) {
+      const int x = (q % 2) * W / 2, y = (q / 2) * H / 2;
+      f(q, ch, [=](const xi::test::Shot& s) { return xi::test::block_mean(s, x, y, x + W / 2, y + H / 2, ch); });
+    }
+}
+
 // The coat keeps its own normal (glTF: the interpolated one with clearcoat_normal_texture only): a
 // base normal map (a constant 30° tilt) leaves a smooth coat over a black base with no specular
 // layer as it was, on a square facing the camera under the sky (the coat's reflections stay above
@@ -1421,16 +1435,11 @@ TEST(MaterialLayers, CoatKeepsItsOwnNormal) {
                        own = render({{"clearcoat_normal_texture", "tilt.png"}});
   const double z = xi::stats::sidak_critical_z(0.01, 12);
   int moved = 0;
-  for (int q = 0; q < 4; ++q) {
-    const int x0 = (q % 2) * W / 2, y0 = (q / 2) * H / 2;
-    for (int ch = 0; ch < 3; ++ch) {
-      const xi::test::MeanSe a = xi::test::block_mean(plain, x0, y0, x0 + W / 2, y0 + H / 2, ch),
-                             b = xi::test::block_mean(based, x0, y0, x0 + W / 2, y0 + H / 2, ch),
-                             c = xi::test::block_mean(own, x0, y0, x0 + W / 2, y0 + H / 2, ch);
-      EXPECT_NEAR(b.mean, a.mean, z * std::hypot(a.se, b.se) + 1e-4) << "quarter " << q << " channel " << ch;
-      moved += std::abs(c.mean - a.mean) > z * std::hypot(a.se, c.se) + 1e-4;
-    }
-  }
+  for_each_quarter(W, H, [&](int q, int ch, auto mean) {
+    const xi::test::MeanSe a = mean(plain), b = mean(based), c = mean(own);
+    EXPECT_NEAR(b.mean, a.mean, allowed(a, b, z)) << "quarter " << q << " channel " << ch;
+    moved += std::abs(c.mean - a.mean) > allowed(a, c, z);
+  });
   EXPECT_GT(moved, 0) << "the coat's own normal map changes nothing";
 }
 
@@ -1460,16 +1469,12 @@ TEST(MaterialAnisotropy, DirectionIsTheTangentTurnedByTheRotation) {
   const xi::test::Shot y0 = render(along_x, quarter_turn), y1 = render(along_y, 0.0);
   const double z = xi::stats::sidak_critical_z(0.01, 24);
   int differ = 0;
-  for (int q = 0; q < 4; ++q) {
-    const int x = (q % 2) * W / 2, y = (q / 2) * H / 2;
-    for (int ch = 0; ch < 3; ++ch) {
-      auto mean = [&](const xi::test::Shot& s) { return xi::test::block_mean(s, x, y, x + W / 2, y + H / 2, ch); };
-      const xi::test::MeanSe a = mean(x0), b = mean(x1), c = mean(y0), d = mean(y1);
-      EXPECT_NEAR(b.mean, a.mean, z * std::hypot(a.se, b.se) + 1e-4) << "along x: quarter " << q << " channel " << ch;
-      EXPECT_NEAR(d.mean, c.mean, z * std::hypot(c.se, d.se) + 1e-4) << "along y: quarter " << q << " channel " << ch;
-      differ += std::abs(c.mean - a.mean) > z * std::hypot(a.se, c.se) + 1e-4;
-    }
-  }
+  for_each_quarter(W, H, [&](int q, int ch, auto mean) {
+    const xi::test::MeanSe a = mean(x0), b = mean(x1), c = mean(y0), d = mean(y1);
+    EXPECT_NEAR(b.mean, a.mean, allowed(a, b, z)) << "along x: quarter " << q << " channel " << ch;
+    EXPECT_NEAR(d.mean, c.mean, allowed(c, d, z)) << "along y: quarter " << q << " channel " << ch;
+    differ += std::abs(c.mean - a.mean) > allowed(a, c, z);
+  });
   std::printf("[ aniso    ] a direction along x against one along y: %d of 12 quarter-channels differ\n", differ);
   EXPECT_GT(differ, 0) << "the anisotropy direction changes nothing";
 }
@@ -1541,15 +1546,11 @@ TEST(MaterialBackFaces, OpaqueSurfaceLooksTheSameFromBehind) {
   const xi::test::Shot front = render(towards, 0.0), back = render(away, 0.0);
   const xi::test::Shot glass_front = render(towards, 0.5), glass_back = render(away, 0.5);
   int differ = 0;
-  for (int q = 0; q < 4; ++q) {
-    const int x = (q % 2) * W / 2, y = (q / 2) * H / 2;
-    for (int ch = 0; ch < 3; ++ch) {
-      auto mean = [&](const xi::test::Shot& s) { return xi::test::block_mean(s, x, y, x + W / 2, y + H / 2, ch); };
-      const xi::test::MeanSe a = mean(front), b = mean(back), c = mean(glass_front), d = mean(glass_back);
-      EXPECT_NEAR(b.mean, a.mean, z * std::hypot(a.se, b.se) + 1e-4) << "quarter " << q << " channel " << ch;
-      differ += std::abs(d.mean - c.mean) > z * std::hypot(c.se, d.se) + 1e-4;
-    }
-  }
+  for_each_quarter(W, H, [&](int q, int ch, auto mean) {
+    const xi::test::MeanSe a = mean(front), b = mean(back), c = mean(glass_front), d = mean(glass_back);
+    EXPECT_NEAR(b.mean, a.mean, allowed(a, b, z)) << "quarter " << q << " channel " << ch;
+    differ += std::abs(d.mean - c.mean) > allowed(c, d, z);
+  });
   std::printf("[ backface ] half-transmissive, front against back: %d of 12 quarter-channels differ\n", differ);
   EXPECT_GT(differ, 0) << "a transmissive surface's inside looks like its outside";
 }
