@@ -81,19 +81,11 @@ static inline XI_INLINE xmask xi_surface_tangent(XI_SCENE_PARAMS, xuint tri, xui
   return (from_file || det != 0.0f) && tl > 0.0f;
 }
 
-// The shading normal with the normal map of material mi's texture slot `slot` applied (tangent
-// space: xi_surface_tangent's frame of the map's coordinates), then turned where it would face away
-// from wo or mirror wo below the surface: a shading normal seen from behind would make the lobes'
-// local frame invalid (black fringes) or light leak through, and one that mirrors wo into the
-// surface loses the specular light a bumped glossy surface reflects (a strong normal map went
-// dark). As Cycles does, it is turned so that wo's mirror direction keeps the azimuth about the
-// geometric normal it had but rises to just above the surface. (Sample directions are still
-// checked against the geometric normal.)
-// *mapped: the normal map's normal before either turn.
-static inline XI_INLINE xfloat3 xi_pbr_normal(XI_SCENE_PARAMS, uint shading, xuint mi, xuint tri, int slot, xfloat b1,
-                                              xfloat b2, xfloat3 n, xfloat3 n_geo, xfloat3 wo, xfloat normal_scale,
-                                              xfloat3 p0, xfloat3 p1, xfloat3 p2, xfloat2 uv0, xfloat2 uv1,
-                                              xfloat3* mapped_normal) {
+// The shading normal n with the normal map of material mi's texture slot `slot` applied (tangent
+// space: xi_surface_tangent's frame of the map's coordinates).
+static inline XI_INLINE xfloat3 xi_mapped_normal(XI_SCENE_PARAMS, uint shading, xuint mi, xuint tri, int slot, xfloat b1,
+                                                 xfloat b2, xfloat3 n, xfloat normal_scale, xfloat3 p0, xfloat3 p1,
+                                                 xfloat3 p2, xfloat2 uv0, xfloat2 uv1) {
   if (xi_uses(shading, XI_USE_TEXTURES)) {
     xuint ref = XI_GATHER_UINT_FIELD(materials, mi, textures[slot]);
     xmask mapped = ref != XI_NO_TEXTURE;
@@ -111,7 +103,16 @@ static inline XI_INLINE xfloat3 xi_pbr_normal(XI_SCENE_PARAMS, uint shading, xui
       n = xi_select3(mapped, xi_scale3(nm, 1.0f / (nl > 0.0f ? nl : (xfloat)1.0f)), n);
     }
   }
-  *mapped_normal = n;
+  return n;
+}
+
+// A metallic-roughness shading normal n turned where it would face away from wo or mirror wo below
+// the surface: a shading normal seen from behind would make the lobes' local frame invalid (black
+// fringes) or light leak through, and one that mirrors wo into the surface loses the specular light
+// a bumped glossy surface reflects (a strong normal map went dark). As Cycles does, it is turned so
+// that wo's mirror direction keeps the azimuth about the geometric normal it had but rises to just
+// above the surface. (Sample directions are still checked against the geometric normal.)
+static inline XI_INLINE xfloat3 xi_turned_normal(xfloat3 n, xfloat3 n_geo, xfloat3 wo) {
   // Never above the geometric normal's own cosine, so the geometric normal itself is left as it is.
   xfloat c = xi_dot3(n, wo), least = fmin((xfloat)0.01f, xi_dot3(n_geo, wo));
   n = xi_select3(c < least, xi_normalize3(xi_add3(n, xi_scale3(wo, least - c))), n);
@@ -163,9 +164,10 @@ static inline XI_INLINE Bsdf xi_surface_bsdf(XI_SCENE_PARAMS, uint shading, Shad
     xmask pbr = at_surface && m.type == XI_MATERIAL_PBR;
     if (XI_ANY(pbr)) {
       PbrInputs in = xi_pbr_inputs(XI_SCENE_ARGS, shading, mi, m.albedo, uv0, uv1);
-      xfloat3 n_interpolated = b.n, n_mapped;
-      xfloat3 np = xi_pbr_normal(XI_SCENE_ARGS, shading, mi, tri, XI_TEXTURE_NORMAL, b1, b2, b.n, b.n_geo, wo,
-                                 in.normal_scale, p0, p1, p2, uv0, uv1, &n_mapped);
+      xfloat3 n_interpolated = b.n;
+      xfloat3 n_mapped = xi_mapped_normal(XI_SCENE_ARGS, shading, mi, tri, XI_TEXTURE_NORMAL, b1, b2, b.n, in.normal_scale,
+                                          p0, p1, p2, uv0, uv1);
+      xfloat3 np = xi_turned_normal(n_mapped, b.n_geo, wo);
       b.n = xi_select3(pbr, np, b.n);
       xi_basis(b.n, &b.frame_t, &b.frame_b);
       b.pbr.base_color = in.base_color;
@@ -232,9 +234,9 @@ static inline XI_INLINE Bsdf xi_surface_bsdf(XI_SCENE_PARAMS, uint shading, Shad
         b.pbr.coat = pbr ? coat.x : (xfloat)0.0f;
         b.pbr.coat_alpha = coat.y * coat.y;
         // The coat's normal: the interpolated one with the coat's own normal map (not the base's).
-        xfloat3 nc_mapped;
-        xfloat3 nc = xi_pbr_normal(XI_SCENE_ARGS, shading, mi, tri, XI_TEXTURE_CLEARCOAT_NORMAL, b1, b2, n_interpolated,
-                                   b.n_geo, wo, coat.z, p0, p1, p2, uv0, uv1, &nc_mapped);
+        xfloat3 nc = xi_turned_normal(xi_mapped_normal(XI_SCENE_ARGS, shading, mi, tri, XI_TEXTURE_CLEARCOAT_NORMAL, b1, b2,
+                                                       n_interpolated, coat.z, p0, p1, p2, uv0, uv1),
+                                      b.n_geo, wo);
         b.pbr.coat_normal = xi_normalize3(xi_bsdf_to_local(b, nc));
       }
       if (xi_uses(shading, XI_USE_SHEEN)) {
