@@ -146,8 +146,10 @@ static inline XI_INLINE BsdfSample xi_bsdf_sample(Bsdf b, uint shading, xfloat3 
     s.weight = xi_select3(pbr, weight, s.weight);
     s.pdf = pbr ? pdf : s.pdf;
     s.lobe = pbr ? lobe : s.lobe;
-    // The geometric normal must agree with the lobe's side, or light would leak through.
-    s.valid = s.valid || (pbr && xi_max3(weight) > 0.0f && xi_dot3(wi, b.n_geo) * wi_local.z > 0.0f);
+    // The geometric normal must agree with the lobe's side, or light would leak through; an opaque
+    // surface reflects above it alone (a coat's reflection may be below the base's normal).
+    xfloat side = xi_dot3(wi, b.n_geo);
+    s.valid = s.valid || (pbr && xi_max3(weight) > 0.0f && (b.pbr.transmission <= 0.0f ? side > 0.0f : side * wi_local.z > 0.0f));
   }
   return s;
 }

@@ -664,7 +664,8 @@ static inline xfloat3 xi_pbr_eval_pdf_at(PbrLobes m, PbrAtWo p, xfloat3 wo, xflo
     xfloat ac = fmax(m.coat_alpha, (xfloat)XI_DELTA_ALPHA);
     xfloat zoc = fmax(woc.z, (xfloat)XI_MIN_COS);
     xfloat coc = fmax(xi_dot3(woc, hc), (xfloat)XI_MIN_COS);
-    xmask coat_rough = above && wic.z > 0.0f && m.coat > 0.0f && m.coat_alpha >= XI_DELTA_ALPHA;
+    // Above its own normal; over an opaque base that may be below the base's (whose lobes are 0 there).
+    xmask coat_rough = (above || m.transmission <= 0.0f) && wic.z > 0.0f && m.coat > 0.0f && m.coat_alpha >= XI_DELTA_ALPHA;
     // Its cosine is wi's with its own normal: f · |wi.z| must be the coat's f · wi_c.z.
     xfloat f_coat = m.coat * xi_ggx_d(hc, ac) * xi_ggx_g2(woc, wic, ac) *
                     xi_fresnel_dielectric(0.5f * (xi_dot3(woc, hc) + xi_dot3(wic, hc)), (xfloat)XI_COAT_ETA) /
@@ -732,7 +733,9 @@ static inline xfloat3 xi_pbr_sample_lobe_at(PbrLobes m, PbrAtWo p, xfloat3 wo, x
   }
   xfloat3 wd = xi_square_to_cosine_hemisphere(u);
   xfloat3 w = xi_select3(pick_r || pick_c, wr, xi_select3(pick_t, wt, wd));
-  xmask valid = pick_t ? (refracts && w.z < 0.0f) : w.z > 0.0f;
+  // (A coat's reflection over an opaque base may leave below the base's normal: see the eval.)
+  xmask valid = pick_t ? (refracts && w.z < 0.0f)
+                       : w.z > 0.0f || (pick_c && m.transmission <= 0.0f && xi_dot3(w, nc) > 0.0f);
   xfloat pw;
   xfloat3 f = xi_pbr_eval_pdf_at(m, p, wo, w, &pw);
   valid = valid && pw > 0.0f;
