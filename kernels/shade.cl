@@ -274,8 +274,6 @@ static inline XI_INLINE Bsdf xi_surface_bsdf(XI_SCENE_PARAMS, uint shading, Shad
           b.pbr.smooth_normal = xi_select3(own, xi_normalize3(xi_bsdf_to_local(b, n_interpolated)), b.pbr.smooth_normal);
         }
       }
-#else
-      (void)n_mapped;
 #endif
       m.albedo = xi_select3(pbr, in.base_color, m.albedo);
       b.pbr_at = xi_bsdf_at_wo(b, wo);

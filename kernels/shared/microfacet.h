@@ -363,12 +363,20 @@ static inline xfloat3 xi_layer_f0_color(PbrLobes m) {
 // f0' = min(f0 · specular_color, 1), f0 = ((η − 1)/(η + 1))² = F(1) and s = (F − f0) / (1 − f0)
 // (1 under total internal reflection). Without the extension (both 1) it is F in every channel.
 // With a film, the film's reflectance over f0' in its share (above).
-static inline xfloat3 xi_dielectric_fresnel(PbrLobes m, xfloat cos_o) {
+// Both before the layer's strength: the remapped Fresnel, returned, and in *film the film's (with
+// none, the same).
+static inline xfloat3 xi_layer_fresnel_parts(PbrLobes m, xfloat cos_o, xfloat3* film) {
   xfloat q = (m.eta - 1.0f) / (m.eta + 1.0f), f0 = q * q;
   xfloat s = clamp((xi_fresnel_dielectric(cos_o, m.eta) - f0) / (1.0f - f0), (xfloat)0.0f, (xfloat)1.0f);
   xfloat3 f0s = xi_layer_f0_color(m);
   xfloat3 f = make_xfloat3(f0s.x + (1.0f - f0s.x) * s, f0s.y + (1.0f - f0s.y) * s, f0s.z + (1.0f - f0s.z) * s);
-  if (xi_has_film(m)) f = xi_mix3(f, xi_film_fresnel(m, cos_o, f0s), xi_film_weight(m));
+  *film = f;
+  if (xi_has_film(m)) *film = xi_film_fresnel(m, cos_o, f0s);
+  return f;
+}
+static inline xfloat3 xi_dielectric_fresnel(PbrLobes m, xfloat cos_o) {
+  xfloat3 film, f = xi_layer_fresnel_parts(m, cos_o, &film);
+  if (xi_has_film(m)) f = xi_mix3(f, film, xi_film_weight(m));
   return xi_scale3(f, m.specular);
 }
 
@@ -389,18 +397,18 @@ static inline xfloat xi_layer_f0(PbrLobes m) { return xi_max3(xi_layer_f0_color(
 // E_spec(mu): the dielectric specular layer's directional albedo at wo.z = mu, where known (its
 // largest channel, as Blender's Principled BSDF dims the base by).
 static inline xfloat xi_dielectric_layer_albedo(PbrLobes m, xfloat mu) {
-  xfloat smooth = xi_max3(xi_dielectric_fresnel(m, mu));
+  // xi_dielectric_fresnel's parts, the film's evaluated once.
+  xfloat3 film, plain = xi_layer_fresnel_parts(m, mu, &film), mixed = plain;
+  if (xi_has_film(m)) mixed = xi_mix3(plain, film, xi_film_weight(m));
+  xfloat smooth = xi_max3(xi_scale3(mixed, m.specular));
   if (!XI_ANY(m.alpha >= XI_DELTA_ALPHA)) return smooth;
   xfloat f0 = xi_layer_f0(m), r = xi_table_roughness(m);
   xfloat rough = m.specular * xi_fresnel_layer_albedo(f0, mu, r, m.eta);
   // No table holds a film's albedo: the layer's, scaled by the film's reflectance at mu over the
   // layer's own there.
   if (xi_has_film(m)) {
-    PbrLobes bare = m;
-    bare.iridescence = 0.0f;
-    xfloat plain = xi_max3(xi_dielectric_fresnel(bare, mu));
-    xfloat film = m.specular * xi_max3(xi_film_fresnel(m, mu, xi_layer_f0_color(m)));
-    rough += (rough * film / fmax(plain, (xfloat)1e-6f) - rough) * xi_film_weight(m);
+    xfloat layer = xi_max3(xi_scale3(plain, m.specular)), film_max = m.specular * xi_max3(film);
+    rough += (rough * film_max / fmax(layer, (xfloat)1e-6f) - rough) * xi_film_weight(m);
   }
   return m.alpha >= XI_DELTA_ALPHA ? rough : smooth;
 }
