@@ -592,7 +592,8 @@ TEST(AssetScene, JsonAssetShape) {
   const fs::path dir = temp_dir();
   Gltf g;
   g.add("materials", {{"name", "chrome"}, {"pbrMetallicRoughness", {{"metallicFactor", 1.0}, {"roughnessFactor", 0.0}}}});
-  g.mesh({{0, 0, 0}, {1, 0, 0}, {0, 1, 0}}, 0);
+  const std::vector<glm::vec2> uv = {{0.125f, 0.25f}, {0.375f, 0.5f}, {0.625f, 0.75f}};
+  g.mesh({{0, 0, 0}, {1, 0, 0}, {0, 1, 0}}, {}, uv, {}, 0);
   g.node({{"mesh", 0}, {"translation", {1.0, 0.0, 0.0}}});
   g.write(dir / "thing.gltf");
   const std::string text = R"({"camera": {"position": [0, 0, 5], "look_at": [0, 0, 0], "up": [0, 1, 0], "fov": 40},
@@ -613,6 +614,12 @@ TEST(AssetScene, JsonAssetShape) {
   EXPECT_NEAR(t.v[0].z, -3.0f, 1e-6);
   EXPECT_NEAR(t.v[1].x, 4.0f, 1e-6);
   EXPECT_NEAR(t.v[2].y, 2.0f, 1e-6);
+  // Its texture coordinates as the file has them, after the quad's own (each triangle its entry).
+  const glm::vec2 quad_corners[3] = {{0, 0}, {1, 0}, {1, 1}};
+  for (int k = 0; k < 3; ++k) {
+    EXPECT_EQ(xi::texcoords_of(s.texcoords, t).uv[0][k], uv[k]) << k;
+    EXPECT_EQ(xi::texcoords_of(s.texcoords, s.triangles[0]).uv[0][k], quad_corners[k]) << k;
+  }
   expect_error([&] { xi::parse_scene(R"({"camera": {"position": [0, 0, 5], "look_at": [0, 0, 0], "up": [0, 1, 0], "fov": 40},
     "materials": {}, "shapes": [{"type": "asset", "file": "missing.glb"}]})", "test.json", dir); },
                {"asset file not found", "/shapes/0/file"});

@@ -483,7 +483,8 @@ TEST(SceneErrors, BadCameraAndTransform) {
 }
 
 // A scene built in code meets the same limits when compiled (check_scene_limits): a vertex beyond
-// +-1e9, geometry spanning less than 1e-6, a NaN or negative radiance, an infinite background.
+// +-1e9, geometry spanning less than 1e-6, a NaN or negative radiance, an infinite background,
+// texture coordinates beyond the scene's.
 TEST(SceneErrors, CompileSceneChecksTheLimits) {
   const xi::Scene good = parse(scene_text(kQuad, R"("materials": {"white": {"type": "emitter", "radiance": [1e20, 1, 0]}})"));
   EXPECT_NO_THROW(xi::compile_scene(good));  // radiance has no upper limit (HardCases: a 1e-6 light of 1e12)
@@ -498,6 +499,10 @@ TEST(SceneErrors, CompileSceneChecksTheLimits) {
   refused([](xi::Scene& s) { s.materials[0].emission.y = NAN; }, "material 'white' has a negative or non-finite radiance");
   refused([](xi::Scene& s) { s.materials[0].emission.z = -1.0f; }, "material 'white' has a negative or non-finite radiance");
   refused([](xi::Scene& s) { s.background = glm::vec3(INFINITY); }, "the background radiance is negative or not finite");
+  const size_t kept = good.texcoords.size();  // the quad's two triangles have theirs
+  ASSERT_EQ(kept, 2u);
+  refused([&](xi::Scene& s) { s.triangles[1].texcoords = uint32_t(kept); },
+          "triangle 1 names texture coordinates 2 of 2");
 }
 
 // The other end of single precision: geometry whose bounding box's longest side is below 1e-6 is
@@ -726,27 +731,34 @@ void grid(int w, int h, std::vector<std::vector<double>>* vertices, std::vector<
 
 // The triangles Assimp gives for a mesh file, as load_mesh reads them. (The files here have no two
 // vertices that aiProcess_JoinIdenticalVertices would merge: the two readers agree bit for bit.)
-std::vector<xi::Triangle> assimp_triangles(const fs::path& path) {
+struct Mesh {
+  std::vector<xi::Triangle> tris;
+  std::vector<xi::TriangleTexcoords> texcoords;
+};
+Mesh assimp_triangles(const fs::path& path) {
   Assimp::Importer importer;
   const aiScene* scene = importer.ReadFile(
       path.string(), aiProcess_Triangulate | aiProcess_JoinIdenticalVertices | aiProcess_PreTransformVertices);
-  std::vector<xi::Triangle> out;
+  Mesh out;
   if (!scene) return out;
-  for (unsigned i = 0; i < scene->mNumMeshes; ++i) xi::scene_detail::mesh_triangles(*scene->mMeshes[i], 0, true, out);
+  for (unsigned i = 0; i < scene->mNumMeshes; ++i)
+    xi::scene_detail::mesh_triangles(*scene->mMeshes[i], 0, true, out.tris, out.texcoords);
   return out;
 }
 
 // Field by field and bit for bit (NaN payloads and signed zeros too).
-void expect_same_triangles(const std::vector<xi::Triangle>& a, const std::vector<xi::Triangle>& b) {
-  ASSERT_EQ(a.size(), b.size());
-  for (size_t i = 0; i < a.size(); ++i) {
+void expect_same_triangles(const Mesh& a, const Mesh& b) {
+  ASSERT_EQ(a.tris.size(), b.tris.size());
+  for (size_t i = 0; i < a.tris.size(); ++i) {
     SCOPED_TRACE(testing::Message() << "triangle " << i);
-    EXPECT_EQ(std::memcmp(a[i].v, b[i].v, sizeof a[i].v), 0);
-    EXPECT_EQ(std::memcmp(a[i].n, b[i].n, sizeof a[i].n), 0);
-    EXPECT_EQ(std::memcmp(a[i].uv, b[i].uv, sizeof a[i].uv), 0);
-    EXPECT_EQ(std::memcmp(a[i].tangent, b[i].tangent, sizeof a[i].tangent), 0);
-    EXPECT_EQ(a[i].has_normals, b[i].has_normals);
-    EXPECT_EQ(a[i].material, b[i].material);
+    const xi::Triangle &s = a.tris[i], &t = b.tris[i];
+    const xi::TriangleTexcoords &sc = xi::texcoords_of(a.texcoords, s), &tc = xi::texcoords_of(b.texcoords, t);
+    EXPECT_EQ(std::memcmp(s.v, t.v, sizeof s.v), 0);
+    EXPECT_EQ(std::memcmp(s.n, t.n, sizeof s.n), 0);
+    EXPECT_EQ(std::memcmp(sc.uv, tc.uv, sizeof sc.uv), 0);
+    EXPECT_EQ(std::memcmp(sc.tangent, tc.tangent, sizeof sc.tangent), 0);
+    EXPECT_EQ(s.has_normals, t.has_normals);
+    EXPECT_EQ(s.material, t.material);
   }
 }
 
@@ -785,12 +797,12 @@ TEST(MeshPly, SameTrianglesAsAssimp) {
     for (auto& row : v) row.resize(c.props.size());
     const fs::path file = dir / (c.name + ".ply");
     write_bytes(file, ply_bytes(c.big_endian, c.props, v, faces, c.count_type, c.index_type, c.extra));
-    const std::vector<xi::Triangle> reference = assimp_triangles(file);
-    ASSERT_EQ(reference.size(), faces.size());
-    std::vector<xi::Triangle> ours = {xi::Triangle{}};  // appended after what is there
-    ASSERT_TRUE(xi::scene_detail::read_binary_ply(file, true, ours));
-    ASSERT_EQ(ours.size(), 1 + faces.size());
-    ours.erase(ours.begin());
+    const Mesh reference = assimp_triangles(file);
+    ASSERT_EQ(reference.tris.size(), faces.size());
+    Mesh ours{{xi::Triangle{}}, {xi::TriangleTexcoords{}}};  // appended after what is there
+    ASSERT_TRUE(xi::scene_detail::read_binary_ply(file, true, ours.tris, ours.texcoords));
+    ASSERT_EQ(ours.tris.size(), 1 + faces.size());
+    ours.tris.erase(ours.tris.begin());
     expect_same_triangles(ours, reference);
   }
   fs::remove_all(dir);
@@ -804,8 +816,8 @@ TEST(MeshPly, AssimpModels) {
   for (const auto& entry : fs::directory_iterator(models)) {
     if (entry.path().extension() != ".ply") continue;
     SCOPED_TRACE(entry.path().string());
-    std::vector<xi::Triangle> ours;
-    if (!xi::scene_detail::read_binary_ply(entry.path(), true, ours)) continue;
+    Mesh ours;
+    if (!xi::scene_detail::read_binary_ply(entry.path(), true, ours.tris, ours.texcoords)) continue;
     read++;
     expect_same_triangles(ours, assimp_triangles(entry.path()));
   }
@@ -846,8 +858,10 @@ TEST(MeshPly, LeavesOtherFilesToAssimp) {
     SCOPED_TRACE(c.name);
     write_bytes(dir / (c.name + ".ply"), c.bytes);
     std::vector<xi::Triangle> out(3);
-    EXPECT_FALSE(xi::scene_detail::read_binary_ply(dir / (c.name + ".ply"), true, out));
+    std::vector<xi::TriangleTexcoords> texcoords(2);
+    EXPECT_FALSE(xi::scene_detail::read_binary_ply(dir / (c.name + ".ply"), true, out, texcoords));
     EXPECT_EQ(out.size(), 3u);
+    EXPECT_EQ(texcoords.size(), 2u);
     EXPECT_EQ(parse(mesh_scene(c.name + ".ply"), dir).triangles.size(), c.triangles);
   }
   // An index out of range, a file cut short: declined after reading part of it, `out` as it was.
@@ -857,8 +871,10 @@ TEST(MeshPly, LeavesOtherFilesToAssimp) {
   for (const char* name : {"bad-index.ply", "negative-index.ply", "short.ply"}) {
     SCOPED_TRACE(name);
     std::vector<xi::Triangle> out(3);
-    EXPECT_FALSE(xi::scene_detail::read_binary_ply(dir / name, true, out));
+    std::vector<xi::TriangleTexcoords> texcoords(2);
+    EXPECT_FALSE(xi::scene_detail::read_binary_ply(dir / name, true, out, texcoords));
     EXPECT_EQ(out.size(), 3u);
+    EXPECT_EQ(texcoords.size(), 2u);
   }
   fs::remove_all(dir);
 }
@@ -1076,14 +1092,14 @@ TEST(SceneUv, QuadsAndTrianglesMapTheImage) {
       while (corner < 4 && s.triangles[t].v[k] != pos[corner]) ++corner;
       ASSERT_LT(corner, 4);
       for (int set = 0; set < 2; ++set) {
-        EXPECT_EQ(s.triangles[t].uv[set][k].x, quad[corner].x);
-        EXPECT_EQ(s.triangles[t].uv[set][k].y, quad[corner].y);
+        EXPECT_EQ(xi::texcoords_of(s.texcoords, s.triangles[t]).uv[set][k].x, quad[corner].x);
+        EXPECT_EQ(xi::texcoords_of(s.texcoords, s.triangles[t]).uv[set][k].y, quad[corner].y);
       }
     }
   const glm::vec2 tri[3] = {{0, 0}, {1, 0}, {0, 1}};
   for (int k = 0; k < 3; ++k) {
-    EXPECT_EQ(s.triangles[2].uv[0][k].x, tri[k].x);
-    EXPECT_EQ(s.triangles[2].uv[0][k].y, tri[k].y);
+    EXPECT_EQ(xi::texcoords_of(s.texcoords, s.triangles[2]).uv[0][k].x, tri[k].x);
+    EXPECT_EQ(xi::texcoords_of(s.texcoords, s.triangles[2]).uv[0][k].y, tri[k].y);
   }
 }
 
@@ -1094,8 +1110,8 @@ TEST(SceneUv, MirroringTransformKeepsEachVertexsCoordinates) {
   for (int k = 0; k < 3; ++k) {  // each vertex's (u, v) is the one it had: (0,0) at the origin, (1,0) at x = -1
     const glm::vec3 p = s.triangles[0].v[k];
     const glm::vec2 want = p.x < -0.5f ? glm::vec2(1, 0) : p.y > 0.5f ? glm::vec2(0, 1) : glm::vec2(0, 0);
-    EXPECT_EQ(s.triangles[0].uv[0][k].x, want.x);
-    EXPECT_EQ(s.triangles[0].uv[0][k].y, want.y);
+    EXPECT_EQ(xi::texcoords_of(s.texcoords, s.triangles[0]).uv[0][k].x, want.x);
+    EXPECT_EQ(xi::texcoords_of(s.texcoords, s.triangles[0]).uv[0][k].y, want.y);
   }
 }
 
@@ -1106,7 +1122,7 @@ TEST(SceneUv, SphereIsEquirectangular) {
     float lo = 10, hi = -10;
     for (int k = 0; k < 3; ++k) {
       const glm::vec3 d = glm::normalize(t.v[k]);
-      const glm::vec2 uv = t.uv[0][k];
+      const glm::vec2 uv = xi::texcoords_of(s.texcoords, t).uv[0][k];
       EXPECT_NEAR(uv.y, std::acos(std::clamp(d.y, -1.0f, 1.0f)) / float(M_PI), 1e-5f);
       lo = std::min(lo, uv.x), hi = std::max(hi, uv.x);
       if (std::abs(d.y) < 0.999f) {  // off the poles: u = 0.5 + atan2(x, z) / 2π, maybe + 1 across the seam

@@ -52,7 +52,8 @@ void vertex_normals(const Triangle& t, glm::vec3 out[3]) {
 
 // One material's triangles as a PLY: three vertices per triangle (x y z nx ny nz), as xi stores them,
 // and with `uv` the texture coordinates of set 0 (u v, as the file has them: v down the image).
-std::string ply(const std::vector<const Triangle*>& tris, const std::string& material, bool uv) {
+std::string ply(const std::vector<const Triangle*>& tris, const std::vector<TriangleTexcoords>& texcoords,
+                const std::string& material, bool uv) {
   const size_t n = tris.size();
   if (3 * n > (size_t)INT32_MAX) throw Error("too many triangles for a PLY file's int indices", material);
   std::string out =
@@ -68,7 +69,7 @@ std::string ply(const std::vector<const Triangle*>& tris, const std::string& mat
       for (int c = 0; c < 3; ++c) put_float(out, t->v[k][c]);
       for (int c = 0; c < 3; ++c) put_float(out, normals[k][c]);
       if (uv)
-        for (int c = 0; c < 2; ++c) put_float(out, t->uv[0][k][c]);
+        for (int c = 0; c < 2; ++c) put_float(out, texcoords_of(texcoords, *t).uv[0][k][c]);
     }
   }
   for (size_t i = 0; i < n; ++i) {
@@ -193,7 +194,7 @@ int export_scene(const std::vector<std::string>& argv) {
       if (by_material[m].empty()) continue;
       const std::string file = "material-" + std::to_string(m) + ".ply";
       const bool uv = scene.materials[m].has_textures();
-      write_file(out_dir / file, ply(by_material[m], scene.materials[m].name, uv));
+      write_file(out_dir / file, ply(by_material[m], scene.texcoords, scene.materials[m].name, uv));
       written.push_back(out_dir / file);
       meshes.push_back({{"file", file}, {"material", scene.materials[m].name}, {"material_index", m},
                         {"triangles", by_material[m].size()}, {"flat_triangles", flat[m]}, {"texcoords", uv}});

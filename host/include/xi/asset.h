@@ -49,6 +49,7 @@ struct AssetGeometry {
   std::vector<Material> materials;
   std::vector<TextureImage> images;  // the materials' textures (TextureSlot::image indexes them)
   std::vector<Triangle> triangles;
+  std::vector<TriangleTexcoords> texcoords;  // Triangle::texcoords indexes it
   std::vector<Light> lights;  // punctual lights (glTF's KHR_lights_punctual, through Assimp's aiLight)
   std::vector<std::string> warnings;  // one line per kind of thing xi does not model
 };

@@ -128,15 +128,24 @@ struct Material {
   bool cuts_out() const { return alpha_mode != AlphaMode::Opaque; }
 };
 
+// A triangle's texture coordinates, sets 0 and 1, as the file has them (v down), and the file's
+// tangents (glTF TANGENT): xyz along increasing u of the normal map's coordinates, w the bitangent's
+// sign (bitangent = w · normal × tangent), all 0 where the file has none. Kept beside the triangles
+// rather than in them: large scanned meshes have none, and they are over half a triangle's bytes.
+struct TriangleTexcoords {
+  glm::vec2 uv[2][3] = {};
+  glm::vec4 tangent[3] = {};
+};
+constexpr uint32_t kNoTexcoords = 0xffffffffu;
+
 struct Triangle {
   glm::vec3 v[3];
   glm::vec3 n[3];            // per-vertex shading normals, valid when has_normals
-  glm::vec2 uv[2][3] = {};   // texture coordinates, sets 0 and 1, as the file has them (v down)
-  // The file's tangents (glTF TANGENT): xyz along increasing u of the normal map's coordinates, w
-  // the bitangent's sign (bitangent = w · normal × tangent); all 0 where the file has none.
-  glm::vec4 tangent[3] = {};
   bool has_normals = false;
   uint32_t material = 0;     // index into Scene::materials
+  // Index into the texcoords beside the triangles (Scene::texcoords), each entry one triangle's
+  // own; kNoTexcoords: all zero.
+  uint32_t texcoords = kNoTexcoords;
 };
 
 // Punctual lights, reached by light sampling only. Units as glTF's KHR_lights_punctual: a point or
@@ -192,6 +201,7 @@ struct Scene {
   std::vector<Material> materials;
   std::vector<TextureImage> images;
   std::vector<Triangle> triangles;
+  std::vector<TriangleTexcoords> texcoords;  // Triangle::texcoords indexes it
   std::vector<Light> lights;
   std::vector<std::string> notes;     // what the loader chose for the user (camera, framing, background)
   std::vector<std::string> warnings;  // what xi does not model and how it was mapped, one line per kind
@@ -209,8 +219,12 @@ Scene parse_scene(const std::string& json_text, const std::string& source_name,
 std::filesystem::path bundled_scene_file(const std::string& name);
 // Throws xi::Error if the scene breaks the limits within which single precision stays finite: a
 // vertex not finite or beyond +-1e9, geometry spanning less than 1e-6, a negative or non-finite
-// radiance (emitters, background). The loaders check these where they read them; compile_scene
-// checks them again for scenes built in code.
+// radiance (emitters, background); or names texture coordinates it does not have. The loaders
+// check these where they read them; compile_scene checks them again for scenes built in code.
 void check_scene_limits(const Scene& scene);
+
+// Triangle t's texture coordinates and tangents in `pool` (zero where it has none; its index is
+// within the pool, as check_scene_limits makes sure).
+const TriangleTexcoords& texcoords_of(const std::vector<TriangleTexcoords>& pool, const Triangle& t);
 
 }  // namespace xi

@@ -227,18 +227,19 @@ CompiledScene compile_scene(const Scene& scene, int bvh_width, bool spatial_spli
   if (cs.features.textures || cs.features.anisotropy) {
     cs.tri_uv.resize(3 * n);
     for (size_t i = 0; i < n; ++i) {
-      const Triangle& t = scene.triangles[cs.bvh.order[i]];
+      const TriangleTexcoords& t = texcoords_of(scene.texcoords, scene.triangles[cs.bvh.order[i]]);
       for (int k = 0; k < 3; ++k) cs.tri_uv[3 * i + k] = glm::vec4(t.uv[0][k], t.uv[1][k]);
     }
   }
-  const bool normal_maps = std::any_of(cs.materials.begin(), cs.materials.end(), [](const MaterialData& m) {
+  cs.features.normal_map = std::any_of(cs.materials.begin(), cs.materials.end(), [](const MaterialData& m) {
     return m.textures[XI_TEXTURE_NORMAL] != XI_NO_TEXTURE;
   });
-  cs.features.normal_map = normal_maps;
-  if (normal_maps || cs.features.anisotropy) {
+  if (cs.features.normal_map || cs.features.anisotropy) {
     cs.tri_tangents.resize(3 * n);
-    for (size_t i = 0; i < n; ++i)
-      for (int k = 0; k < 3; ++k) cs.tri_tangents[3 * i + k] = scene.triangles[cs.bvh.order[i]].tangent[k];
+    for (size_t i = 0; i < n; ++i) {
+      const TriangleTexcoords& t = texcoords_of(scene.texcoords, scene.triangles[cs.bvh.order[i]]);
+      for (int k = 0; k < 3; ++k) cs.tri_tangents[3 * i + k] = t.tangent[k];
+    }
   }
   // The lights in the scene's order, not the BVH's, so that a light sample does not depend on
   // how the BVH was built (spatial splits or not): only a tie between two hits can.

@@ -25,38 +25,45 @@ namespace xi {
 
 namespace scene_detail {
 
-void mesh_triangles(const aiMesh& mesh, uint32_t material, bool flip_v, std::vector<Triangle>& out) {
+void mesh_triangles(const aiMesh& mesh, uint32_t material, bool flip_v, std::vector<Triangle>& out,
+                    std::vector<TriangleTexcoords>& texcoords) {
   make_room(out, mesh.mNumFaces);
+  const bool tangents = mesh.HasNormals() && mesh.HasTangentsAndBitangents();
+  const bool has_texcoords = tangents || mesh.HasTextureCoords(0) || mesh.HasTextureCoords(1);
+  if (has_texcoords) make_room(texcoords, mesh.mNumFaces);
   for (unsigned f = 0; f < mesh.mNumFaces; ++f) {
     const aiFace& face = mesh.mFaces[f];
     if (face.mNumIndices != 3) continue;  // points and lines survive triangulation; skip them
     Triangle& t = out.emplace_back();
     t.has_normals = mesh.HasNormals();
     t.material = material;
+    TriangleTexcoords* tc = nullptr;
+    if (has_texcoords) t.texcoords = uint32_t(texcoords.size()), tc = &texcoords.emplace_back();
     for (int k = 0; k < 3; ++k) {
       const aiVector3D& v = mesh.mVertices[face.mIndices[k]];
       t.v[k] = {v.x, v.y, v.z};
       if (t.has_normals) {
         const aiVector3D& n = mesh.mNormals[face.mIndices[k]];
         t.n[k] = {n.x, n.y, n.z};
-        if (mesh.HasTangentsAndBitangents()) {  // Assimp gives glTF's w as bitangent = w · normal × tangent
+        if (tangents) {  // Assimp gives glTF's w as bitangent = w · normal × tangent
           const aiVector3D& tg = mesh.mTangents[face.mIndices[k]];
           const aiVector3D& b = mesh.mBitangents[face.mIndices[k]];
           const glm::vec3 tv(tg.x, tg.y, tg.z), bv(b.x, b.y, b.z);
           const float w = glm::dot(glm::cross(t.n[k], tv), bv) < 0.0f ? -1.0f : 1.0f;
-          if (std::isfinite(tv.x + tv.y + tv.z) && glm::dot(tv, tv) > 0.0f) t.tangent[k] = glm::vec4(tv, w);
+          if (std::isfinite(tv.x + tv.y + tv.z) && glm::dot(tv, tv) > 0.0f) tc->tangent[k] = glm::vec4(tv, w);
         }
       }
       for (int set = 0; set < 2; ++set)
         if (mesh.HasTextureCoords(set)) {
           const aiVector3D& uv = mesh.mTextureCoords[set][face.mIndices[k]];
-          t.uv[set][k] = {uv.x, flip_v ? 1.0f - uv.y : uv.y};
+          tc->uv[set][k] = {uv.x, flip_v ? 1.0f - uv.y : uv.y};
         }
     }
   }
 }
 
-long long place_mesh(const Transform& xf, std::vector<Triangle>& tris, size_t first) {
+long long place_mesh(const Transform& xf, std::vector<Triangle>& tris, std::vector<TriangleTexcoords>& texcoords,
+                     size_t first) {
   // Each triangle on its own, on every core for a large mesh (in double precision: most of a
   // large mesh's load after reading it); then the kept ones moved together, in order.
   const size_t n = tris.size() - first;
@@ -65,7 +72,7 @@ long long place_mesh(const Transform& xf, std::vector<Triangle>& tris, size_t fi
   in_parts(n, [&](size_t begin, size_t end, unsigned part) {
     for (size_t i = begin; i < end; ++i) {
       Triangle& t = tris[first + i];
-      apply(xf, t);
+      apply(xf, t, texcoords);
       if (!within_range(t)) {
         bad[part] = i;
         return;
@@ -296,8 +303,8 @@ AssetGeometry geometry(const fs::path& path, const aiScene& scene) {
       if (node->mMeshes[k] >= scene.mNumMeshes) throw Error("node names a mesh that does not exist", path.string());
       const aiMesh& mesh = *scene.mMeshes[node->mMeshes[k]];
       const size_t first = g.triangles.size();
-      mesh_triangles(mesh, material(mesh.mMaterialIndex), gltf, g.triangles);
-      if (place_mesh(make_transform(m), g.triangles, first) >= 0)
+      mesh_triangles(mesh, material(mesh.mMaterialIndex), gltf, g.triangles, g.texcoords);
+      if (place_mesh(make_transform(m), g.triangles, g.texcoords, first) >= 0)
         throw Error("mesh '" + std::string(mesh.mName.C_Str()) +
                         "' has a non-finite vertex coordinate or one beyond +-1e9 (after its node transforms)",
                     path.string());
@@ -393,6 +400,7 @@ Scene load_asset(const fs::path& path, const AssetOptions& options) {
   s.source = path.string();
   s.materials = std::move(g.materials);
   s.triangles = std::move(g.triangles);
+  s.texcoords = std::move(g.texcoords);
   s.warnings = std::move(g.warnings);
   if (const std::string small = too_small(s.triangles); !small.empty()) throw Error(small, path.string());
   if (options.height < 1 || options.height > 16384) throw Error("film height must be in [1, 16384]", path.string());

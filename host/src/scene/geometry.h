@@ -92,20 +92,25 @@ inline Transform make_transform(const glm::dmat4& m) {
   return {m, glm::transpose(glm::inverse(linear)), glm::determinant(linear) < 0.0};
 }
 
-inline void apply(const Transform& t, Triangle& tri) {
+// Moves a triangle and its texture coordinates' tangents (in `pool`, its own entry).
+inline void apply(const Transform& t, Triangle& tri, std::vector<TriangleTexcoords>& pool) {
   for (auto& v : tri.v) v = glm::vec3(t.m * glm::dvec4(v, 1.0));
   if (tri.has_normals)
     for (auto& n : tri.n) n = glm::vec3(glm::normalize(t.normal * glm::dvec3(n)));
   // Tangents lie in the surface: they move as its points do; a mirroring transform flips the frame's
   // handedness, so the bitangent's sign too.
-  for (auto& tg : tri.tangent)
-    if (tg.w != 0.0f)
-      tg = glm::vec4(glm::vec3(glm::normalize(glm::dmat3(t.m) * glm::dvec3(tg))), t.flips ? -tg.w : tg.w);
+  TriangleTexcoords* tc = tri.texcoords == kNoTexcoords ? nullptr : &pool[tri.texcoords];
+  if (tc)
+    for (auto& tg : tc->tangent)
+      if (tg.w != 0.0f)
+        tg = glm::vec4(glm::vec3(glm::normalize(glm::dmat3(t.m) * glm::dvec3(tg))), t.flips ? -tg.w : tg.w);
   if (t.flips) {  // keep the front face (from the winding) on the same side as the normals
     std::swap(tri.v[1], tri.v[2]);
     std::swap(tri.n[1], tri.n[2]);
-    std::swap(tri.tangent[1], tri.tangent[2]);
-    for (auto& set : tri.uv) std::swap(set[1], set[2]);
+    if (tc) {
+      std::swap(tc->tangent[1], tc->tangent[2]);
+      for (auto& set : tc->uv) std::swap(set[1], set[2]);
+    }
   }
 }
 
@@ -126,21 +131,24 @@ inline bool degenerate(const Triangle& t) {
 // Room in `tris` for `more` triangles: for a large mesh, at once (growing by doubling would copy it
 // and hold it twice), with an eighth more for the shapes after it; for small ones, doubling as
 // push_back does. Capacity never written takes no memory.
-inline void make_room(std::vector<Triangle>& tris, size_t more) {
+template <class T>
+void make_room(std::vector<T>& tris, size_t more) {
   const size_t need = tris.size() + more;
   if (tris.capacity() < need) tris.reserve(std::max(need + need / 8, 2 * tris.capacity()));
 }
 
 // Appends to `out` the triangles of an Assimp mesh, in the mesh's own coordinates, with its vertex
-// normals if it has them; points and lines (which survive triangulation) are skipped. Defined in
-// asset.cpp. flip_v: v = 1 - v, undoing the flip Assimp applies to glTF files (glTF's v runs down
-// the image).
-void mesh_triangles(const aiMesh& mesh, uint32_t material, bool flip_v, std::vector<Triangle>& out);
+// normals if it has them, and their texture coordinates and tangents to `texcoords` if it has
+// either; points and lines (which survive triangulation) are skipped. Defined in asset.cpp.
+// flip_v: v = 1 - v, undoing the flip Assimp applies to glTF files (glTF's v runs down the image).
+void mesh_triangles(const aiMesh& mesh, uint32_t material, bool flip_v, std::vector<Triangle>& out,
+                    std::vector<TriangleTexcoords>& texcoords);
 
 // Transforms loaded triangles, tris[first, end), in place, then checks them as every mesh is
 // checked: a vertex beyond +-1e9 (or not finite) is an error (the index from `first` of the first
 // such triangle is returned, else -1), degenerate triangles are dropped, non-finite normals turn
 // the triangle's normals off.
-long long place_mesh(const Transform& xf, std::vector<Triangle>& tris, size_t first = 0);
+long long place_mesh(const Transform& xf, std::vector<Triangle>& tris, std::vector<TriangleTexcoords>& texcoords,
+                     size_t first = 0);
 
 }  // namespace xi::scene_detail

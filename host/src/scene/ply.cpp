@@ -225,7 +225,8 @@ struct File {
 
 }  // namespace
 
-bool read_binary_ply(const std::filesystem::path& path, bool flip_v, std::vector<Triangle>& out) {
+bool read_binary_ply(const std::filesystem::path& path, bool flip_v, std::vector<Triangle>& out,
+                     std::vector<TriangleTexcoords>& texcoords) {
   File file{std::fopen(path.c_str(), "rb")};
   if (!file.f) return false;
   std::string head(1 << 16, '\0');
@@ -259,8 +260,9 @@ bool read_binary_ply(const std::filesystem::path& path, bool flip_v, std::vector
     if (uvs) uv[i] = {get(l->uv[0]), get(l->uv[1])};
   }
 
-  const size_t first = out.size();
+  const size_t first = out.size(), first_texcoords = texcoords.size();
   make_room(out, nf);
+  if (uvs) make_room(texcoords, nf);
   const size_t count_bytes = size_of(list.count_type), index_bytes = size_of(list.type);
   for (uint64_t f = 0; f < nf; ++f) {
     const unsigned char* r = in.next(face_bytes);
@@ -272,15 +274,17 @@ bool read_binary_ply(const std::filesystem::path& path, bool flip_v, std::vector
       idx[k] = (uint32_t)i;
     }
     if (!ok) {  // a polygon, a bad index or a short file: Assimp's
-      out.resize(first);
+      out.resize(first), texcoords.resize(first_texcoords);
       return false;
     }
     Triangle& t = out.emplace_back();
     t.has_normals = normals;
+    TriangleTexcoords* tc = nullptr;
+    if (uvs) t.texcoords = uint32_t(texcoords.size()), tc = &texcoords.emplace_back();
     for (int k = 0; k < 3; ++k) {
       t.v[k] = pos[idx[k]];
       if (normals) t.n[k] = nrm[idx[k]];
-      if (uvs) t.uv[0][k] = {uv[idx[k]].x, flip_v ? 1.0f - uv[idx[k]].y : uv[idx[k]].y};
+      if (uvs) tc->uv[0][k] = {uv[idx[k]].x, flip_v ? 1.0f - uv[idx[k]].y : uv[idx[k]].y};
     }
   }
   return true;

@@ -10,7 +10,7 @@
 
 namespace xi::scene_detail {
 
-// Appends to `out` the triangles of `path` as Assimp's PLY reader followed by mesh_triangles(mesh, 0,
+// Appends to `out` (and their texture coordinates to `texcoords`) the triangles of `path` as Assimp's PLY reader followed by mesh_triangles(mesh, 0,
 // flip_v) gives them (positions, vertex normals, texture coordinates u, v), and returns true. (One
 // difference: aiProcess_JoinIdenticalVertices, which xi asks of Assimp, merges vertices whose
 // positions, normals and texture coordinates agree within its small tolerance, giving them one's
@@ -19,6 +19,7 @@ namespace xi::scene_detail {
 // before: ASCII PLY, faces that are not triangles, elements other than a vertex element followed by
 // a face element, face properties other than the index list, vertex lists, an index out of range,
 // a file shorter than its header says, or anything else unusual in the header.
-bool read_binary_ply(const std::filesystem::path& path, bool flip_v, std::vector<Triangle>& out);
+bool read_binary_ply(const std::filesystem::path& path, bool flip_v, std::vector<Triangle>& out,
+                     std::vector<TriangleTexcoords>& texcoords);
 
 }  // namespace xi::scene_detail

@@ -404,11 +404,13 @@ Transform read_transform(const Node& n) {
   return make_transform(m);
 }
 
-// A flat triangle whose texture coordinates (both sets) are ta, tb, tc.
-Triangle flat(glm::vec3 a, glm::vec3 b, glm::vec3 c, glm::vec2 ta, glm::vec2 tb, glm::vec2 tc) {
+// A flat triangle whose texture coordinates (both sets, added to `pool`) are ta, tb, tc.
+Triangle flat(glm::vec3 a, glm::vec3 b, glm::vec3 c, glm::vec2 ta, glm::vec2 tb, glm::vec2 tc,
+              std::vector<TriangleTexcoords>& pool) {
   Triangle t{};  // zeroed: glm vectors are not initialised by default
   t.v[0] = a, t.v[1] = b, t.v[2] = c;
-  for (auto& set : t.uv) set[0] = ta, set[1] = tb, set[2] = tc;
+  t.texcoords = uint32_t(pool.size());
+  for (auto& set : pool.emplace_back().uv) set[0] = ta, set[1] = tb, set[2] = tc;
   return t;
 }
 
@@ -419,8 +421,9 @@ glm::vec2 sphere_uv(glm::dvec3 d) {
   return {float(0.5 + std::atan2(d.x, d.z) / (2.0 * pi)), float(std::acos(std::clamp(d.y, -1.0, 1.0)) / pi)};
 }
 
-// Icosahedron subdivided `levels` times, every vertex pushed onto the unit sphere.
-std::vector<Triangle> icosphere(glm::vec3 center, float radius, int levels) {
+// Icosahedron subdivided `levels` times, every vertex pushed onto the unit sphere; its texture
+// coordinates are added to `pool`.
+std::vector<Triangle> icosphere(glm::vec3 center, float radius, int levels, std::vector<TriangleTexcoords>& pool) {
   const double g = (1.0 + std::sqrt(5.0)) / 2.0;
   std::vector<glm::dvec3> p = {{-1, g, 0}, {1, g, 0}, {-1, -g, 0}, {1, -g, 0}, {0, -1, g}, {0, 1, g},
                                {0, -1, -g}, {0, 1, -g}, {g, 0, -1}, {g, 0, 1}, {-g, 0, -1}, {-g, 0, 1}};
@@ -470,7 +473,8 @@ std::vector<Triangle> icosphere(glm::vec3 center, float radius, int levels) {
         if (q.x < 0.5f) q.x += 1.0f;
     for (int k = 0; k < 3; ++k)
       if (pole[k]) uv[k].x = 0.5f * (uv[(k + 1) % 3].x + uv[(k + 2) % 3].x);
-    for (auto& set : t.uv) std::copy(uv, uv + 3, set);
+    t.texcoords = uint32_t(pool.size());
+    for (auto& set : pool.emplace_back().uv) std::copy(uv, uv + 3, set);
     t.has_normals = true;
     out.push_back(t);
   }
@@ -478,14 +482,15 @@ std::vector<Triangle> icosphere(glm::vec3 center, float radius, int levels) {
 }
 
 // Appends the mesh file's triangles to `out`, read where they land: a large mesh is never copied.
-void load_mesh(const Node& file_node, const fs::path& base_dir, std::vector<Triangle>& out) {
+void load_mesh(const Node& file_node, const fs::path& base_dir, std::vector<Triangle>& out,
+               std::vector<TriangleTexcoords>& texcoords) {
   const fs::path path = base_dir / file_node.string();
   std::error_code ec;
   if (!fs::is_regular_file(path, ec)) file_node.fail("mesh file not found: " + path.string());
   // Before Assimp allocates what the header claims (it would exhaust memory, not fail).
   if (auto why = implausible_mesh_counts(path)) file_node.fail("cannot load mesh " + path.string() + ": " + *why);
   // Binary PLY files of triangles without Assimp (Assimp picks its reader by the extension).
-  if (lower_extension(path) == ".ply" && read_binary_ply(path, true, out)) return;
+  if (lower_extension(path) == ".ply" && read_binary_ply(path, true, out, texcoords)) return;
   Assimp::Importer importer;
   const aiScene* scene = importer.ReadFile(
       path.string(), aiProcess_Triangulate | aiProcess_JoinIdenticalVertices | aiProcess_PreTransformVertices);
@@ -493,12 +498,12 @@ void load_mesh(const Node& file_node, const fs::path& base_dir, std::vector<Tria
     file_node.fail("cannot load mesh " + path.string() + ": " + importer.GetErrorString());
   for (unsigned i = 0; i < scene->mNumMeshes; ++i) {
     // Assimp puts every format's texture origin at the bottom left (it flips glTF's); xi's v runs down.
-    mesh_triangles(*scene->mMeshes[i], 0, true, out);
+    mesh_triangles(*scene->mMeshes[i], 0, true, out, texcoords);
   }
 }
 
 void read_shape(const Node& n, const std::map<std::string, uint32_t>& materials, const fs::path& base_dir,
-                std::vector<Triangle>& out) {
+                std::vector<Triangle>& out, std::vector<TriangleTexcoords>& texcoords) {
   const std::string type = n.at("type").string();
   if (type == "quad" || type == "triangle")
     n.expect_object({"type", "material", "transform", "vertices"});
@@ -523,13 +528,13 @@ void read_shape(const Node& n, const std::map<std::string, uint32_t>& materials,
     // The image's top-left corner at v0; a quad's corners (0,0), (1,0), (1,1), (0,1) at v0..v3.
     const glm::vec2 t0(0, 0), t1(1, 0), t2(1, 1), t3(0, 1);
     if (type == "quad") {
-      tris.push_back(flat(v[0], v[1], v[2], t0, t1, t2));
-      tris.push_back(flat(v[0], v[2], v[3], t0, t2, t3));
+      tris.push_back(flat(v[0], v[1], v[2], t0, t1, t2, texcoords));
+      tris.push_back(flat(v[0], v[2], v[3], t0, t2, t3, texcoords));
     } else {
-      tris.push_back(flat(v[0], v[1], v[2], t0, t1, t3));
+      tris.push_back(flat(v[0], v[1], v[2], t0, t1, t3, texcoords));
     }
     for (Triangle& t : tris) {
-      apply(xf, t);
+      apply(xf, t, texcoords);
       if (!within_range(t)) verts.fail(type + " has a vertex coordinate beyond +-1e9 (after its transform)");
       if (degenerate(t)) verts.fail(type + " has zero area");
     }
@@ -537,17 +542,17 @@ void read_shape(const Node& n, const std::map<std::string, uint32_t>& materials,
     const glm::vec3 center = n.at("center").vec3();
     const float radius = n.at("radius").number();
     if (!(radius > 0.0f)) n.at("radius").fail("radius must be > 0");
-    tris = icosphere(center, radius, int(n.integer("subdivisions", 4, 0, 8)));
+    tris = icosphere(center, radius, int(n.integer("subdivisions", 4, 0, 8)), texcoords);
     for (Triangle& t : tris) {
-      apply(xf, t);
+      apply(xf, t, texcoords);
       if (!within_range(t)) n.fail("sphere reaches a vertex coordinate beyond +-1e9 (after its transform)");
     }
   } else {
     // Straight into `out`: a mesh of millions of triangles is neither copied nor held twice.
     const Node file = n.at("file");
     const size_t first = out.size();
-    load_mesh(file, base_dir, out);
-    const long long bad = place_mesh(xf, out, first);
+    load_mesh(file, base_dir, out, texcoords);
+    const long long bad = place_mesh(xf, out, texcoords, first);
     if (bad >= 0)  // NaN or Inf in the file's data, or overflow in the transform
       file.fail("mesh " + file.string() + ": triangle " + std::to_string(bad) +
                 " has a non-finite vertex coordinate or one beyond +-1e9 (after its transform)");
@@ -574,7 +579,7 @@ void read_asset_shape(const Node& n, const fs::path& base_dir, Scene& s) {
     file.fail(e.message());
   }
   const Transform xf = n.has("transform") ? read_transform(n.at("transform")) : Transform{};
-  const long long bad = place_mesh(xf, g.triangles);
+  const long long bad = place_mesh(xf, g.triangles, g.texcoords);
   if (bad >= 0)
     file.fail("asset " + file.string() + ": triangle " + std::to_string(bad) +
               " has a coordinate beyond +-1e9 (after its transform)");
@@ -593,9 +598,15 @@ void read_asset_shape(const Node& n, const fs::path& base_dir, Scene& s) {
     light.direction = glm::vec3(glm::normalize(glm::dmat3(xf.m) * glm::dvec3(light.direction)));
     s.lights.push_back(light);
   }
-  for (Triangle& t : g.triangles) t.material += first;
+  const uint32_t first_texcoords = uint32_t(s.texcoords.size());
+  for (Triangle& t : g.triangles) {
+    t.material += first;
+    if (t.texcoords != kNoTexcoords) t.texcoords += first_texcoords;
+  }
   if (s.triangles.empty()) s.triangles = std::move(g.triangles);  // the common case: no copy
   else s.triangles.insert(s.triangles.end(), g.triangles.begin(), g.triangles.end());
+  if (s.texcoords.empty()) s.texcoords = std::move(g.texcoords);
+  else s.texcoords.insert(s.texcoords.end(), g.texcoords.begin(), g.texcoords.end());
   for (const std::string& w : g.warnings)
     if (std::find(s.warnings.begin(), s.warnings.end(), w) == s.warnings.end()) s.warnings.push_back(w);
 }
@@ -760,10 +771,15 @@ Scene parse_scene(const std::string& json_text, const std::string& source_name, 
   if (list.empty()) shapes.fail("scene has no shapes");
   for (const Node& shape : list) {
     if (shape.has("type") && shape.at("type").raw() == "asset") read_asset_shape(shape, base_dir, s);
-    else read_shape(shape, index, base_dir, s.triangles);
+    else read_shape(shape, index, base_dir, s.triangles, s.texcoords);
   }
   if (const std::string small = too_small(s.triangles); !small.empty()) shapes.fail(small + " with a transform");
   return s;
+}
+
+const TriangleTexcoords& texcoords_of(const std::vector<TriangleTexcoords>& pool, const Triangle& t) {
+  static const TriangleTexcoords none;
+  return t.texcoords == kNoTexcoords ? none : pool[t.texcoords];
 }
 
 void check_scene_limits(const Scene& scene) {
@@ -777,6 +793,11 @@ void check_scene_limits(const Scene& scene) {
       throw Error("triangle " + std::to_string(i) + " has a non-finite vertex coordinate or one beyond +-1e9",
                   scene.source);
   if (const std::string small = too_small(scene.triangles); !small.empty()) throw Error(small, scene.source);
+  for (size_t i = 0; i < scene.triangles.size(); ++i)
+    if (const uint32_t k = scene.triangles[i].texcoords; k != kNoTexcoords && k >= scene.texcoords.size())
+      throw Error("triangle " + std::to_string(i) + " names texture coordinates " + std::to_string(k) + " of " +
+                      std::to_string(scene.texcoords.size()),
+                  scene.source);
   auto radiance_ok = [](glm::vec3 c) {  // (false for NaN)
     return c.x >= 0.0f && c.y >= 0.0f && c.z >= 0.0f && std::isfinite(c.x + c.y + c.z);
   };
