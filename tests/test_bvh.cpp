@@ -412,6 +412,47 @@ TEST(BvhBuild, CornellBox) {
   check_scene(s, 1);
 }
 
+// compile_scene_freeing_triangles empties the scene's triangles and texture coordinates and
+// compiles what compile_scene does, array for array: a Cornell box whose white walls read a
+// texture and a normal map (so texture coordinates and tangents are gathered too), with its light.
+TEST(BvhBuild, FreeingTheTrianglesCompilesTheSame) {
+  xi::Scene s = cornell();
+  xi::TextureImage image;
+  image.source = "test", image.width = image.height = 1, image.texels = {0xff8080ffu};
+  s.images.push_back(image);
+  size_t textured = 0;
+  for (xi::Material& m : s.materials)
+    if (!m.is_emitter()) {
+      m.type = xi::MaterialType::Pbr;
+      m.textures[XI_TEXTURE_BASE_COLOR].image = m.textures[XI_TEXTURE_NORMAL].image = 0;
+      textured++;
+    }
+  ASSERT_GT(textured, 0u);
+  ASSERT_FALSE(s.texcoords.empty());
+  const xi::CompiledScene kept = xi::compile_scene(s, 8);
+  ASSERT_EQ(s.triangles.size(), 32u);
+  xi::CompiledScene freed = xi::compile_scene_freeing_triangles(s, 8);
+  EXPECT_TRUE(s.triangles.empty() && s.triangles.capacity() == 0);
+  EXPECT_TRUE(s.texcoords.empty() && s.texcoords.capacity() == 0);
+  ASSERT_TRUE(kept.features.textures && kept.features.normal_map && kept.features.emitters);
+  EXPECT_EQ(freed.features, kept.features);
+  auto same_bytes = [](const auto& a, const auto& b) {
+    return a.size() == b.size() && std::memcmp(a.data(), b.data(), a.size() * sizeof a[0]) == 0;
+  };
+  EXPECT_TRUE(same_bytes(freed.tri_verts, kept.tri_verts));
+  EXPECT_TRUE(same_bytes(freed.tri_normals, kept.tri_normals));
+  EXPECT_TRUE(same_bytes(freed.tri_material, kept.tri_material));
+  EXPECT_TRUE(same_bytes(freed.tri_uv, kept.tri_uv));
+  EXPECT_TRUE(same_bytes(freed.tri_tangents, kept.tri_tangents));
+  EXPECT_TRUE(same_bytes(freed.tri_light_pdf, kept.tri_light_pdf));
+  EXPECT_TRUE(same_bytes(freed.light_tri, kept.light_tri));
+  EXPECT_TRUE(same_bytes(freed.light_cdf, kept.light_cdf));
+  EXPECT_TRUE(same_bytes(freed.bvh.nodes8, kept.bvh.nodes8));
+  EXPECT_TRUE(same_bytes(freed.bvh.blocks, kept.bvh.blocks));
+  EXPECT_EQ(kept.tri_uv.size(), kept.tri_verts.size());  // gathered, not the one unused entry
+  EXPECT_EQ(kept.tri_tangents.size(), kept.tri_verts.size());
+}
+
 TEST(BvhBuild, Icosphere) {
   xi::Scene s = icosphere();
   ASSERT_EQ(s.triangles.size(), 20480u);

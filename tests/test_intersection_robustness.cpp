@@ -73,6 +73,7 @@ RayTest shoot_from_inside(const std::vector<xi::Triangle>& tris, dvec3 centre, d
   s.width = s.height = 512;  // 2^18 paths in flight with one sample per pixel
   s.materials = {xi::Material{}};
   s.triangles = tris;
+  for (xi::Triangle& t : s.triangles) t.texcoords = xi::kNoTexcoords;  // geometry alone
   xi::RenderOptions o;
   o.spp = 1;
   o.paths_in_flight = (size_t)s.width * s.height;

@@ -516,10 +516,9 @@ std::vector<std::filesystem::path> check_outputs(const Job& job, const Team& tea
 // The slow part of setup: the device, the BVH and the kernels, and the checkpoint to resume from.
 void open_renderer(Job& job, const Args& args, const Team& team) {
   job.device.emplace(Device::open(device_selector(args, team)));
-  CompiledScene compiled = Renderer::compile_for(*job.device, job.scene, job.opt);
   job.triangles = job.scene.triangles.size();
-  std::vector<Triangle>().swap(job.scene.triangles);  // from here the compiled copy is the one rendered
-  std::vector<TriangleTexcoords>().swap(job.scene.texcoords);
+  // From here the compiled copy is the one rendered.
+  CompiledScene compiled = Renderer::compile_freeing_triangles(*job.device, job.scene, job.opt);
   job.renderer.emplace(*job.device, std::move(compiled), job.opt);
   if (args.has("--denoise") && team.leader()) job.denoiser.emplace(read_denoise_options(args, &*job.device));
   if (!job.checkpoint.empty()) job.key = checkpoint_key(*job.renderer, job.scene_path, job.device->info().name);

@@ -62,5 +62,9 @@ struct CompiledScene {
 // build_threads: build_bvh's spatial_splits and threads.
 CompiledScene compile_scene(const Scene& scene, int bvh_width = 4, bool spatial_splits = true,
                             unsigned build_threads = 0);
+// The same, emptying scene.triangles and scene.texcoords once they are compiled, before the last
+// compiled arrays are made: a large mesh is never held whole in both forms.
+CompiledScene compile_scene_freeing_triangles(Scene& scene, int bvh_width = 4, bool spatial_splits = true,
+                                              unsigned build_threads = 0);
 
 }  // namespace xi

@@ -121,11 +121,14 @@ struct Launch {
 class Renderer {
  public:
   Renderer(Device& device, const Scene& scene, const RenderOptions& options);
-  // Renders a scene compiled for this device and these options (compile_for). Between the two
-  // the caller may free the scene's own triangles, so that a large mesh's three copies (the
-  // scene's, the compiled one and the device's) are never all held at once.
+  // Renders a scene compiled for this device and these options (compile_for), whose host arrays
+  // it frees as each reaches the device: a large mesh's copies (the scene's, the compiled one and
+  // the device's) are never all held at once.
   Renderer(Device& device, CompiledScene&& scene, const RenderOptions& options);
   static CompiledScene compile_for(Device& device, const Scene& scene, const RenderOptions& options);
+  // The same, emptying the scene's triangles as soon as they are compiled
+  // (compile_scene_freeing_triangles).
+  static CompiledScene compile_freeing_triangles(Device& device, Scene& scene, const RenderOptions& options);
   ~Renderer();  // waits for a background build of the scene's shading program (it fills the cache)
   Renderer(const Renderer&) = delete;
   Renderer& operator=(const Renderer&) = delete;

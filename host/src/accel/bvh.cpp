@@ -2,6 +2,7 @@
 
 #include "xi/bvh.h"
 
+#include <array>
 #include <algorithm>
 #include <atomic>
 #include <cfloat>
@@ -805,6 +806,9 @@ struct Collapser {
   };
   RawArray<Plan> plan;  // per binary node; uninitialised, each written by the thread that plans it
   double root_area = 0.0, root_volume = 0.0;
+  // The blocks' triangles (positions in bvh.order, XI_NO_HIT for an unused lane), laid out by the
+  // collapse; the blocks themselves are made from them once the binary tree is freed (make_blocks).
+  std::vector<std::array<uint32_t, 4>> block_tris;
 
   // How likely a ray is to enter box b, up to a factor the same for every box: the SAH's surface
   // area (rays from outside the scene), plus the box's volume times the root's area over its
@@ -962,9 +966,8 @@ struct Collapser {
     const uint32_t unique = unique_tris(first, count, tris);
     const uint32_t first_block = (uint32_t)at.block, blocks = (unique + 3) / 4;
     for (uint32_t b = 0; b < blocks; ++b) {
-      TriBlock& blk = bvh.blocks[at.block++];
-      for (auto& axis : blk.coord) std::fill(axis, axis + 3, glm::vec4(NAN));  // unused lanes stay NaN
-      for (uint32_t k = 0; k < 4; ++k) blk.tri[k] = 4 * b + k < unique ? bvh.position[tris[4 * b + k]] : XI_NO_HIT;
+      std::array<uint32_t, 4>& blk = block_tris[at.block++];
+      for (uint32_t k = 0; k < 4; ++k) blk[k] = 4 * b + k < unique ? bvh.position[tris[4 * b + k]] : XI_NO_HIT;
     }
     at.leaves++;
     at.references += unique;
@@ -1045,7 +1048,7 @@ struct Collapser {
       throw Error("too many triangle blocks for the BVH's 27-bit leaf entries", "try --no-spatial-splits");
     if (bvh.width == 8) bvh.nodes8.resize(nodes);
     else bvh.nodes.resize(nodes);
-    bvh.blocks.resize(total.blocks);
+    block_tris.resize(total.blocks);
     Cursor at;
     at.node = 1;  // the root's is 0
     bvh.stats.stack = collapse(0, 0, 0, at, counts, threads);
@@ -1054,13 +1057,16 @@ struct Collapser {
     bvh.stats.references = at.references, bvh.stats.max_leaf = at.max_leaf;
   }
 
-  // The blocks' vertices, from the triangles they name.
-  void fill_blocks(unsigned threads) {
-    const size_t n = bvh.blocks.size();
+  // The blocks, from block_tris and the vertices of the triangles they name (unused lanes NaN).
+  void make_blocks(unsigned threads) {
+    const size_t n = block_tris.size();
+    bvh.blocks.resize(n);
     parallel_chunks(n, (unsigned)std::clamp<size_t>(n >> 14, 1, threads), [&](size_t begin, size_t end, unsigned) {
       for (size_t b = begin; b < end; ++b) {
         TriBlock& blk = bvh.blocks[b];
+        for (auto& axis : blk.coord) std::fill(axis, axis + 3, glm::vec4(NAN));
         for (int k = 0; k < 4; ++k) {
+          blk.tri[k] = block_tris[b][k];
           if (blk.tri[k] == XI_NO_HIT) continue;
           const Triangle& t = tris[bvh.order[blk.tri[k]]];
           for (int j = 0; j < 3; ++j)
@@ -1068,6 +1074,7 @@ struct Collapser {
         }
       }
     });
+    std::vector<std::array<uint32_t, 4>>().swap(block_tris);
   }
 };
 
@@ -1135,7 +1142,11 @@ Bvh build_bvh(const std::vector<Triangle>& triangles, int width, bool spatial_sp
   Collapser collapser{bin, leaf_tris, triangles, bvh, nullptr, 0.0, 0.0};
   collapser.plan_tree(fork_levels);
   collapser.collapse_tree(threads);
-  collapser.fill_blocks(threads);
+  // The binary tree and its plan are done with: freed before the blocks, the largest array, are made.
+  collapser.plan.reset(), collapser.bin = {}, collapser.leaf_tris = {};
+  all_nodes.reset(), all_leaves.reset();
+  std::vector<BinaryNode>().swap(b.nodes), std::vector<uint32_t>().swap(b.leaf_tris), b.grafts.clear();
+  collapser.make_blocks(threads);
   if (bvh.stats.stack > XI_BVH_STACK)
     throw Error("the scene's BVH is too deep for the kernels' traversal stack",
                 "needs " + std::to_string(bvh.stats.stack) + " entries, XI_BVH_STACK is " + std::to_string(XI_BVH_STACK));

@@ -132,7 +132,10 @@ std::string Features::describe() const {
   return s;
 }
 
-CompiledScene compile_scene(const Scene& scene, int bvh_width, bool spatial_splits, unsigned build_threads) {
+namespace {
+
+// compile_scene; with `owner` (the scene itself), its triangles are freed once compiled.
+CompiledScene compile(const Scene& scene, Scene* owner, int bvh_width, bool spatial_splits, unsigned build_threads) {
   check_scene_limits(scene);  // a scene built in code has not met the loaders' checks
   CompiledScene cs;
   cs.bvh = build_bvh(scene.triangles, bvh_width, spatial_splits, build_threads);
@@ -192,58 +195,10 @@ CompiledScene compile_scene(const Scene& scene, int bvh_width, bool spatial_spli
   cs.features.albedo_scaling = cs.features.pbr && scene.render.layering == Layering::AlbedoScaling;
   upload_images(scene, cs);
 
-  // Always 3 normals per triangle: an --all-features build reads them even when no triangle has
-  // normals. (The vectors' zeroing and first touch of their pages: the two large ones at once.)
-  auto normals_zeroed = std::async(std::launch::async, [&] { cs.tri_normals.assign(3 * n, glm::vec4(0.0f)); });
-  cs.tri_verts.resize(3 * n);
-  cs.tri_material.resize(n);
-  cs.tri_light_pdf.assign(n, 0.0f);
-  normals_zeroed.get();
-  // The triangles in BVH order, on every core: each read is a cache miss into the scene's
-  // triangles (a 5M-triangle mesh: most of this function's time).
-  const unsigned threads = std::max(1u, build_threads ? build_threads : std::thread::hardware_concurrency());
-  const unsigned parts = (unsigned)std::clamp<size_t>(n >> 16, 1, threads);
-  std::vector<std::thread> pool;
-  std::vector<char> normals(parts, 0);
-  auto gather = [&](unsigned part) {
-    bool any_normals = false;
-    for (size_t i = n * part / parts; i < n * (part + 1) / parts; ++i) {
-      const Triangle& t = scene.triangles[cs.bvh.order[i]];
-      for (int k = 0; k < 3; ++k) {
-        cs.tri_verts[3 * i + k] = glm::vec4(t.v[k], 0.0f);
-        if (t.has_normals) cs.tri_normals[3 * i + k] = glm::vec4(t.n[k], 1.0f);
-      }
-      cs.tri_material[i] = t.material;
-      any_normals |= t.has_normals;
-    }
-    normals[part] = any_normals;
-  };
-  for (unsigned part = 1; part < parts; ++part) pool.emplace_back(gather, part);
-  gather(0);
-  for (std::thread& t : pool) t.join();
-  for (char has : normals) cs.features.normals |= has != 0;
-  // Texture coordinates where a texture or an anisotropy direction is read, tangents where a normal
-  // map or an anisotropy direction is (both give the tangent frame).
-  if (cs.features.textures || cs.features.anisotropy) {
-    cs.tri_uv.resize(3 * n);
-    for (size_t i = 0; i < n; ++i) {
-      const TriangleTexcoords& t = texcoords_of(scene.texcoords, scene.triangles[cs.bvh.order[i]]);
-      for (int k = 0; k < 3; ++k) cs.tri_uv[3 * i + k] = glm::vec4(t.uv[0][k], t.uv[1][k]);
-    }
-  }
-  cs.features.normal_map = std::any_of(cs.materials.begin(), cs.materials.end(), [](const MaterialData& m) {
-    return m.textures[XI_TEXTURE_NORMAL] != XI_NO_TEXTURE;
-  });
-  if (cs.features.normal_map || cs.features.anisotropy) {
-    cs.tri_tangents.resize(3 * n);
-    for (size_t i = 0; i < n; ++i) {
-      const TriangleTexcoords& t = texcoords_of(scene.texcoords, scene.triangles[cs.bvh.order[i]]);
-      for (int k = 0; k < 3; ++k) cs.tri_tangents[3 * i + k] = t.tangent[k];
-    }
-  }
   // The lights in the scene's order, not the BVH's, so that a light sample does not depend on
   // how the BVH was built (spatial splits or not): only a tie between two hits can.
   std::vector<double> power;
+  cs.tri_light_pdf.assign(n, 0.0f);
   for (size_t j = 0; j < n; ++j) {
     const Triangle& t = scene.triangles[j];
     const Material& m = scene.materials[t.material];
@@ -282,6 +237,63 @@ CompiledScene compile_scene(const Scene& scene, int bvh_width, bool spatial_spli
       cs.punctual[cs.light_tri[k] & ~XI_LIGHT_PUNCTUAL].position.w = pick;
     }
   }
+  // Always 3 normals per triangle: an --all-features build reads them even when no triangle has
+  // normals.
+  cs.tri_normals.assign(3 * n, glm::vec4(0.0f));
+  cs.tri_material.resize(n);
+  // The triangles in BVH order, on every core: each read is a cache miss into the scene's
+  // triangles (a 5M-triangle mesh: most of this function's time).
+  const unsigned threads = std::max(1u, build_threads ? build_threads : std::thread::hardware_concurrency());
+  const unsigned parts = (unsigned)std::clamp<size_t>(n >> 16, 1, threads);
+  std::vector<std::thread> pool;
+  std::vector<char> normals(parts, 0);
+  auto gather = [&](unsigned part) {
+    bool any_normals = false;
+    for (size_t i = n * part / parts; i < n * (part + 1) / parts; ++i) {
+      const Triangle& t = scene.triangles[cs.bvh.order[i]];
+      if (t.has_normals)
+        for (int k = 0; k < 3; ++k) cs.tri_normals[3 * i + k] = glm::vec4(t.n[k], 1.0f);
+      cs.tri_material[i] = t.material;
+      any_normals |= t.has_normals;
+    }
+    normals[part] = any_normals;
+  };
+  for (unsigned part = 1; part < parts; ++part) pool.emplace_back(gather, part);
+  gather(0);
+  for (std::thread& t : pool) t.join();
+  for (char has : normals) cs.features.normals |= has != 0;
+  // Texture coordinates where a texture or an anisotropy direction is read, tangents where a normal
+  // map or an anisotropy direction is (both give the tangent frame).
+  if (cs.features.textures || cs.features.anisotropy) {
+    cs.tri_uv.resize(3 * n);
+    for (size_t i = 0; i < n; ++i) {
+      const TriangleTexcoords& t = texcoords_of(scene.texcoords, scene.triangles[cs.bvh.order[i]]);
+      for (int k = 0; k < 3; ++k) cs.tri_uv[3 * i + k] = glm::vec4(t.uv[0][k], t.uv[1][k]);
+    }
+  }
+  cs.features.normal_map = std::any_of(cs.materials.begin(), cs.materials.end(), [](const MaterialData& m) {
+    return m.textures[XI_TEXTURE_NORMAL] != XI_NO_TEXTURE;
+  });
+  if (cs.features.normal_map || cs.features.anisotropy) {
+    cs.tri_tangents.resize(3 * n);
+    for (size_t i = 0; i < n; ++i) {
+      const TriangleTexcoords& t = texcoords_of(scene.texcoords, scene.triangles[cs.bvh.order[i]]);
+      for (int k = 0; k < 3; ++k) cs.tri_tangents[3 * i + k] = t.tangent[k];
+    }
+  }
+  if (owner) {  // the scene's triangles are done with: freed before the vertices are laid out
+    std::vector<Triangle>().swap(owner->triangles);
+    std::vector<TriangleTexcoords>().swap(owner->texcoords);
+  }
+  // The vertices in BVH order, from the BVH's blocks (every triangle is in one at least), which
+  // follow that order.
+  cs.tri_verts.resize(3 * n);
+  for (const TriBlock& block : cs.bvh.blocks)
+    for (int k = 0; k < 4; ++k)
+      if (const uint32_t i = block.tri[k]; i != XI_NO_HIT)
+        for (int j = 0; j < 3; ++j)
+          cs.tri_verts[3 * i + j] = glm::vec4(block.coord[0][j][k], block.coord[1][j][k], block.coord[2][j][k], 0.0f);
+
   if (cs.light_cdf.empty()) {  // OpenCL needs non-empty buffers
     cs.light_cdf.push_back(1.0f);
     cs.light_tri.push_back(0);
@@ -311,6 +323,16 @@ CompiledScene compile_scene(const Scene& scene, int bvh_width, bool spatial_spli
   cs.features.lens = c.aperture_radius > 0.0f;
   cs.background = glm::vec4(scene.background, 0.0f);  // (the environment replaces it where there is one)
   return cs;
+}
+
+}  // namespace
+
+CompiledScene compile_scene(const Scene& scene, int bvh_width, bool spatial_splits, unsigned build_threads) {
+  return compile(scene, nullptr, bvh_width, spatial_splits, build_threads);
+}
+
+CompiledScene compile_scene_freeing_triangles(Scene& scene, int bvh_width, bool spatial_splits, unsigned build_threads) {
+  return compile(scene, &scene, bvh_width, spatial_splits, build_threads);
 }
 
 }  // namespace xi

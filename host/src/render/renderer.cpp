@@ -136,6 +136,11 @@ CompiledScene Renderer::compile_for(Device& device, const Scene& scene, const Re
                        options.build_threads);
 }
 
+CompiledScene Renderer::compile_freeing_triangles(Device& device, Scene& scene, const RenderOptions& options) {
+  return compile_scene_freeing_triangles(scene, KernelConfig::bvh_width_for(device.info(), options),
+                                         options.spatial_splits, options.build_threads);
+}
+
 Renderer::Renderer(Device& device, const Scene& scene, const RenderOptions& options)
     : Renderer(device, compile_for(device, scene, options), options) {}
 
