@@ -14,6 +14,8 @@
 #include <future>
 #include <memory>
 #include <glm/gtc/type_ptr.hpp>
+#include <sys/mman.h>
+#include <unistd.h>
 #include <span>
 #include <string>
 #include <thread>
@@ -70,6 +72,17 @@ struct Ref {
   Box box;
 };
 static_assert(std::is_trivially_copyable_v<Ref> && std::is_trivially_destructible_v<Ref>, "kept in raw storage");
+
+// Hands the whole pages within [begin, begin + n) back to the system, where that is at least
+// kReleaseMin bytes (smaller stretches are left to the call for the subtree around them): their
+// contents are gone, and they take no memory until written again.
+constexpr size_t kReleaseMin = 1 << 20;
+template <class T>
+void release(T* begin, size_t n) {
+  static const uintptr_t page = (uintptr_t)sysconf(_SC_PAGESIZE);
+  const uintptr_t lo = ((uintptr_t)begin + page - 1) & ~(page - 1), hi = (uintptr_t)(begin + n) & ~(page - 1);
+  if (hi >= lo + kReleaseMin) madvise((void*)lo, hi - lo, MADV_DONTNEED);
+}
 
 // An array of n T's, uninitialised: malloc's pages are mapped only as they are written.
 struct Free {
@@ -714,6 +727,10 @@ struct Builder {
       build(l, first, nl, depth + 1, left_budget, fork_levels, lb);
       build(r, right_first, nr, depth + 1, right_budget, fork_levels, rb);
     }
+    // The subtree is built: its stretches of both arrays are never read again. Handed back, so
+    // that the pages its budget's gaps were spread over do not all stay held to the end.
+    release(refs + first, nl + nr + budget);
+    release(scratch + first, nl + nr + budget);
   }
 
   // The nodes and leaf triangles of this subtree, its grafts' included.
