@@ -14,13 +14,12 @@
 #include <future>
 #include <memory>
 #include <glm/gtc/type_ptr.hpp>
-#include <sys/mman.h>
-#include <unistd.h>
 #include <span>
 #include <string>
 #include <thread>
 #include <type_traits>
 
+#include "../render/memory.h"
 #include "traverse.h"
 #include "xi/error.h"
 
@@ -73,16 +72,9 @@ struct Ref {
 };
 static_assert(std::is_trivially_copyable_v<Ref> && std::is_trivially_destructible_v<Ref>, "kept in raw storage");
 
-// Hands the whole pages within [begin, begin + n) back to the system, where that is at least
-// kReleaseMin bytes (smaller stretches are left to the call for the subtree around them): their
-// contents are gone, and they take no memory until written again.
+// A finished subtree's stretches of the reference arrays are handed back (release_pages) where
+// they are at least this many bytes; smaller ones go with the subtree around them.
 constexpr size_t kReleaseMin = 1 << 20;
-template <class T>
-void release(T* begin, size_t n) {
-  static const uintptr_t page = (uintptr_t)sysconf(_SC_PAGESIZE);
-  const uintptr_t lo = ((uintptr_t)begin + page - 1) & ~(page - 1), hi = (uintptr_t)(begin + n) & ~(page - 1);
-  if (hi >= lo + kReleaseMin) madvise((void*)lo, hi - lo, MADV_DONTNEED);
-}
 
 // An array of n T's, uninitialised: malloc's pages are mapped only as they are written.
 struct Free {
@@ -729,8 +721,10 @@ struct Builder {
     }
     // The subtree is built: its stretches of both arrays are never read again. Handed back, so
     // that the pages its budget's gaps were spread over do not all stay held to the end.
-    release(refs + first, nl + nr + budget);
-    release(scratch + first, nl + nr + budget);
+    if ((nl + nr + budget) * sizeof(Ref) >= kReleaseMin) {
+      release_pages(refs + first, (nl + nr + budget) * sizeof(Ref));
+      release_pages(scratch + first, (nl + nr + budget) * sizeof(Ref));
+    }
   }
 
   // The nodes and leaf triangles of this subtree, its grafts' included.

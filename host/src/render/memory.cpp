@@ -1,6 +1,8 @@
 #include "memory.h"
 
+#include <sys/mman.h>
 #include <sys/resource.h>
+#include <unistd.h>
 
 #include <algorithm>
 #include <cmath>
@@ -13,6 +15,13 @@
 #include "xi/error.h"
 
 namespace xi {
+
+void release_pages(const void* begin, size_t bytes) {
+  static const uintptr_t page = (uintptr_t)sysconf(_SC_PAGESIZE);
+  const uintptr_t lo = ((uintptr_t)begin + page - 1) & ~(page - 1), hi = ((uintptr_t)begin + bytes) & ~(page - 1);
+  if (hi > lo) madvise((void*)lo, hi - lo, MADV_DONTNEED);
+}
+
 namespace {
 
 std::string gigabytes(double bytes) {

@@ -15,6 +15,11 @@ struct MemoryNeeds {
   size_t largest_scene_buffer = 0;  // the largest of them (one allocation)
 };
 
+// Hands the whole pages within [begin, begin + bytes) of an array that will not be read again
+// back to the system, so they take no memory until written again (their contents are lost): what
+// a large array's copy or rewrite leaves behind goes as it goes, not when the array is freed.
+void release_pages(const void* begin, size_t bytes);
+
 // Throws one xi::Error naming what the render needs and what there is, so that a frame too large
 // stops there rather than in the driver (PoCL aborts on a failed allocation).
 void check_memory(Device& device, const MemoryNeeds& needs);

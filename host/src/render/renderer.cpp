@@ -54,10 +54,25 @@ cl::Buffer upload(cl::Context& ctx, const std::vector<T>& data) {
 }
 
 // Uploads a host array of the compiled scene, then frees it: from then on the device's copy is the
-// only one (a large mesh's triangles and BVH are most of a render's memory).
+// only one (a large mesh's triangles and BVH are most of a render's memory). In parts, each handed
+// back once written, so that the array is never held whole twice (on a CPU device both copies are
+// host memory).
 template <typename T>
-cl::Buffer upload_and_free(cl::Context& ctx, std::vector<T>& data) {
-  cl::Buffer buffer = upload(ctx, data);
+cl::Buffer upload_and_free(cl::Context& ctx, cl::CommandQueue& queue, std::vector<T>& data) {
+  constexpr size_t kPart = size_t(32) << 20;
+  const size_t bytes = sizeof(T) * data.size();
+  if (bytes <= kPart) {
+    cl::Buffer buffer = upload(ctx, data);
+    std::vector<T>().swap(data);
+    return buffer;
+  }
+  cl::Buffer buffer(ctx, CL_MEM_READ_ONLY, bytes);
+  const char* host = reinterpret_cast<const char*>(data.data());
+  for (size_t at = 0; at < bytes; at += kPart) {
+    const size_t part = std::min(kPart, bytes - at);
+    queue.enqueueWriteBuffer(buffer, CL_TRUE, at, part, host + at);
+    release_pages(host + at, part);
+  }
   std::vector<T>().swap(data);
   return buffer;
 }
@@ -279,6 +294,7 @@ void Renderer::check_memory() const {
 
 void Renderer::allocate() {
   cl::Context& ctx = device_.context();
+  cl::CommandQueue& queue = device_.queue();
 #define XI_ALLOCATE_BUFFER(type, name) name##_ = cl::Buffer(ctx, CL_MEM_READ_WRITE, sizeof(type) * paths_);
   XI_PATH_STATE(XI_ALLOCATE_BUFFER)
   XI_SHADOW_STATE(XI_ALLOCATE_BUFFER)
@@ -288,11 +304,11 @@ void Renderer::allocate() {
   counter_count_ = XI_COUNTER_COUNT(options_.max_depth);
   counters_ = cl::Buffer(ctx, CL_MEM_READ_WRITE, sizeof(uint32_t) * counter_count_);
   queue_counts_.assign(counter_count_, 0);
-  nodes_ = scene_.bvh.width == 8 ? upload_and_free(ctx, scene_.bvh.nodes8) : upload_and_free(ctx, scene_.bvh.nodes);
+  nodes_ = scene_.bvh.width == 8 ? upload_and_free(ctx, queue, scene_.bvh.nodes8) : upload_and_free(ctx, queue, scene_.bvh.nodes);
   std::vector<BvhNode>().swap(scene_.bvh.nodes);  // the 4-wide nodes an 8-wide tree was collapsed from
-  tri_blocks_ = upload_and_free(ctx, scene_.bvh.blocks);
+  tri_blocks_ = upload_and_free(ctx, queue, scene_.bvh.blocks);
   light_count_ = scene_.features.lights() ? (uint32_t)scene_.light_tri.size() : 0u;
-#define XI_UPLOAD_BUFFER(type, name) name##_ = upload_and_free(ctx, scene_.name);
+#define XI_UPLOAD_BUFFER(type, name) name##_ = upload_and_free(ctx, queue, scene_.name);
   XI_SCENE_BUFFERS(XI_UPLOAD_BUFFER)
 #undef XI_UPLOAD_BUFFER
 #define XI_ALLOCATE_FILM_BUFFER(name) film_##name##_ = cl::Buffer(ctx, CL_MEM_READ_WRITE, sizeof(glm::vec4) * pixels_);
