@@ -809,13 +809,17 @@ struct Collapser {
   Bvh& bvh;
 
   struct Plan {
-    float cost[8];          // cost[i − 1]: the least cost of the subtree given i lanes
     uint8_t split[8];       // split[i − 1], i ≥ 2: the lanes of i its left subtree takes; 0: it takes i − 1 lanes' plan
     uint8_t node_split;     // as a wide node of its own: the lanes (of width) its left subtree takes
     bool leaf;              // given one lane: a leaf, else a wide node
     uint32_t first, count;  // its references, leaf_tris[first, first + count)
   };
   RawArray<Plan> plan;  // per binary node; uninitialised, each written by the thread that plans it
+  // The least cost of a subtree given i lanes, cost[i − 1]: what its parent's plan is made from
+  // (returned up the planning's recursion, not kept per node).
+  struct Costs {
+    float cost[8];
+  };
   double root_area = 0.0, root_volume = 0.0;
   // The blocks' triangles (positions in bvh.order, XI_NO_HIT for an unused lane), laid out by the
   // collapse; the blocks themselves are made from them once the binary tree is freed (make_blocks).
@@ -844,46 +848,43 @@ struct Collapser {
     return w * kLeafTestCost * std::ceil((float)count / (bvh.width == 8 ? 8.0f : 4.0f));
   }
 
-  // Children come after their parents in `bin`, so a backward pass is bottom-up. The build lays
-  // out each subtree depth first (a node's two children side by side, then the left one's
-  // subtree, then the right one's), so the nodes below a node lie in one stretch of `bin`: the
-  // two subtrees of each node of the top `levels` levels are planned on threads of their own.
+  // Plans every node, bottom-up; the two subtrees of each node of the top `levels` levels on
+  // threads of their own.
   void plan_tree(int levels) {
     plan = raw_array<Plan>(bin.size());
     const glm::dvec3 root = glm::dvec3(bin[0].box.hi) - glm::dvec3(bin[0].box.lo);
     root_area = bin[0].box.area(), root_volume = root.x * root.y * root.z;
-    plan_below(0, bin.size(), levels);
-    plan_node(0);
+    plan_subtree(0, levels);
   }
 
-  // Plans the nodes below binary node n, bin[bin[n].left, end), bottom-up.
-  void plan_below(uint32_t n, size_t end, int levels) {
-    if (bin[n].count > 0) return;
-    const uint32_t l = bin[n].left, r = bin[n].right;
-    if (r != l + 1) throw Error("internal: the BVH's children are not side by side");
-    if (levels == 0 || end - l < kForkMin) {
-      for (size_t i = end; i-- > l;) plan_node((uint32_t)i);
-      return;
+  // Plans binary node n and the nodes below it; returns n's costs.
+  Costs plan_subtree(uint32_t n, int levels) {
+    const BinaryNode& b = bin[n];
+    if (b.count > 0) return plan_node(n, nullptr, nullptr);
+    Costs l, r;
+    if (levels > 0) {
+      auto job = std::async(std::launch::async, [&] { return plan_subtree(b.right, levels - 1); });
+      l = plan_subtree(b.left, levels - 1);
+      r = job.get();
+    } else {
+      l = plan_subtree(b.left, 0), r = plan_subtree(b.right, 0);
     }
-    const size_t right_below = bin[r].count > 0 ? end : bin[r].left;  // where r's subtree starts
-    auto job = std::async(std::launch::async, [&] { plan_below(r, end, levels - 1); });
-    plan_below(l, right_below, levels - 1);
-    job.get();
-    plan_node(r), plan_node(l);
+    return plan_node(n, &l, &r);
   }
 
-  // Binary node n's plan, from its children's.
-  void plan_node(uint32_t n) {
+  // Binary node n's plan, from its children's costs (none for a leaf); returns its costs.
+  Costs plan_node(uint32_t n, const Costs* lc, const Costs* rc) {
     const int width = bvh.width;
     const BinaryNode& b = bin[n];
     Plan& p = plan[n];
+    Costs out;
     const float w = weight(b.box);
     std::fill(p.split, p.split + 8, 0);
     p.node_split = 0;
     if (b.count > 0) {  // a binary leaf: the build made it no larger than a leaf may be
       p.first = b.first, p.count = b.count, p.leaf = true;
-      std::fill(p.cost, p.cost + 8, leaf_cost(w, b.count));
-      return;
+      std::fill(out.cost, out.cost + 8, leaf_cost(w, b.count));
+      return out;
     }
     const Plan &l = plan[b.left], &r = plan[b.right];
     if (r.first != l.first + l.count) throw Error("internal: the BVH's leaves are out of order");
@@ -893,7 +894,7 @@ struct Collapser {
     for (int j = 2; j <= width; ++j) {
       spread[j] = INFINITY, spread_split[j] = 1;
       for (int k = 1; k < j; ++k) {
-        float c = l.cost[k - 1] + r.cost[j - k - 1];
+        float c = lc->cost[k - 1] + rc->cost[j - k - 1];
         if (c < spread[j]) spread[j] = c, spread_split[j] = (uint8_t)k;
       }
     }
@@ -901,11 +902,12 @@ struct Collapser {
     const float as_leaf = leaf_cost(w, p.count);
     p.leaf = as_leaf <= as_node;
     p.node_split = spread_split[width];
-    p.cost[0] = std::min(as_leaf, as_node);
+    out.cost[0] = std::min(as_leaf, as_node);
     for (int i = 2; i <= width; ++i) {
-      p.cost[i - 1] = p.cost[i - 2];
-      if (spread[i] < p.cost[i - 1]) p.cost[i - 1] = spread[i], p.split[i - 1] = spread_split[i];
+      out.cost[i - 1] = out.cost[i - 2];
+      if (spread[i] < out.cost[i - 1]) out.cost[i - 1] = spread[i], p.split[i - 1] = spread_split[i];
     }
+    return out;
   }
 
   // The binary nodes of a wide node's lanes (at most 8, no allocation).
@@ -1150,7 +1152,7 @@ Bvh build_bvh(const std::vector<Triangle>& triangles, int width, bool spatial_sp
   for (uint32_t t : leaf_tris)
     if (position[t] == kUnplaced) position[t] = (uint32_t)bvh.order.size(), bvh.order.push_back(t);
   if (bvh.order.size() != triangles.size()) throw Error("internal: the BVH lost a triangle");
-  Collapser collapser{bin, leaf_tris, triangles, bvh, nullptr, 0.0, 0.0};
+  Collapser collapser{bin, leaf_tris, triangles, bvh, nullptr, 0.0, 0.0, {}};
   collapser.plan_tree(fork_levels);
   collapser.collapse_tree(threads);
   // The binary tree and its plan are done with: freed before the blocks, the largest array, are made.
