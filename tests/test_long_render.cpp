@@ -5,7 +5,9 @@
 
 #include <signal.h>
 
+#include <algorithm>
 #include <cstring>
+#include <random>
 #include <regex>
 
 #include "cli_test.h"
@@ -17,7 +19,9 @@
 #include "xi/image.h"
 #include "xi/renderer.h"
 #include "xi/scene.h"
+#include "brute_force.h"
 #include "fixtures.h"
+#include "render/ray_probe.h"
 
 using namespace xi_test;
 
@@ -263,4 +267,69 @@ TEST(Checkpoint, SceneHashComesFromTheDeviceAndMatchesTheCompiledScene) {
   scene.triangles[0].v[0].x += 1.0f;  // a changed scene hashes otherwise
   xi::Renderer moved(device, scene, o);
   EXPECT_NE(moved.scene_hash(), h.h);
+}
+
+// A scene whose arrays are larger than the part the renderer uploads at a time (32 MB), each part's
+// host pages handed back once written: what arrives on the device is the compiled scene, whole. A
+// 1.3M-triangle sphere: the scene hash (vertices, normals, materials, lights, read back from the
+// device) is the compiled arrays' own, and rays traced on the device's BVH meet the sphere where a
+// test of every triangle does.
+TEST(SceneUpload, LargeArraysArriveWholeInParts) {
+  xi::Device& device = xi::test::device();
+  xi::Scene scene = xi::parse_scene(R"({"camera": {"position": [0, 0, -5], "look_at": [0, 0, 0], "up": [0, 1, 0],
+      "fov": 40}, "materials": {"white": {"type": "diffuse", "albedo": [0.5, 0.5, 0.5]}},
+      "shapes": [{"type": "sphere", "material": "white", "center": [0, 0, 0], "radius": 1, "subdivisions": 8}]})",
+                                    "sphere.json", ".");
+  scene.width = scene.height = 8;
+  ASSERT_GT(sizeof(glm::vec4) * 3 * scene.triangles.size(), size_t(32) << 20) << "the vertices fill two parts";
+  xi::RenderOptions o;
+  o.spp = 1;
+  xi::Renderer renderer(device, scene, o);
+  const xi::CompiledScene cs = xi::compile_scene(scene, renderer.compiled().bvh.width, o.spatial_splits);
+  xi::Hasher h;
+  h.add(cs.tri_verts);
+  h.add(cs.tri_normals);
+  h.add(cs.tri_material);
+  h.add(cs.materials);
+  h.add(cs.light_cdf);
+  h.add(cs.light_tri);
+  h.add(cs.tri_light_pdf);
+  h.add(&cs.camera, sizeof cs.camera);
+  h.add(&cs.background, sizeof cs.background);
+  EXPECT_EQ(renderer.scene_hash(), h.h);
+
+  // From random points around the sphere towards random points inside it: every ray hits.
+  std::mt19937 rng(5);
+  std::uniform_real_distribution<float> u(-1.0f, 1.0f);
+  auto random_point = [&](float radius) {
+    glm::vec3 p;
+    do p = glm::vec3(u(rng), u(rng), u(rng));
+    while (glm::dot(p, p) > 1.0f || glm::dot(p, p) < 0.01f);
+    return radius * p;
+  };
+  xi::RayBatch rays;
+  for (int i = 0; i < 64; ++i) {
+    const glm::vec3 o = 3.0f * glm::normalize(random_point(1.0f)), target = random_point(0.9f);
+    rays.org.push_back(glm::vec4(o, 0.0f));
+    rays.dir.push_back(glm::vec4(glm::normalize(target - o), 0.0f));
+  }
+  std::vector<glm::vec4> hits;
+  xi::RayProbe(renderer).trace_closest(rays, &hits, 1);
+  ASSERT_EQ(hits.size(), rays.org.size());
+  xi::test::BruteForce brute(scene.triangles);
+  for (size_t i = 0; i < hits.size(); ++i) {
+    const auto ref = brute.hits(glm::vec3(rays.org[i]), glm::vec3(rays.dir[i]), INFINITY);
+    ASSERT_FALSE(ref.empty()) << "ray " << i;
+    uint32_t position;
+    std::memcpy(&position, &hits[i].w, sizeof position);
+    ASSERT_LT(position, cs.bvh.order.size()) << "ray " << i << " missed";
+    // The nearest hit, or one at the same distance (a shared edge or vertex).
+    const uint32_t tri = cs.bvh.order[position];
+    const bool found = std::any_of(ref.begin(), ref.end(), [&](const xi::test::HostHit& r) {
+      return r.tri == tri && r.t <= ref[0].t * (1.0f + 1e-5f);
+    });
+    EXPECT_TRUE(found) << "ray " << i << ": triangle " << tri << " at t " << hits[i].x << ", nearest " << ref[0].tri
+                       << " at " << ref[0].t;
+    EXPECT_NEAR(hits[i].x, ref[0].t, 1e-5f * ref[0].t) << "ray " << i;
+  }
 }
