@@ -235,6 +235,25 @@ TEST(Checkpoint, RoundTripsAndRefusesAnotherDevice) {
   fs::remove(file);
 }
 
+namespace {
+
+// What Renderer::scene_hash reads back from the device, hashed from the compiled scene itself.
+uint64_t compiled_hash(const xi::CompiledScene& cs) {
+  xi::Hasher h;
+  h.add(cs.tri_verts);
+  h.add(cs.tri_normals);
+  h.add(cs.tri_material);
+  h.add(cs.materials);
+  h.add(cs.light_cdf);
+  h.add(cs.light_tri);
+  h.add(cs.tri_light_pdf);
+  h.add(&cs.camera, sizeof cs.camera);
+  h.add(&cs.background, sizeof cs.background);
+  return h.h;
+}
+
+}  // namespace
+
 // The renderer frees its host copy of the triangles and the BVH once they are on the device, and
 // the checkpoint key's scene hash, read back from there, is the hash of the compiled arrays
 // themselves: a checkpoint of the same scene is recognised, one of a changed scene is not.
@@ -252,21 +271,12 @@ TEST(Checkpoint, SceneHashComesFromTheDeviceAndMatchesTheCompiledScene) {
   EXPECT_GT(kept.bvh.stats.references, 0u);
 
   const xi::CompiledScene cs = xi::compile_scene(scene, kept.bvh.width, o.spatial_splits);
-  xi::Hasher h;
-  h.add(cs.tri_verts);
-  h.add(cs.tri_normals);
-  h.add(cs.tri_material);
-  h.add(cs.materials);
-  h.add(cs.light_cdf);
-  h.add(cs.light_tri);
-  h.add(cs.tri_light_pdf);
-  h.add(&cs.camera, sizeof cs.camera);
-  h.add(&cs.background, sizeof cs.background);
-  EXPECT_EQ(renderer.scene_hash(), h.h);
+  const uint64_t hash = compiled_hash(cs);
+  EXPECT_EQ(renderer.scene_hash(), hash);
 
   scene.triangles[0].v[0].x += 1.0f;  // a changed scene hashes otherwise
   xi::Renderer moved(device, scene, o);
-  EXPECT_NE(moved.scene_hash(), h.h);
+  EXPECT_NE(moved.scene_hash(), hash);
 }
 
 // A scene whose arrays are larger than the part the renderer uploads at a time (32 MB), each part's
@@ -286,17 +296,8 @@ TEST(SceneUpload, LargeArraysArriveWholeInParts) {
   o.spp = 1;
   xi::Renderer renderer(device, scene, o);
   const xi::CompiledScene cs = xi::compile_scene(scene, renderer.compiled().bvh.width, o.spatial_splits);
-  xi::Hasher h;
-  h.add(cs.tri_verts);
-  h.add(cs.tri_normals);
-  h.add(cs.tri_material);
-  h.add(cs.materials);
-  h.add(cs.light_cdf);
-  h.add(cs.light_tri);
-  h.add(cs.tri_light_pdf);
-  h.add(&cs.camera, sizeof cs.camera);
-  h.add(&cs.background, sizeof cs.background);
-  EXPECT_EQ(renderer.scene_hash(), h.h);
+  const uint64_t hash = compiled_hash(cs);
+  EXPECT_EQ(renderer.scene_hash(), hash);
 
   // From random points around the sphere towards random points inside it: every ray hits.
   std::mt19937 rng(5);
