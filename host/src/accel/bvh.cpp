@@ -2,8 +2,8 @@
 
 #include "xi/bvh.h"
 
-#include <array>
 #include <algorithm>
+#include <array>
 #include <atomic>
 #include <cfloat>
 #include <cmath>
