@@ -15,12 +15,12 @@ and --spp:
 
 Peak RSS is each child process's own (GNU time's %M). One untimed run of each at the smallest size
 first fills both kernel caches (PoCL's and xi's, Dr.Jit's), so no timed run compiles a kernel from scratch.
-Each renderer runs --runs times in a row at each size (default 2) and the table gives its last run: on a
-virtual machine that hands freed memory back to its host (the 2-core Firecracker VM these figures come
-from did, within a minute), a page first written after that costs a fault in the host, about 2 s per GB
-against a tenth of that for a page the guest still holds, so a first run pays for its whole footprint
-over again and the figures wander with whatever ran before; the run before it frees that footprint just in
-time. --runs 1 measures the first runs. Prints a table and writes bench/out/scale.csv and scale.png
+Each renderer runs --runs times in a row at each size (default 3) and the table gives, figure by
+figure, the median of its runs after the first: on a virtual machine that hands freed memory back to its
+host (the 2-core Firecracker VM these figures come from did, within a minute), a page first written after
+that costs a fault in the host, about 2 s per GB against a tenth of that for a page the guest still holds,
+so a first run pays for its whole footprint over again and the figures wander with whatever ran before;
+the run before it frees that footprint just in time. --runs 1 measures the first runs. Prints a table and writes bench/out/scale.csv and scale.png
 (log-log).
 
   bench/scale.py --xi build/xi                  # 0.1M to 10M triangles
@@ -31,6 +31,7 @@ import json
 import math
 import os
 import re
+import statistics
 import subprocess
 import sys
 import tempfile
@@ -156,6 +157,13 @@ def xi_run(xi, scene, out, spp):
                 sample=seconds / spp, peak=peak, wall=wall, stdout=stdout)
 
 
+def medians(runs):
+    """Each numeric figure's median over the runs after the first (the only one if there is one)."""
+    kept = runs[1:] or runs
+    return {k: (statistics.median_low if isinstance(v, int) else statistics.median)([r[k] for r in kept])
+            if isinstance(v, (int, float)) else v for k, v in kept[-1].items()}
+
+
 def mitsuba_env():
     python = VENV / "bin" / "python"
     if not python.exists():
@@ -225,7 +233,8 @@ def main():
     p.add_argument("--mitsuba-variant", default="llvm_ad_rgb")
     p.add_argument("--scenes", default=None, help="folder for the generated meshes and scenes (default: a "
                                                    "temporary one; kept with this option, so reruns reuse them)")
-    p.add_argument("--runs", type=int, default=2, help="runs of each renderer at each size, the last one reported")
+    p.add_argument("--runs", type=int, default=3,
+                   help="runs of each renderer at each size; the medians of all but the first are reported")
     a = p.parse_args()
     xi = c.find_xi(a.xi)
     if not os.access(TIME, os.X_OK):
@@ -245,14 +254,13 @@ def main():
         for k, (millions, count, scene, ply) in enumerate(scenes):
             if k == 0:  # untimed: fills the kernel caches
                 xi_run(xi, scene, Path(tmp) / "warm.exr", a.spp)
-            for _ in range(max(1, a.runs)):
-                x = xi_run(xi, scene, Path(tmp) / f"xi-{millions:g}m.exr", a.spp)
+            x = medians([xi_run(xi, scene, Path(tmp) / f"xi-{millions:g}m.exr", a.spp) for _ in range(max(1, a.runs))])
             m = None
             if not a.no_mitsuba:
                 if k == 0:
                     mitsuba_run(box, export, ply, a.resolution, x["per_pass"], a.spp, a.mitsuba_variant)
-                for _ in range(max(1, a.runs)):
-                    m = mitsuba_run(box, export, ply, a.resolution, x["per_pass"], a.spp, a.mitsuba_variant)
+                m = medians([mitsuba_run(box, export, ply, a.resolution, x["per_pass"], a.spp, a.mitsuba_variant)
+                             for _ in range(max(1, a.runs))])
             row = dict(triangles=count + 12, millions=millions, xi_first_s=x["first"], xi_peak_mb=x["peak"],
                        xi_bvh_s=x["bvh"], xi_bvh_threads=x["bvh_threads"], xi_ms_per_spp=1e3 * x["sample"],
                        xi_spp_per_pass=x["per_pass"],
@@ -264,7 +272,8 @@ def main():
                   f"{x['bvh']:.2f} s" + (f"; Mitsuba first {m['first']:.2f} s, peak {m['peak']:.0f} MB" if m else ""),
                   file=sys.stderr)
     info = (f"{a.resolution}, {a.spp} spp, xi {xi}" + ("" if a.no_mitsuba else f", Mitsuba {a.mitsuba_variant}")
-            + f"; first pass: {rows[0]['xi_spp_per_pass']} spp, from the process's start; last of {max(1, a.runs)} runs")
+            + f"; first pass: {rows[0]['xi_spp_per_pass']} spp, from the process's start; "
+            + (f"medians of runs 2 to {a.runs}" if a.runs > 1 else "one run"))
     print(info)
     c.print_table([h for _, h, _ in COLUMNS], [[c.fmt(r[k], f) for k, _, f in COLUMNS] for r in rows])
     csv_path = out_dir / "scale.csv"
