@@ -238,11 +238,19 @@ CompiledScene compile(const Scene& scene, Scene* owner, int bvh_width, bool spat
     }
   }
   // Always 3 normals per triangle: an --all-features build reads them even when no triangle has
-  // normals.
+  // normals. Texture coordinates where a texture or an anisotropy direction is read, tangents where
+  // a normal map or an anisotropy direction is (both give the tangent frame).
+  cs.features.normal_map = std::any_of(cs.materials.begin(), cs.materials.end(), [](const MaterialData& m) {
+    return m.textures[XI_TEXTURE_NORMAL] != XI_NO_TEXTURE;
+  });
+  const bool uv = cs.features.textures || cs.features.anisotropy;
+  const bool tangents = cs.features.normal_map || cs.features.anisotropy;
   cs.tri_normals.assign(3 * n, glm::vec4(0.0f));
   cs.tri_material.resize(n);
-  // The triangles in BVH order, on every core: each read is a cache miss into the scene's
-  // triangles (a 5M-triangle mesh: most of this function's time).
+  if (uv) cs.tri_uv.resize(3 * n);
+  if (tangents) cs.tri_tangents.resize(3 * n);
+  // The triangles in BVH order, in one pass on every core: each read is a cache miss into the
+  // scene's triangles (a 5M-triangle mesh: most of this function's time).
   const unsigned threads = std::max(1u, build_threads ? build_threads : std::thread::hardware_concurrency());
   const unsigned parts = (unsigned)std::clamp<size_t>(n >> 16, 1, threads);
   std::vector<std::thread> pool;
@@ -255,6 +263,12 @@ CompiledScene compile(const Scene& scene, Scene* owner, int bvh_width, bool spat
         for (int k = 0; k < 3; ++k) cs.tri_normals[3 * i + k] = glm::vec4(t.n[k], 1.0f);
       cs.tri_material[i] = t.material;
       any_normals |= t.has_normals;
+      if (!uv && !tangents) continue;
+      const TriangleTexcoords& c = texcoords_of(scene.texcoords, t);
+      for (int k = 0; k < 3; ++k) {
+        if (uv) cs.tri_uv[3 * i + k] = glm::vec4(c.uv[0][k], c.uv[1][k]);
+        if (tangents) cs.tri_tangents[3 * i + k] = c.tangent[k];
+      }
     }
     normals[part] = any_normals;
   };
@@ -262,25 +276,6 @@ CompiledScene compile(const Scene& scene, Scene* owner, int bvh_width, bool spat
   gather(0);
   for (std::thread& t : pool) t.join();
   for (char has : normals) cs.features.normals |= has != 0;
-  // Texture coordinates where a texture or an anisotropy direction is read, tangents where a normal
-  // map or an anisotropy direction is (both give the tangent frame).
-  if (cs.features.textures || cs.features.anisotropy) {
-    cs.tri_uv.resize(3 * n);
-    for (size_t i = 0; i < n; ++i) {
-      const TriangleTexcoords& t = texcoords_of(scene.texcoords, scene.triangles[cs.bvh.order[i]]);
-      for (int k = 0; k < 3; ++k) cs.tri_uv[3 * i + k] = glm::vec4(t.uv[0][k], t.uv[1][k]);
-    }
-  }
-  cs.features.normal_map = std::any_of(cs.materials.begin(), cs.materials.end(), [](const MaterialData& m) {
-    return m.textures[XI_TEXTURE_NORMAL] != XI_NO_TEXTURE;
-  });
-  if (cs.features.normal_map || cs.features.anisotropy) {
-    cs.tri_tangents.resize(3 * n);
-    for (size_t i = 0; i < n; ++i) {
-      const TriangleTexcoords& t = texcoords_of(scene.texcoords, scene.triangles[cs.bvh.order[i]]);
-      for (int k = 0; k < 3; ++k) cs.tri_tangents[3 * i + k] = t.tangent[k];
-    }
-  }
   if (owner) {  // the scene's triangles are done with: freed before the vertices are laid out
     std::vector<Triangle>().swap(owner->triangles);
     std::vector<TriangleTexcoords>().swap(owner->texcoords);
