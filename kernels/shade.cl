@@ -440,12 +440,9 @@ static inline XI_INLINE ShadeResult xi_shade_paths(XI_PATH_PARAMS xuint slot, xm
     xfloat w = 1.0f;
     if (xi_uses(shading, XI_USE_MIS)) w = ls.delta ? (xfloat)1.0f : xi_power_heuristic(ls.pdf, f.pdf);
     // Lights on either side: reflection above the surface, transmission below (the shadow ray then
-    // starts below it), the shading and geometric normals agreeing on the side; an opaque
-    // metallic-roughness surface reflects above the geometric normal alone (its coat has a normal of
-    // its own).
+    // starts below it).
     xfloat side = xi_dot3(bsdf.n_geo, ls.wi);
-    xmask opaque = bsdf.type == XI_MATERIAL_PBR && bsdf.pbr.transmission <= 0.0f;
-    r.shadow = reachable && ls.pdf > 0.0f && (opaque ? side > 0.0f : side * cos_s > 0.0f) && xi_max3(f.colour) > 0.0f;
+    r.shadow = reachable && ls.pdf > 0.0f && xi_bsdf_side_agrees(bsdf, side, cos_s) && xi_max3(f.colour) > 0.0f;
     r.shadow_contrib = xi_scale3(xi_mul3(xi_scale3(xi_mul3(beta, f.colour), f.scale), ls.radiance),
                                  fabs(cos_s) * w / (ls.pdf > 0.0f ? ls.pdf : (xfloat)1.0f));
     // Its end is off the light already; the margin covers the rounding of the hit distance.

@@ -61,6 +61,15 @@ static inline xfloat3 xi_bsdf_to_local(Bsdf b, xfloat3 w) {
 // shares: computed once, where the Bsdf is built.
 static inline PbrAtWo xi_bsdf_at_wo(Bsdf b, xfloat3 wo) { return xi_pbr_at(b.pbr, xi_bsdf_to_local(b, wo)); }
 
+// Whether light may pass along a direction at cosine `side` with the geometric normal and z with
+// the shading normal: the two must agree on the side, or light would leak through; an opaque
+// metallic-roughness surface reflects above the geometric normal alone (its coat's reflection may
+// be below the base's normal, its other lobes are 0 there).
+static inline xmask xi_bsdf_side_agrees(Bsdf b, xfloat side, xfloat z) {
+  xmask opaque = b.type == XI_MATERIAL_PBR && b.pbr.transmission <= 0.0f;
+  return opaque ? side > 0.0f : side * z > 0.0f;
+}
+
 // Whether a light sample can reach a lobe of b: b has a lobe that is not a delta.
 static inline XI_INLINE xmask xi_bsdf_has_non_delta(Bsdf b, uint shading) {
   xmask some = b.at_surface && b.type == XI_MATERIAL_DIFFUSE && xi_max3(b.tint) > 0.0f;
@@ -146,10 +155,7 @@ static inline XI_INLINE BsdfSample xi_bsdf_sample(Bsdf b, uint shading, xfloat3 
     s.weight = xi_select3(pbr, weight, s.weight);
     s.pdf = pbr ? pdf : s.pdf;
     s.lobe = pbr ? lobe : s.lobe;
-    // The geometric normal must agree with the lobe's side, or light would leak through; an opaque
-    // surface reflects above it alone (a coat's reflection may be below the base's normal).
-    xfloat side = xi_dot3(wi, b.n_geo);
-    s.valid = s.valid || (pbr && xi_max3(weight) > 0.0f && (b.pbr.transmission <= 0.0f ? side > 0.0f : side * wi_local.z > 0.0f));
+    s.valid = s.valid || (pbr && xi_max3(weight) > 0.0f && xi_bsdf_side_agrees(b, xi_dot3(wi, b.n_geo), wi_local.z));
   }
   return s;
 }
