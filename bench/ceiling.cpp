@@ -83,19 +83,21 @@ struct Embree {
   RTCScene scene = rtcNewScene(device);
   double build_seconds = 0.0;  // rtcCommitScene's, after the vertices are in Embree's buffer
 
-  Embree(const std::vector<glm::vec4>& tri_verts, RTCBuildQuality quality) {
-    const size_t n = tri_verts.size() / 3;
+  // vertices: positions (xyz); tris: each triangle's corners (xyz), indices into vertices.
+  Embree(const std::vector<glm::vec4>& vertices, const std::vector<glm::uvec4>& tris, RTCBuildQuality quality) {
+    const size_t n = tris.size();
     RTCGeometry geom = rtcNewGeometry(device, RTC_GEOMETRY_TYPE_TRIANGLE);
     auto* v = (float*)rtcSetNewGeometryBuffer(geom, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3, 3 * sizeof(float),
-                                              3 * n);
+                                              vertices.size());
     auto* idx = (unsigned*)rtcSetNewGeometryBuffer(geom, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3,
                                                    3 * sizeof(unsigned), n);
-    for (size_t i = 0; i < 3 * n; ++i) {
-      v[3 * i] = tri_verts[i].x;
-      v[3 * i + 1] = tri_verts[i].y;
-      v[3 * i + 2] = tri_verts[i].z;
-      idx[i] = (unsigned)i;
+    for (size_t i = 0; i < vertices.size(); ++i) {
+      v[3 * i] = vertices[i].x;
+      v[3 * i + 1] = vertices[i].y;
+      v[3 * i + 2] = vertices[i].z;
     }
+    for (size_t i = 0; i < n; ++i)
+      for (int k = 0; k < 3; ++k) idx[3 * i + k] = tris[i][k];
     rtcCommitGeometry(geom);
     rtcAttachGeometry(scene, geom);
     rtcReleaseGeometry(geom);
@@ -222,9 +224,11 @@ void print_row(const char* what, size_t count, double xi_rate, int rays, double 
 // --build: both builders on the scene's triangles, RUNS times each, interleaved.
 void time_builds(const xi::Scene& scene, int runs) {
   std::vector<glm::vec4> verts;
-  verts.reserve(3 * scene.triangles.size());
-  for (const xi::Triangle& t : scene.triangles)
-    for (const glm::vec3& v : t.v) verts.push_back(glm::vec4(v, 0.0f));
+  std::vector<glm::uvec4> corners;
+  verts.reserve(scene.vertices.size());
+  corners.reserve(scene.triangles.size());
+  for (const xi::Vertex& v : scene.vertices) verts.push_back(glm::vec4(v.position, 0.0f));
+  for (const xi::Triangle& t : scene.triangles) corners.push_back(glm::uvec4(t.v[0], t.v[1], t.v[2], 0u));
   struct Row {
     std::string name;
     std::function<double()> build;
@@ -234,11 +238,11 @@ void time_builds(const xi::Scene& scene, int runs) {
   for (int width : {8, 4})
     for (bool splits : {true, false})
       rows.push_back({"xi " + std::to_string(width) + "-wide" + (splits ? ", spatial splits" : ""), [&, width, splits] {
-                        return xi::build_bvh(scene.triangles, width, splits).stats.build_seconds;
+                        return xi::build_bvh(scene, width, splits).stats.build_seconds;
                       }});
   for (const char* quality : {"high", "medium", "low"})
     rows.push_back({std::string("embree ") + quality, [&, quality] {
-                      return Embree(verts, parse_quality(quality)).build_seconds;
+                      return Embree(verts, corners, parse_quality(quality)).build_seconds;
                     }});
   for (int r = 0; r < runs; ++r)
     for (Row& row : rows) row.seconds.push_back(row.build());
@@ -299,7 +303,7 @@ int main(int argc, char** argv) {
       // (the same build again: the renderer keeps no host copy).
       const xi::CompiledScene ordered =
           xi::compile_scene(scene, xi::KernelConfig::bvh_width_for(device.info(), opt), opt.spatial_splits);
-      Embree embree(ordered.tri_verts, embree_quality);
+      Embree embree(ordered.vertices, ordered.tri_vertices, embree_quality);
 
       const xi::RayBatch& rays = probe.recorded();
       std::vector<double> xi_s, em_s, em16_s;

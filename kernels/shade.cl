@@ -10,6 +10,7 @@
 #include "layout.h"
 #include "lights.h"
 #include "material.h"
+#include "mesh.h"
 #include "sampling.h"
 #include "shading.h"
 #include "spawn.h"
@@ -132,9 +133,9 @@ static inline XI_INLINE xfloat3 xi_turned_normal(xfloat3 n, xfloat3 n_geo, xfloa
 // the material's parameters after its textures, and the metallic-roughness lobes' frame. m holds
 // the material after the base colour texture; front: wo is on the geometric normal ng's side.
 static inline XI_INLINE Bsdf xi_surface_bsdf(XI_SCENE_PARAMS, uint shading, ShadingMaterial m, xuint mi, xuint tri,
-                                             xmask at_surface, xmask front, xfloat3 ng, xfloat3 wo, xfloat b1,
-                                             xfloat b2, xfloat3 p0, xfloat3 p1, xfloat3 p2, xfloat2 uv0,
-                                             xfloat2 uv1) {
+                                             TriangleCorners c, xmask at_surface, xmask front, xfloat3 ng, xfloat3 wo,
+                                             xfloat b1, xfloat b2, xfloat2 uv0, xfloat2 uv1) {
+  const xfloat3 p0 = c.p0, p1 = c.p1, p2 = c.p2;
   Bsdf b;
   b.at_surface = at_surface;
   b.type = m.type;
@@ -143,13 +144,11 @@ static inline XI_INLINE Bsdf xi_surface_bsdf(XI_SCENE_PARAMS, uint shading, Shad
   b.n_geo = xi_select3(front, ng, xi_neg3(ng));
   b.n = b.n_geo;
   if (xi_uses(shading, XI_USE_NORMALS)) {
-    xfloat has_normals;  // w marks a triangle that has vertex normals
-    xfloat3 na = xi_gather_xyz(tri_normals, 3u * tri, &has_normals);
-    xmask smooth = has_normals > 0.0f;
-    if (XI_ANY(smooth)) {
-      xfloat3 ns = xi_normalize3(xi_add3(xi_add3(xi_scale3(na, 1.0f - b1 - b2),
-                                                 xi_scale3(xi_gather_xyz(tri_normals, 3u * tri + 1u, 0), b1)),
-                                         xi_scale3(xi_gather_xyz(tri_normals, 3u * tri + 2u, 0), b2)));
+    xmask smooth = c.smooth;
+    if (XI_ANY(smooth)) {  // (lanes of flat triangles read normals of vertices without any: unused)
+      xfloat3 ns = xi_normalize3(xi_add3(xi_add3(xi_scale3(xi_gather_xyz(vertex_normals, c.v0, 0), 1.0f - b1 - b2),
+                                                 xi_scale3(xi_gather_xyz(vertex_normals, c.v1, 0), b1)),
+                                         xi_scale3(xi_gather_xyz(vertex_normals, c.v2, 0), b2)));
       ns = xi_select3(xi_dot3(ns, b.n_geo) < 0.0f, xi_neg3(ns), ns);
       b.n = xi_select3(smooth, ns, b.n_geo);
     }
@@ -375,8 +374,8 @@ static inline XI_INLINE ShadeResult xi_shade_paths(XI_PATH_PARAMS xuint slot, xm
   const xuint pixel = xi_gather_uint(item_pixel, slot), sample_index = xi_gather_uint(item_sample, slot);
 
   xuint tri = at_surface ? xi_as_uint(tri_bits) : (xuint)0u;  // other lanes read triangle 0, unused
-  xfloat3 p0 = xi_gather_xyz(tri_verts, 3u * tri, 0), p1 = xi_gather_xyz(tri_verts, 3u * tri + 1u, 0),
-          p2 = xi_gather_xyz(tri_verts, 3u * tri + 2u, 0);
+  const TriangleCorners corners = xi_triangle_corners(tri_vertices, vertices, tri);
+  const xfloat3 p0 = corners.p0, p1 = corners.p1, p2 = corners.p2;
   xfloat3 wo = xi_neg3(xi_gather_xyz(ray_dir, slot, 0));
   xfloat3 ng = xi_normalize3(xi_cross3(xi_sub3(p1, p0), xi_sub3(p2, p0)));
   xmask front = xi_dot3(ng, wo) > 0.0f;
@@ -421,8 +420,8 @@ static inline XI_INLINE ShadeResult xi_shade_paths(XI_PATH_PARAMS xuint slot, xm
   xi_scatter4(radiance, slot, L, (xfloat)0.0f, active);
   if (d >= max_depth) return r;
 
-  Bsdf bsdf = xi_surface_bsdf(XI_SCENE_ARGS, shading, m, mi, tri, at_surface, front, ng, wo, h.y, h.z, p0, p1, p2,
-                               uv0, uv1);
+  Bsdf bsdf = xi_surface_bsdf(XI_SCENE_ARGS, shading, m, mi, tri, corners, at_surface, front, ng, wo, h.y, h.z, uv0,
+                               uv1);
   if (d == 0u) {
     xi_scatter4(aov_albedo, slot, bsdf.tint, (xfloat)0.0f, at_surface);
     xi_scatter4(aov_normal, slot, bsdf.n, (xfloat)0.0f, at_surface);
@@ -433,8 +432,8 @@ static inline XI_INLINE ShadeResult xi_shade_paths(XI_PATH_PARAMS xuint slot, xm
   if (xi_uses(shading, XI_USE_NEE) && light_count > 0u && XI_ANY(reachable)) {
     xfloat2 ul = xi_sample_2d(sampler_kind, sampler, pixel, sample_index, XI_PAIR_BOUNCE(d, XI_BOUNCE_LIGHT));
     xfloat3 org = xi_offset_ray_origin(p, p_error, bsdf.n_geo, bsdf.n_geo);  // lights behind n_geo are skipped
-    LightSample ls = xi_sample_light(light_cdf, light_tri, tri_light_pdf, tri_verts, tri_material, materials,
-                                     punctual, env, environment_texels, environment_cdf, shading, light_count, org, ul);
+    LightSample ls = xi_sample_light(light_cdf, light_tri, tri_light_pdf, tri_vertices, vertices, tri_material,
+                                     materials, punctual, env, environment_texels, environment_cdf, shading, light_count, org, ul);
     BsdfValue f = xi_bsdf_eval(bsdf, shading, wo, ls.wi);
     xfloat cos_s = xi_dot3(bsdf.n, ls.wi);
     xfloat w = 1.0f;

@@ -22,7 +22,8 @@ __kernel void warp_points(__global float4* restrict points, __global float2* res
 // pdf); one pair of the random sampler picks the light and places the point.
 __kernel void sample_lights(__global float4* restrict out, __global const float* restrict light_cdf,
                             __global const uint* restrict light_tri, __global const float* restrict tri_light_pdf,
-                            __global const float4* restrict tri_verts, __global const uint* restrict tri_material,
+                            __global const uint4* restrict tri_vertices, __global const float4* restrict vertices,
+                            __global const uint* restrict tri_material,
                             __global const MaterialData* restrict materials, uint light_count, float4 org,
                             SamplerParams params, uint count) {
   uint i = get_global_id(0);
@@ -31,7 +32,7 @@ __kernel void sample_lights(__global float4* restrict out, __global const float*
   EnvironmentData no_environment;
   no_environment.width = no_environment.height = 0u;
   // Shading word 0: emissive triangles only (punctual lights and the environment are not read).
-  LightSample ls = xi_sample_light(light_cdf, light_tri, tri_light_pdf, tri_verts, tri_material, materials,
+  LightSample ls = xi_sample_light(light_cdf, light_tri, tri_light_pdf, tri_vertices, vertices, tri_material, materials,
                                    (__global const PunctualLightData*)0, no_environment, (__global const float4*)0,
                                    (__global const float*)0, 0u, light_count, org.xyz, u);
   out[i] = (float4)(ls.wi, ls.pdf);

@@ -2,6 +2,7 @@
 #pragma once
 #include <algorithm>
 #include <cstdint>
+#include <array>
 #include <vector>
 
 #include "triangle.h"
@@ -21,13 +22,15 @@ struct HostHit {
 // first skips triangles the line cannot touch; it only saves time (check_queries compares it with
 // the unculled loop on a sample of rays).
 struct BruteForce {
-  std::vector<xi::Triangle> tris;
+  std::vector<std::array<vec3, 3>> tris;  // each triangle's corners
   std::vector<float> cx, cy, cz, r2;
-  explicit BruteForce(const std::vector<xi::Triangle>& t) : tris(t) {
-    for (auto& tri : tris) {
-      vec3 c = (tri.v[0] + tri.v[1] + tri.v[2]) / 3.0f;
+  explicit BruteForce(const xi::Mesh& mesh) {
+    for (const xi::Triangle& t : mesh.triangles) {
+      const std::array<vec3, 3> tri{mesh.position(t, 0), mesh.position(t, 1), mesh.position(t, 2)};
+      tris.push_back(tri);
+      vec3 c = (tri[0] + tri[1] + tri[2]) / 3.0f;
       float r = 0.0f;
-      for (auto& v : tri.v) r = std::max(r, glm::length(v - c));
+      for (auto& v : tri) r = std::max(r, glm::length(v - c));
       cx.push_back(c.x), cy.push_back(c.y), cz.push_back(c.z), r2.push_back(1.01f * r * r);
     }
   }
@@ -44,7 +47,7 @@ struct BruteForce {
     std::vector<HostHit> out;
     for (uint32_t i = 0; i < n; ++i) {
       HostHit h{i};
-      if (near[i] && xi_intersect_triangle(s, tris[i].v[0], tris[i].v[1], tris[i].v[2], tmax, &h.t, &h.u, &h.v))
+      if (near[i] && xi_intersect_triangle(s, tris[i][0], tris[i][1], tris[i][2], tmax, &h.t, &h.u, &h.v))
         out.push_back(h);
     }
     std::sort(out.begin(), out.end(), [](const HostHit& a, const HostHit& b) { return a.t < b.t; });

@@ -37,10 +37,7 @@ inline uint32_t add_material(Scene& s, const std::string& name, glm::vec3 albedo
 }
 
 inline void add_triangle(Scene& s, uint32_t material, glm::vec3 a, glm::vec3 b, glm::vec3 c) {
-  Triangle t{};
-  t.v[0] = a, t.v[1] = b, t.v[2] = c;
-  t.material = material;
-  s.triangles.push_back(t);
+  s.add_triangle(a, b, c, material);
 }
 
 // As the scene parser splits a quad: (a, b, c) and (a, c, d); the front face is cross(b − a, c − a).
@@ -103,11 +100,11 @@ inline std::filesystem::path write_obj(const std::string& name, const std::vecto
 }
 
 // Loads an OBJ through the scene parser (Assimp, degenerate-triangle filter) with one material.
-inline std::vector<Triangle> load_obj(const std::filesystem::path& path) {
+inline Mesh load_obj(const std::filesystem::path& path) {
   const std::string json = R"({"camera": {"position": [0, 0, -5], "look_at": [0, 0, 0], "up": [0, 1, 0], "fov": 40},
     "materials": {"m": {"type": "diffuse", "albedo": [0.5, 0.5, 0.5]}},
     "shapes": [{"type": "mesh", "material": "m", "file": ")" + path.filename().string() + R"("}]})";
-  return parse_scene(json, path.string(), path.parent_path()).triangles;
+  return parse_scene(json, path.string(), path.parent_path());
 }
 
 // A closed, star-shaped and very uneven mesh: an icosphere (subdivided `levels` times) whose
@@ -124,7 +121,8 @@ inline std::vector<std::array<glm::dvec3, 3>> lumpy_mesh(int levels, double r_lo
     std::array<glm::dvec3, 3> tri;
     for (int k = 0; k < 3; ++k) {
       uint32_t h = 0x9e3779b9u;
-      for (float c : {t.v[k].x, t.v[k].y, t.v[k].z}) {
+      const glm::vec3 p = sphere.position(t, k);
+      for (float c : {p.x, p.y, p.z}) {
         uint32_t bits;
         std::memcpy(&bits, &c, 4);
         h = (h ^ bits) * 0x85ebca6bu;
@@ -132,7 +130,7 @@ inline std::vector<std::array<glm::dvec3, 3>> lumpy_mesh(int levels, double r_lo
       }
       h *= 0xc2b2ae35u;
       h ^= h >> 16;
-      tri[k] = glm::dvec3(t.v[k]) * (r_lo + (r_hi - r_lo) * (h >> 8) * 0x1p-24);
+      tri[k] = glm::dvec3(p) * (r_lo + (r_hi - r_lo) * (h >> 8) * 0x1p-24);
     }
     out.push_back(tri);
   }

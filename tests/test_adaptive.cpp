@@ -98,14 +98,7 @@ TEST(AdaptiveSampling, EdgePixelsStopWhereTheirBernoulliVarianceSays) {
     if (xa > xb) std::swap(xa, xb);
     const std::array<glm::vec3, 4> v = {glm::vec3(xa, -50, 0), glm::vec3(xb, -50, 0), glm::vec3(xb, 50, 0),
                                         glm::vec3(xa, 50, 0)};
-    for (int t = 0; t < 2; ++t) {
-      xi::Triangle tri;
-      tri.v[0] = v[0];
-      tri.v[1] = v[1 + t];
-      tri.v[2] = v[2 + t];
-      tri.material = 0;
-      scene.triangles.push_back(tri);
-    }
+    for (int t = 0; t < 2; ++t) scene.add_triangle(v[0], v[1 + t], v[2 + t], 0);
   };
   quad(column_a + (1.0 - fraction_a), 60.0);
   quad(-12.0, column_b + fraction_b);

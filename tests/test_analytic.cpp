@@ -82,8 +82,10 @@ TEST_P(AnalyticClosedFurnace, RadianceIsLeOverOneMinusAlbedo) {
   double cos_min = 1.0;  // the largest tilt of a vertex normal from its face's normal
   for (const xi::Triangle& t : scene.triangles) {
     ASSERT_TRUE(t.has_normals);
-    dvec3 ng = glm::normalize(glm::cross(dvec3(t.v[1] - t.v[0]), dvec3(t.v[2] - t.v[0])));
-    for (const glm::vec3& n : t.n) cos_min = std::min(cos_min, std::abs(glm::dot(ng, glm::normalize(dvec3(n)))));
+    const glm::vec3 &p0 = scene.position(t, 0), &p1 = scene.position(t, 1), &p2 = scene.position(t, 2);
+    dvec3 ng = glm::normalize(glm::cross(dvec3(p1 - p0), dvec3(p2 - p0)));
+    for (int k = 0; k < 3; ++k)
+      cos_min = std::min(cos_min, std::abs(glm::dot(ng, glm::normalize(dvec3(scene.normal(t, k))))));
   }
   const double eps = (1.0 - cos_min) / 2.0, bias = exact - le / (1.0 - rho * (1.0 - eps));
   EXPECT_LT(bias, 1e-3);
@@ -136,17 +138,18 @@ PlaneScene load_plane_scene(const char* file) {
   PlaneScene p{xi::load_scene(kTestScenes / file)};
   for (const xi::Triangle& t : p.scene.triangles) {
     const xi::Material& m = p.scene.materials[t.material];
+    const dvec3 tv[3] = {dvec3(p.scene.position(t, 0)), dvec3(p.scene.position(t, 1)), dvec3(p.scene.position(t, 2))};
     if (m.type == xi::MaterialType::Mirror) {
-      if (!p.mirror) p.mirror_min = p.mirror_max = dvec3(t.v[0]);
+      if (!p.mirror) p.mirror_min = p.mirror_max = tv[0];
       p.mirror = true;
-      for (const glm::vec3& v : t.v) {
-        p.mirror_min = glm::min(p.mirror_min, dvec3(v));
-        p.mirror_max = glm::max(p.mirror_max, dvec3(v));
+      for (const dvec3& v : tv) {
+        p.mirror_min = glm::min(p.mirror_min, v);
+        p.mirror_max = glm::max(p.mirror_max, v);
       }
     } else if (m.is_emitter()) {  // a quad: corners v0 v1 v2, then v3 from the second triangle (v0 v2 v3)
       p.radiance = m.emission.x;
-      if (p.light.empty()) p.light = {t.v[0], t.v[1], t.v[2]};
-      else p.light.push_back(t.v[2]);
+      if (p.light.empty()) p.light = {tv[0], tv[1], tv[2]};
+      else p.light.push_back(tv[2]);
     } else {
       p.albedo = m.albedo.x;
     }

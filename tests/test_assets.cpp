@@ -95,7 +95,7 @@ glm::dvec2 gltf_project(const glm::dmat4& world, double yfov, double aspect, glm
 void expect_framed(const xi::Scene& s, glm::dvec3 centre, glm::dvec3 toward_camera) {
   glm::dvec3 lo(INFINITY), hi(-INFINITY);
   for (const xi::Triangle& t : s.triangles)
-    for (const glm::vec3& v : t.v) lo = glm::min(lo, glm::dvec3(v)), hi = glm::max(hi, glm::dvec3(v));
+    for (int k = 0; k < 3; ++k) lo = glm::min(lo, glm::dvec3(s.position(t, k))), hi = glm::max(hi, glm::dvec3(s.position(t, k)));
   for (int k = 0; k < 3; ++k) EXPECT_NEAR(0.5 * (lo[k] + hi[k]), centre[k], 1e-5) << "the test's centre";
   const double radius = 0.5 * glm::length(hi - lo), distance = 1.1 * radius / std::sin(glm::radians(20.0));
   const glm::dvec3 want = centre + distance * toward_camera;
@@ -111,8 +111,8 @@ void expect_framed(const xi::Scene& s, glm::dvec3 centre, glm::dvec3 toward_came
   const double t = std::tan(glm::radians(20.0));
   double farthest = 0.0;
   for (const xi::Triangle& tri : s.triangles)
-    for (const glm::vec3& v : tri.v) {
-      const glm::dvec3 c = glm::dvec3(v) - pos;
+    for (int k = 0; k < 3; ++k) {
+      const glm::dvec3 c = glm::dvec3(s.position(tri, k)) - pos;
       const double x = glm::dot(c, right) / glm::dot(c, forward) / t, y = glm::dot(c, up) / glm::dot(c, forward) / t;
       EXPECT_LT(std::abs(x), 1.0) << "vertex outside the frame";
       EXPECT_LT(std::abs(y), 1.0) << "vertex outside the frame";
@@ -242,10 +242,10 @@ TEST(AssetGeometry, NodeTransformsAppliedOnce) {
                             glm::rotate(glm::dmat4(1.0), glm::radians(90.0), {0, 1, 0}) * glm::scale(glm::dmat4(1.0), {2, 2, 2});
   int matched = 0;
   for (const xi::Triangle& t : a.triangles) {
-    const bool first = std::abs(t.v[0].x - 1.0f) < 1e-4f;  // the translated one starts at (1, 2, 3)
+    const bool first = std::abs(a.position(t, 0).x - 1.0f) < 1e-4f;  // the translated one starts at (1, 2, 3)
     for (int k = 0; k < 3; ++k) {
       const glm::dvec3 want = first ? glm::dvec3(tri[k]) + glm::dvec3(1, 2, 3) : glm::dvec3(nested * glm::dvec4(tri[k], 1.0));
-      for (int c = 0; c < 3; ++c) EXPECT_NEAR(t.v[k][c], want[c], 1e-5) << "triangle " << first << " vertex " << k;
+      for (int c = 0; c < 3; ++c) EXPECT_NEAR(a.position(t, k)[c], want[c], 1e-5) << "triangle " << first << " vertex " << k;
     }
     matched += first;
   }
@@ -262,16 +262,17 @@ TEST(AssetGeometry, NodeTransformsAppliedOnce) {
   struct Moments {
     glm::dvec3 sum{0.0}, sum_sq{0.0}, lo{INFINITY}, hi{-INFINITY};
   };
-  auto moments = [](const std::vector<xi::Triangle>& ts) {
+  auto moments = [](const xi::Mesh& mesh) {
     Moments m;
-    for (const auto& t : ts) {
-      const glm::dvec3 c = (glm::dvec3(t.v[0]) + glm::dvec3(t.v[1]) + glm::dvec3(t.v[2])) / 3.0;
+    for (const auto& t : mesh.triangles) {
+      const glm::dvec3 v[3] = {glm::dvec3(mesh.position(t, 0)), glm::dvec3(mesh.position(t, 1)), glm::dvec3(mesh.position(t, 2))};
+      const glm::dvec3 c = (v[0] + v[1] + v[2]) / 3.0;
       m.sum += c, m.sum_sq += c * c;
-      for (const auto& v : t.v) m.lo = glm::min(m.lo, glm::dvec3(v)), m.hi = glm::max(m.hi, glm::dvec3(v));
+      for (const auto& p : v) m.lo = glm::min(m.lo, p), m.hi = glm::max(m.hi, p);
     }
     return m;
   };
-  const Moments ma = moments(engine.triangles), mb = moments(pre.triangles);
+  const Moments ma = moments(engine), mb = moments(pre);
   const double n = double(ma.sum_sq.x + ma.sum_sq.y + ma.sum_sq.z);  // scale of the sums
   for (int k = 0; k < 3; ++k) {
     EXPECT_NEAR(ma.sum[k], mb.sum[k], 1e-6 * std::sqrt(n * engine.triangles.size())) << "axis " << k;
@@ -610,10 +611,10 @@ TEST(AssetScene, JsonAssetShape) {
   EXPECT_EQ(s.materials[t.material].name, "thing.gltf:chrome");
   EXPECT_FALSE(s.environment.has_value()) << "a JSON scene's asset shape brings no sky";
   // node translation (1, 0, 0), then scale 2 and translate (0, 0, -3): (0,0,0) -> (2, 0, -3)
-  EXPECT_NEAR(t.v[0].x, 2.0f, 1e-6);
-  EXPECT_NEAR(t.v[0].z, -3.0f, 1e-6);
-  EXPECT_NEAR(t.v[1].x, 4.0f, 1e-6);
-  EXPECT_NEAR(t.v[2].y, 2.0f, 1e-6);
+  EXPECT_NEAR(s.position(t, 0).x, 2.0f, 1e-6);
+  EXPECT_NEAR(s.position(t, 0).z, -3.0f, 1e-6);
+  EXPECT_NEAR(s.position(t, 1).x, 4.0f, 1e-6);
+  EXPECT_NEAR(s.position(t, 2).y, 2.0f, 1e-6);
   // Its texture coordinates as the file has them, after the quad's own (each triangle its entry).
   const glm::vec2 quad_corners[3] = {{0, 0}, {1, 0}, {1, 1}};
   for (int k = 0; k < 3; ++k) {

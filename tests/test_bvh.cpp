@@ -40,30 +40,40 @@ xi::Scene icosphere() {  // subdivisions 5: 20 · 4^5 = 20480 triangles
                          "icosphere.json", ".");
 }
 
-xi::Scene with_triangles(std::vector<xi::Triangle> tris) {
+xi::Scene with_triangles(xi::Mesh mesh) {
   xi::Scene s;
   s.materials.push_back(xi::Material{.name = "white", .albedo = vec3(0.5f)});
-  s.triangles = std::move(tris);
+  static_cast<xi::Mesh&>(s) = std::move(mesh);
   return s;
 }
 
-xi::Triangle triangle(vec3 a, vec3 b, vec3 c) {
-  xi::Triangle t{};
-  t.v[0] = a, t.v[1] = b, t.v[2] = c;
-  return t;
+// Triangles first to last of a mesh alone, over the vertices they use (shared as they were).
+xi::Mesh sub_mesh(const xi::Mesh& mesh, size_t first, size_t last) {
+  xi::Mesh out;
+  std::vector<uint32_t> index(mesh.vertices.size(), UINT32_MAX);
+  for (size_t i = first; i < last; ++i) {
+    xi::Triangle t = mesh.triangles[i];
+    for (uint32_t& v : t.v) {
+      if (index[v] == UINT32_MAX) index[v] = (uint32_t)out.vertices.size(), out.vertices.push_back(mesh.vertices[v]);
+      v = index[v];
+    }
+    t.texcoords = xi::kNoTexcoords;
+    out.triangles.push_back(t);
+  }
+  return out;
 }
 
 // Triangles of mixed sizes (0.05 to 3 units) scattered through a 20-unit cube; they overlap freely.
 xi::Scene soup(size_t n, uint32_t seed) {
   std::mt19937 rng(seed);
   std::uniform_real_distribution<float> pos(-10.0f, 10.0f), unit(-1.0f, 1.0f), log_size(std::log(0.05f), std::log(3.0f));
-  std::vector<xi::Triangle> tris;
+  xi::Mesh tris;
   for (size_t i = 0; i < n; ++i) {
     vec3 c(pos(rng), pos(rng), pos(rng));
     float s = std::exp(log_size(rng));
     vec3 v[3];
     for (auto& p : v) p = c + s * vec3(unit(rng), unit(rng), unit(rng));
-    tris.push_back(triangle(v[0], v[1], v[2]));
+    tris.add_triangle(v[0], v[1], v[2]);
   }
   return with_triangles(std::move(tris));
 }
@@ -98,10 +108,10 @@ Bounds root_bounds(const xi::Bvh& bvh) {
     if (root.child[k] != XI_BVH_EMPTY) b.grow(lane_bounds(root, k).lo), b.grow(lane_bounds(root, k).hi);
   return b;
 }
-Bounds scene_bounds(const xi::Scene& s) {
+Bounds scene_bounds(const xi::Mesh& s) {
   Bounds b;
   for (auto& t : s.triangles)
-    for (auto& v : t.v) b.grow(v);
+    for (int k = 0; k < 3; ++k) b.grow(s.position(t, k));
   return b;
 }
 
@@ -122,8 +132,8 @@ bool contains(const Bounds& outer, const Bounds& inner) {
 // bounds; with them a position may be in several leaves (never twice in one) and a leaf's box may
 // be within its triangles' bounds, the part it holds (check_coverage tests that the parts cover
 // each triangle). Returns what the walk counted, including the traversal stack bound.
-Walk check_tree(const xi::Bvh& bvh, const std::vector<xi::Triangle>& tris) {
-  const size_t n = tris.size();
+Walk check_tree(const xi::Bvh& bvh, const xi::Mesh& tris) {
+  const size_t n = tris.triangles.size();
   EXPECT_EQ(bvh.order.size(), n);
   std::vector<int> seen_tri(n), seen_pos(n), seen_node(node_count(bvh)), seen_block(bvh.blocks.size());
   for (uint32_t t : bvh.order)
@@ -190,7 +200,7 @@ Walk check_tree(const xi::Bvh& bvh, const std::vector<xi::Triangle>& tris) {
             positions.push_back(p);
             w.leaf_boxes[p].push_back(box);
             for (int j = 0; j < 3; ++j) {
-              const vec3 v = tris[bvh.order[p]].v[j];
+              const vec3 v = tris.position(tris.triangles[bvh.order[p]], j);
               content.grow(v);
               EXPECT_TRUE(vec3(blk.coord[0][j][l], blk.coord[1][j][l], blk.coord[2][j][l]) == v) << "block " << b << " lane " << l;
             }
@@ -249,18 +259,19 @@ void check_stats(const xi::Bvh& bvh, const Walk& w, bool degenerate) {
 // above, interior boxes being exact unions): sampled at its vertices, edge midpoints and 16 random
 // points, each allowed its own rounding. A spatial split that clipped a triangle's part wrongly
 // would leave part of it where no ray finds it.
-void check_coverage(const xi::Bvh& bvh, const std::vector<xi::Triangle>& tris, const Walk& w) {
+void check_coverage(const xi::Bvh& bvh, const xi::Mesh& tris, const Walk& w) {
   std::mt19937 rng(7);
   std::uniform_real_distribution<float> u01;
   size_t uncovered = 0;
-  for (uint32_t p = 0; p < tris.size(); ++p) {
-    const xi::Triangle& t = tris[bvh.order[p]];
-    std::vector<vec3> points(t.v, t.v + 3);
-    for (int j = 0; j < 3; ++j) points.push_back(0.5f * (t.v[j] + t.v[(j + 1) % 3]));
+  for (uint32_t p = 0; p < tris.triangles.size(); ++p) {
+    const xi::Triangle& t = tris.triangles[bvh.order[p]];
+    const vec3 tv[3] = {tris.position(t, 0), tris.position(t, 1), tris.position(t, 2)};
+    std::vector<vec3> points(tv, tv + 3);
+    for (int j = 0; j < 3; ++j) points.push_back(0.5f * (tv[j] + tv[(j + 1) % 3]));
     for (int k = 0; k < 16; ++k) {
       float a = u01(rng), b = u01(rng);
       if (a + b > 1.0f) a = 1.0f - a, b = 1.0f - b;
-      points.push_back(t.v[0] + a * (t.v[1] - t.v[0]) + b * (t.v[2] - t.v[0]));
+      points.push_back(tv[0] + a * (tv[1] - tv[0]) + b * (tv[2] - tv[0]));
     }
     for (const vec3& x : points) {
       const vec3 slack = 4.0f * FLT_EPSILON * glm::abs(x);
@@ -307,7 +318,7 @@ vec3 random_direction(std::mt19937& rng) {
 // compiled (BVH-ordered) arrays against brute force over the scene's own triangles.
 void check_queries(const xi::Scene& scene, const xi::CompiledScene& cs, uint32_t seed, int kRays = 10000) {
   const auto& tris = scene.triangles;
-  BruteForce brute(tris);
+  BruteForce brute(scene);
   Bounds b = scene_bounds(scene);
   vec3 margin = 0.25f * (b.hi - b.lo);
   const float diag = glm::length(b.hi - b.lo);
@@ -372,14 +383,14 @@ void check_queries(const xi::Scene& scene, const xi::CompiledScene& cs, uint32_t
 
 void check_scene(const xi::Scene& scene, uint32_t seed) {
   xi::CompiledScene cs = xi::compile_scene(scene);
-  ASSERT_EQ(cs.tri_verts.size(), 3 * scene.triangles.size());
+  ASSERT_EQ(cs.tri_vertices.size(), scene.triangles.size());
   // compile_scene stores triangle order[i] at position i.
   for (size_t i = 0; i < scene.triangles.size(); ++i)
     for (int k = 0; k < 3; ++k)
-      ASSERT_EQ(vec3(cs.tri_verts[3 * i + k]), scene.triangles[cs.bvh.order[i]].v[k]) << "position " << i;
-  Walk w = check_tree(cs.bvh, scene.triangles);
+      ASSERT_EQ(cs.position(i, k), scene.position(scene.triangles[cs.bvh.order[i]], k)) << "position " << i;
+  Walk w = check_tree(cs.bvh, scene);
   check_stats(cs.bvh, w, false);
-  check_coverage(cs.bvh, scene.triangles, w);
+  check_coverage(cs.bvh, scene, w);
   EXPECT_TRUE(root_bounds(cs.bvh) == scene_bounds(scene));  // the root box is the scene's bounds
   check_queries(scene, cs, seed);
 
@@ -389,9 +400,9 @@ void check_scene(const xi::Scene& scene, uint32_t seed) {
   SCOPED_TRACE("8-wide");
   xi::CompiledScene cs8 = xi::compile_scene(scene, 8);
   EXPECT_EQ(cs8.bvh.order, cs.bvh.order);
-  Walk w8 = check_tree(cs8.bvh, scene.triangles);
+  Walk w8 = check_tree(cs8.bvh, scene);
   check_stats(cs8.bvh, w8, false);
-  check_coverage(cs8.bvh, scene.triangles, w8);
+  check_coverage(cs8.bvh, scene, w8);
   EXPECT_TRUE(root_bounds(cs8.bvh) == scene_bounds(scene));
   EXPECT_LE(w8.depth, w.depth);
   if (w.nodes > 1) EXPECT_LT(w8.nodes, w.nodes);
@@ -400,7 +411,7 @@ void check_scene(const xi::Scene& scene, uint32_t seed) {
   SCOPED_TRACE("no spatial splits");
   xi::CompiledScene plain = xi::compile_scene(scene, 4, false);
   EXPECT_EQ(plain.bvh.stats.references, scene.triangles.size());
-  Walk wp = check_tree(plain.bvh, scene.triangles);
+  Walk wp = check_tree(plain.bvh, scene);
   check_stats(plain.bvh, wp, false);
   EXPECT_TRUE(root_bounds(plain.bvh) == scene_bounds(scene));
   check_queries(scene, plain, seed + 1000);
@@ -439,8 +450,9 @@ TEST(BvhBuild, FreeingTheTrianglesCompilesTheSame) {
   auto same_bytes = [](const auto& a, const auto& b) {
     return a.size() == b.size() && std::memcmp(a.data(), b.data(), a.size() * sizeof a[0]) == 0;
   };
-  EXPECT_TRUE(same_bytes(freed.tri_verts, kept.tri_verts));
-  EXPECT_TRUE(same_bytes(freed.tri_normals, kept.tri_normals));
+  EXPECT_TRUE(same_bytes(freed.tri_vertices, kept.tri_vertices));
+  EXPECT_TRUE(same_bytes(freed.vertices, kept.vertices));
+  EXPECT_TRUE(same_bytes(freed.vertex_normals, kept.vertex_normals));
   EXPECT_TRUE(same_bytes(freed.tri_material, kept.tri_material));
   EXPECT_TRUE(same_bytes(freed.tri_uv, kept.tri_uv));
   EXPECT_TRUE(same_bytes(freed.tri_tangents, kept.tri_tangents));
@@ -449,8 +461,8 @@ TEST(BvhBuild, FreeingTheTrianglesCompilesTheSame) {
   EXPECT_TRUE(same_bytes(freed.light_cdf, kept.light_cdf));
   EXPECT_TRUE(same_bytes(freed.bvh.nodes8, kept.bvh.nodes8));
   EXPECT_TRUE(same_bytes(freed.bvh.blocks, kept.bvh.blocks));
-  EXPECT_EQ(kept.tri_uv.size(), kept.tri_verts.size());  // gathered, not the one unused entry
-  EXPECT_EQ(kept.tri_tangents.size(), kept.tri_verts.size());
+  EXPECT_EQ(kept.tri_uv.size(), 3 * kept.tri_vertices.size());  // gathered, not the one unused entry
+  EXPECT_EQ(kept.tri_tangents.size(), 3 * kept.tri_vertices.size());
 }
 
 TEST(BvhBuild, Icosphere) {
@@ -462,7 +474,7 @@ TEST(BvhBuild, Icosphere) {
 TEST(BvhBuild, RandomSoup) {
   xi::Scene s = soup(20000, 3);
   check_scene(s, 4);
-  EXPECT_GT(xi::build_bvh(s.triangles).stats.depth, 5);  // a real hierarchy (log4 of 20000 / 8 ≈ 5.6), not one flat leaf list
+  EXPECT_GT(xi::build_bvh(s).stats.depth, 5);  // a real hierarchy (log4 of 20000 / 8 ≈ 5.6), not one flat leaf list
 }
 
 // Pipes: 120 cylinders 12 long and 1.2 thick, at random places and slants, each side one strip of
@@ -470,11 +482,11 @@ TEST(BvhBuild, RandomSoup) {
 // spatial splits are for, where every triangle's box spans a slab of space it barely touches. They
 // must split many (within the budget of 2 references per triangle), give a tree of much lower SAH
 // cost than the build without them, and keep every query exact.
-std::vector<xi::Triangle> pipes(int count, uint32_t seed) {
+xi::Mesh pipes(int count, uint32_t seed) {
   std::mt19937 rng(seed);
   std::uniform_real_distribution<float> pos(-10.0f, 10.0f);
   std::normal_distribution<float> g;
-  std::vector<xi::Triangle> tris;
+  xi::Mesh tris;
   for (int pipe = 0; pipe < count; ++pipe) {
     const vec3 a(pos(rng), pos(rng), pos(rng)), axis = glm::normalize(vec3(g(rng), g(rng), g(rng)));
     const vec3 u = glm::normalize(glm::cross(axis, vec3(g(rng), g(rng), g(rng)))), v = glm::cross(axis, u);
@@ -484,19 +496,20 @@ std::vector<xi::Triangle> pipes(int count, uint32_t seed) {
     };
     for (int k = 0; k < 16; ++k) {
       const vec3 p0 = a + rim(k), p1 = a + rim(k + 1), q0 = p0 + 12.0f * axis, q1 = p1 + 12.0f * axis;
-      tris.push_back(triangle(p0, p1, q1));
-      tris.push_back(triangle(p0, q1, q0));
+      tris.add_triangle(p0, p1, q1);
+      tris.add_triangle(p0, q1, q0);
     }
   }
   return tris;
 }
 
 TEST(BvhBuild, SpatialSplitsTightenLongTriangles) {
-  const std::vector<xi::Triangle> tris = pipes(120, 11);
+  const xi::Mesh tris = pipes(120, 11);
   xi::Scene scene = with_triangles(tris);
   const xi::Bvh split = xi::build_bvh(tris, 4, true), plain = xi::build_bvh(tris, 4, false);
-  EXPECT_GT(split.stats.references, tris.size() + tris.size() / 10);
-  EXPECT_LE(split.stats.references, 2 * tris.size());
+  const size_t n = tris.triangles.size();
+  EXPECT_GT(split.stats.references, n + n / 10);
+  EXPECT_LE(split.stats.references, 2 * n);
   const double split_cost = sah_cost(split), plain_cost = sah_cost(plain);
   std::printf("SAH cost: %.1f with spatial splits (%zu references), %.1f without\n", split_cost,
               split.stats.references, plain_cost);
@@ -510,7 +523,7 @@ TEST(BvhBuild, SpatialSplitsTightenLongTriangles) {
 // leaf must give each wall a leaf of its own, a flat box, at both widths (the greedy collapse of
 // the binary build's leaves made two leaves of three walls each).
 TEST(BvhBuild, RoomWallsGetLeavesOfTheirOwn) {
-  std::vector<xi::Triangle> tris;
+  xi::Mesh tris;
   for (int axis = 0; axis < 3; ++axis)
     for (float side : {0.0f, 1.0f}) {
       vec3 c[4];
@@ -519,8 +532,8 @@ TEST(BvhBuild, RoomWallsGetLeavesOfTheirOwn) {
         c[k][(axis + 1) % 3] = (float)(k & 1);
         c[k][(axis + 2) % 3] = (float)(k >> 1);
       }
-      tris.push_back(triangle(c[0], c[1], c[3]));
-      tris.push_back(triangle(c[0], c[3], c[2]));
+      tris.add_triangle(c[0], c[1], c[3]);
+      tris.add_triangle(c[0], c[3], c[2]);
     }
   for (int width : {4, 8}) {
     SCOPED_TRACE(width);
@@ -537,11 +550,11 @@ TEST(BvhBuild, RoomWallsGetLeavesOfTheirOwn) {
 
 TEST(BvhBuild, IsDeterministic) {
   xi::Scene s = soup(5000, 5);
-  xi::Bvh a = xi::build_bvh(s.triangles), b = xi::build_bvh(s.triangles);
+  xi::Bvh a = xi::build_bvh(s), b = xi::build_bvh(s);
   EXPECT_EQ(a.order, b.order);
   ASSERT_EQ(a.nodes.size(), b.nodes.size());
   EXPECT_EQ(std::memcmp(a.nodes.data(), b.nodes.data(), sizeof(BvhNode) * a.nodes.size()), 0);
-  xi::Bvh a8 = xi::build_bvh(s.triangles, 8), b8 = xi::build_bvh(s.triangles, 8);
+  xi::Bvh a8 = xi::build_bvh(s, 8), b8 = xi::build_bvh(s, 8);
   ASSERT_EQ(a8.nodes8.size(), b8.nodes8.size());
   EXPECT_EQ(std::memcmp(a8.nodes8.data(), b8.nodes8.data(), sizeof(BvhNode8) * a8.nodes8.size()), 0);
   ASSERT_EQ(a.blocks.size(), b.blocks.size());
@@ -552,16 +565,15 @@ TEST(BvhBuild, IsDeterministic) {
 // tree must be the one a single thread builds, byte for byte. The pipes (as above) make spatial
 // splits (their budget shared across the forks) as well as object splits.
 TEST(BvhBuild, ThreadsBuildTheSameTree) {
-  std::vector<xi::Triangle> tris = soup(30000, 21).triangles;
-  const std::vector<xi::Triangle> long_ones = pipes(200, 22);
-  tris.insert(tris.end(), long_ones.begin(), long_ones.end());
+  xi::Mesh tris = soup(30000, 21);
+  tris.append(pipes(200, 22));
   for (int width : {4, 8}) {
     for (bool splits : {true, false}) {
       SCOPED_TRACE(testing::Message() << "width " << width << (splits ? ", spatial splits" : ", no splits"));
       const xi::Bvh one = xi::build_bvh(tris, width, splits, 1), many = xi::build_bvh(tris, width, splits, 4);
       EXPECT_EQ(one.stats.threads, 1u);
       EXPECT_GE(many.stats.threads, 4u);  // 36400 triangles: forks at least two levels deep
-      if (splits) EXPECT_GT(many.stats.references, tris.size());
+      if (splits) EXPECT_GT(many.stats.references, tris.triangles.size());
       EXPECT_EQ(one.stats.references, many.stats.references);
       EXPECT_EQ(one.order, many.order);
       // (Byte for byte; the vector of the other width is empty, and memcmp may not see its null.)
@@ -602,8 +614,8 @@ TEST(BvhBuild, LargeMeshOfSmallTriangles) {
   };
   // The sphere alone too: its root's object split is partitioned on two threads (with the walls
   // the root splits them spatially).
-  const std::vector<xi::Triangle> sphere(s.triangles.begin() + 10, s.triangles.end() - 2);
-  for (const std::vector<xi::Triangle>* tris : {(const std::vector<xi::Triangle>*)&s.triangles, &sphere}) {
+  const xi::Mesh sphere = sub_mesh(s, 10, n - 2);
+  for (const xi::Mesh* tris : {(const xi::Mesh*)&s, &sphere}) {
     SCOPED_TRACE(tris == &sphere ? "the sphere alone" : "the room");
     const xi::Bvh one = xi::build_bvh(*tris, 8, true, 1), many = xi::build_bvh(*tris, 8, true, 3);
     EXPECT_GE(many.stats.threads, 8u);
@@ -612,20 +624,21 @@ TEST(BvhBuild, LargeMeshOfSmallTriangles) {
     EXPECT_TRUE(same_bytes(one.blocks, many.blocks));
   }
   xi::CompiledScene cs = xi::compile_scene(s, 4, true, 3);
-  const Walk w = check_tree(cs.bvh, s.triangles);
+  const Walk w = check_tree(cs.bvh, s);
   EXPECT_GT(cs.bvh.stats.references, n);  // spatial splits still made where they pay
   check_stats(cs.bvh, w, false);
-  check_coverage(cs.bvh, s.triangles, w);
+  check_coverage(cs.bvh, s, w);
   EXPECT_TRUE(root_bounds(cs.bvh) == scene_bounds(s));
   check_queries(s, cs, 31, 1000);
 }
 
 // 100 copies of one triangle: every centroid coincides, so no SAH split separates them.
 TEST(BvhBuild, CoincidentCopies) {
-  xi::Triangle t = triangle(vec3(0, 0, 0), vec3(1, 0, 0), vec3(0, 1, 0));
-  xi::Scene s = with_triangles(std::vector<xi::Triangle>(100, t));
+  xi::Mesh copies;
+  for (int i = 0; i < 100; ++i) copies.add_triangle(vec3(0, 0, 0), vec3(1, 0, 0), vec3(0, 1, 0));
+  xi::Scene s = with_triangles(std::move(copies));
   xi::CompiledScene cs = xi::compile_scene(s);
-  Walk w = check_tree(cs.bvh, s.triangles);
+  Walk w = check_tree(cs.bvh, s);
   check_stats(cs.bvh, w, true);
 
   const vec3 o(0.25f, 0.25f, -1.0f), d(0, 0, 1);
@@ -650,10 +663,10 @@ TEST(BvhBuild, CoincidentCopies) {
 // Triangles at x = 1.5^i (sizes from 0.1 to 10^16; beyond ~10^19 the edge functions' products
 // overflow float): binned SAH peels a few off per level, giving a deep, lopsided tree.
 TEST(BvhBuild, ExponentialSpacing) {
-  std::vector<xi::Triangle> tris;
+  xi::Mesh tris;
   for (int i = 0; i < 100; ++i) {
     float x = std::pow(1.5f, (float)i), s = 0.1f * x;
-    tris.push_back(triangle(vec3(x, 0, 0), vec3(x + s, 0, 0), vec3(x, s, 0)));
+    tris.add_triangle(vec3(x, 0, 0), vec3(x + s, 0, 0), vec3(x, s, 0));
   }
   // Coordinates up to 1.5^99 = 2.7e17, beyond what a scene may have (compile_scene refuses it): the
   // builder alone.
@@ -662,11 +675,11 @@ TEST(BvhBuild, ExponentialSpacing) {
   check_stats(bvh, w, false);
   EXPECT_GT(w.depth, 6);  // lopsided: a balanced 4-wide tree over 100 triangles would be ~3 deep
   // Every triangle is still found, by a ray straight at it through the plane z = 0.
-  for (uint32_t i = 0; i < tris.size(); ++i) {
-    float x = tris[i].v[0].x, s = 0.1f * x, t, u, v;
+  for (uint32_t i = 0; i < tris.triangles.size(); ++i) {
+    float x = tris.position(tris.triangles[i], 0).x, s = 0.1f * x, t, u, v;
     vec3 o(x + 0.25f * s, 0.25f * s, -1.0f);
     uint32_t pos = xi_trace(bvh.nodes.data(), bvh.blocks.data(), o, vec3(0, 0, 1), INFINITY, false, &t, &u, &v);
-    ASSERT_LT(pos, tris.size()) << "triangle " << i;
+    ASSERT_LT(pos, tris.triangles.size()) << "triangle " << i;
     EXPECT_EQ(bvh.order[pos], i);
   }
 }

@@ -112,16 +112,16 @@ class CliExport : public CliTest {
       total += ply.faces;
       for (size_t i = 0; i < tris.size(); ++i) {
         const xi::Triangle& t = *tris[i];
-        const glm::vec3 e1 = t.v[1] - t.v[0], e2 = t.v[2] - t.v[0];
+        const glm::vec3 e1 = scene.position(t, 1) - scene.position(t, 0), e2 = scene.position(t, 2) - scene.position(t, 0);
         const glm::vec3 face = glm::normalize(glm::cross(e1, e2));
         for (int k = 0; k < 3; ++k) {
           const int32_t index = ply.face[i][k];
           ASSERT_TRUE(index >= 0 && size_t(index) < ply.vertices) << "triangle " << i;
           const float* v = &ply.vertex[ply.floats * size_t(index)];
-          for (int c = 0; c < 3; ++c) ASSERT_EQ(v[c], t.v[k][c]) << "triangle " << i << " vertex " << k;
+          for (int c = 0; c < 3; ++c) ASSERT_EQ(v[c], scene.position(t, k)[c]) << "triangle " << i << " vertex " << k;
           if (ply.floats == 8)  // texture coordinates of set 0, as the scene has them (v down)
             for (int c = 0; c < 2; ++c) ASSERT_EQ(v[6 + c], xi::texcoords_of(scene.texcoords, t).uv[0][k][c]) << "triangle " << i << " vertex " << k;
-          const glm::vec3 n(v[3], v[4], v[5]), want = t.has_normals ? t.n[k] : face;
+          const glm::vec3 n(v[3], v[4], v[5]), want = t.has_normals ? scene.normal(t, k) : face;
           ASSERT_LT(glm::length(n - want), 1e-5f) << "triangle " << i << " vertex " << k;
         }
       }

@@ -367,6 +367,7 @@ TEST(EndToEndDeterminism, RendererOfACompiledSceneNeedsNoTriangles) {
   scene.height = kDetH;
   xi::CompiledScene compiled = xi::Renderer::compile_for(device(), scene, opt);
   std::vector<xi::Triangle>().swap(scene.triangles);
+  std::vector<xi::Vertex>().swap(scene.vertices);
   xi::Renderer r(device(), std::move(compiled), opt);
   r.render();
   const xi::Film film = r.film();
@@ -495,11 +496,8 @@ TEST(EndToEndDeterminism, SpatialSplitsDoNotChangePixels) {
     };
     for (int k = 0; k < 12; ++k) {
       const glm::vec3 p0 = a + rim(k), p1 = a + rim(k + 1), q0 = p0 + 300.0f * axis, q1 = p1 + 300.0f * axis;
-      for (const auto& tri : {std::array<glm::vec3, 3>{p0, p1, q1}, std::array<glm::vec3, 3>{p0, q1, q0}}) {
-        xi::Triangle t{};
-        std::copy(tri.begin(), tri.end(), t.v);
-        scene.triangles.push_back(t);  // material 0: white
-      }
+      for (const auto& tri : {std::array<glm::vec3, 3>{p0, p1, q1}, std::array<glm::vec3, 3>{p0, q1, q0}})
+        scene.add_triangle(tri[0], tri[1], tri[2]);  // material 0: white
     }
   }
   auto run = [&](bool spatial_splits, size_t* references) {

@@ -53,8 +53,8 @@ TEST(ExtremeValues, TinyAndHugeLightsMatchLambertsFormula) {
     add_quad(s, add_material(s, "light", vec3(0.0f), vec3((float)radiance)), vec3(h, 1, -h), vec3(h, 1, h),
              vec3(-h, 1, h), vec3(-h, 1, -h));
     set_camera(s, vec3(0.0f, 0.8f, -2.5f), vec3(0.0f, 0.0f, 0.2f), 50.0f);
-    const std::vector<dvec3> polygon = {dvec3(s.triangles[2].v[0]), dvec3(s.triangles[2].v[1]),
-                                        dvec3(s.triangles[2].v[2]), dvec3(s.triangles[3].v[2])};
+    const std::vector<dvec3> polygon = {dvec3(s.position(s.triangles[2], 0)), dvec3(s.position(s.triangles[2], 1)),
+                                        dvec3(s.position(s.triangles[2], 2)), dvec3(s.position(s.triangles[3], 2))};
     const View v(s);
     // The point-source limit of the irradiance: for the light of side 1e-6 it equals Lambert's
     // formula to 1e-6 (checked below); for side 1e-10 it is the reference, as the formula's sums of

@@ -67,11 +67,14 @@ struct RayTest {
   double seconds = 0.0;
 };
 
-RayTest shoot_from_inside(const std::vector<xi::Triangle>& tris, dvec3 centre, double origin_radius, double r_lo,
+// aim_into: a triangle over the mesh's vertices (one removed from its triangles: a hole).
+RayTest shoot_from_inside(const xi::Mesh& mesh, dvec3 centre, double origin_radius, double r_lo,
                           double r_hi, size_t count, uint64_t seed, const xi::Triangle* aim_into = nullptr) {
+  const std::vector<xi::Triangle>& tris = mesh.triangles;
   xi::Scene s;
   s.width = s.height = 512;  // 2^18 paths in flight with one sample per pixel
   s.materials = {xi::Material{}};
+  s.vertices = mesh.vertices;
   s.triangles = tris;
   for (xi::Triangle& t : s.triangles) t.texcoords = xi::kNoTexcoords;  // geometry alone
   xi::RenderOptions o;
@@ -82,7 +85,7 @@ RayTest shoot_from_inside(const std::vector<xi::Triangle>& tris, dvec3 centre, d
   const size_t batch = renderer.paths_in_flight();
   std::vector<dvec3> verts;
   for (const xi::Triangle& t : tris)
-    for (const vec3& p : t.v) verts.push_back(dvec3(p));
+    for (int k = 0; k < 3; ++k) verts.push_back(dvec3(mesh.position(t, k)));
   std::mt19937_64 rng(seed);
   std::uniform_real_distribution<double> u(0.0, 1.0);
   std::normal_distribution<double> g;
@@ -104,7 +107,7 @@ RayTest shoot_from_inside(const std::vector<xi::Triangle>& tris, dvec3 centre, d
       if (aim_into) {  // a uniform point of the triangle
         double a = u(rng), b = u(rng);
         if (a + b > 1.0) a = 1.0 - a, b = 1.0 - b;
-        const dvec3 p0(aim_into->v[0]), p1(aim_into->v[1]), p2(aim_into->v[2]);
+        const dvec3 p0(mesh.position(*aim_into, 0)), p1(mesh.position(*aim_into, 1)), p2(mesh.position(*aim_into, 2));
         target = p0 + a * (p1 - p0) + b * (p2 - p0);
       } else if (k == 0) {
         target = dvec3(of) + dvec3(g(rng), g(rng), g(rng));
@@ -177,7 +180,7 @@ TEST(IntersectionRobustness, NeedleAndDegenerateTriangles) {
 
   xi::Scene s = cam;
   s.background = vec3(1.0f);
-  s.triangles = load_obj(obj);
+  static_cast<xi::Mesh&>(s) = load_obj(obj);
   ASSERT_EQ((int)s.triangles.size(), needles) << "the loader keeps every needle and drops every zero-area triangle";
   s.materials = {xi::Material{}};  // black diffuse
   s.materials[0].name = "black";
@@ -190,7 +193,8 @@ TEST(IntersectionRobustness, NeedleAndDegenerateTriangles) {
     const double y0 = 16.0 * band, y1 = y0 + 16.0;
     double covered = 0.0;
     for (const xi::Triangle& t : s.triangles)
-      covered += clipped_area({v.film(dvec3(t.v[0])), v.film(dvec3(t.v[1])), v.film(dvec3(t.v[2]))}, 0, y0, 64, y1);
+      covered += clipped_area({v.film(dvec3(s.position(t, 0))), v.film(dvec3(s.position(t, 1))),
+                               v.film(dvec3(s.position(t, 2)))}, 0, y0, 64, y1);
     const double exact = 1.0 - covered / (64.0 * 16.0);
     const MeanSe m = block_mean(shot, 0, (int)y0, 64, (int)y1);
     std::printf("[ needle ] aspect 1e-%d: coverage %.5f (exact %.5f) ± %.5f, z = %+.2f\n", band + 2, 1.0 - m.mean,
@@ -243,36 +247,39 @@ TEST(IntersectionRobustness, TenMillionRaysFromInsideClosedMeshesNoneEscapes) {
           "shapes": [{"type": "sphere", "material": "m", "center": [1000, -2000, 3000], "radius": 1,
                       "subdivisions": 5}]})",
       "icosphere", ".");
-  const RayTest a = shoot_from_inside(sphere.triangles, far, 0.95, 0.99, 1.0, kRays, 101);
+  const RayTest a = shoot_from_inside(sphere, far, 0.95, 0.99, 1.0, kRays, 101);
   std::printf("[ watert ] icosphere, %zu triangles at 1e3 (1, -2, 3): %zu rays, %zu escaped, %zu off the shell, %.2f s "
               "in extend\n", sphere.triangles.size(), kRays, a.escaped, a.off_shell, a.seconds);
   EXPECT_EQ(a.escaped, 0u);  // exact
   EXPECT_EQ(a.off_shell, 0u);
 
-  std::vector<xi::Triangle> lumpy = load_obj(write_obj("lumpy-watertight.obj", lumpy_mesh(4)));
-  ASSERT_EQ(lumpy.size(), 5120u);
+  xi::Mesh lumpy = load_obj(write_obj("lumpy-watertight.obj", lumpy_mesh(4)));
+  ASSERT_EQ(lumpy.triangles.size(), 5120u);
   double inner = INFINITY;
-  for (const xi::Triangle& t : lumpy) {
-    const dvec3 n = glm::normalize(glm::cross(dvec3(t.v[1] - t.v[0]), dvec3(t.v[2] - t.v[0])));
-    inner = std::min(inner, std::abs(glm::dot(n, dvec3(t.v[0]))));
+  for (const xi::Triangle& t : lumpy.triangles) {
+    const vec3 &p0 = lumpy.position(t, 0), &p1 = lumpy.position(t, 1), &p2 = lumpy.position(t, 2);
+    const dvec3 n = glm::normalize(glm::cross(dvec3(p1 - p0), dvec3(p2 - p0)));
+    inner = std::min(inner, std::abs(glm::dot(n, dvec3(p0))));
   }
   ASSERT_GT(inner, 0.01);
   const RayTest b = shoot_from_inside(lumpy, dvec3(0.0), inner / 2, inner, 1.5, kRays, 102);
   std::printf("[ watert ] uneven mesh, %zu triangles (nearest face plane %.3f from the centre): %zu rays, %zu escaped, "
-              "%zu off the shell, %.2f s in extend\n", lumpy.size(), inner, kRays, b.escaped, b.off_shell, b.seconds);
+              "%zu off the shell, %.2f s in extend\n", lumpy.triangles.size(), inner, kRays, b.escaped, b.off_shell,
+              b.seconds);
   EXPECT_EQ(b.escaped, 0u);  // exact
   EXPECT_EQ(b.off_shell, 0u);
 
   // Control: a hole. Remove the triangle with the largest solid angle seen from the centre.
   size_t hole = 0;
   double best = 0.0;
-  for (size_t i = 0; i < lumpy.size(); ++i) {
-    const dvec3 p0(lumpy[i].v[0]), p1(lumpy[i].v[1]), p2(lumpy[i].v[2]);
+  for (size_t i = 0; i < lumpy.triangles.size(); ++i) {
+    const xi::Triangle& t = lumpy.triangles[i];
+    const dvec3 p0(lumpy.position(t, 0)), p1(lumpy.position(t, 1)), p2(lumpy.position(t, 2));
     const double omega = glm::length(glm::cross(p1 - p0, p2 - p0)) / std::pow(glm::length((p0 + p1 + p2) / 3.0), 2);
     if (omega > best) best = omega, hole = i;
   }
-  const xi::Triangle removed = lumpy[hole];
-  lumpy.erase(lumpy.begin() + (long)hole);
+  const xi::Triangle removed = lumpy.triangles[hole];  // its vertices stay, shared with its neighbours
+  lumpy.triangles.erase(lumpy.triangles.begin() + (long)hole);
   const RayTest c = shoot_from_inside(lumpy, dvec3(0.0), inner / 2, inner, 1.5, 10000, 103, &removed);
   std::printf("[ watert ] control, one triangle removed: %zu of 10000 rays aimed into the hole escaped\n", c.escaped);
   EXPECT_GE(c.escaped, 9900u);
@@ -286,7 +293,7 @@ TEST(IntersectionRobustness, TenMillionRaysFromInsideClosedMeshesNoneEscapes) {
 TEST(IntersectionRobustness, RecordedShadowRaysAreOccludedAsBruteForceFinds) {
   xi::Scene scene = xi::load_scene(fs::path(XI_SCENE_DIR) / "mirror.json");
   scene.width = scene.height = 48;
-  const BruteForce brute(scene.triangles);
+  const BruteForce brute(scene);
   for (int bounce : {0, 1}) {
     SCOPED_TRACE(testing::Message() << "bounce " << bounce);
     xi::RenderOptions o;

@@ -172,7 +172,7 @@ vec3 random_direction(std::mt19937& rng) {
 }
 
 // A box of 12 triangles, rotated about `axis`.
-void add_box(std::vector<xi::Triangle>& out, vec3 center, vec3 half, vec3 axis, float radians) {
+void add_box(xi::Mesh& out, vec3 center, vec3 half, vec3 axis, float radians) {
   vec3 a = glm::normalize(axis);
   auto rot = [&](vec3 p) {  // Rodrigues
     return p * std::cos(radians) + glm::cross(a, p) * std::sin(radians) + a * glm::dot(a, p) * (1 - std::cos(radians));
@@ -182,11 +182,8 @@ void add_box(std::vector<xi::Triangle>& out, vec3 center, vec3 half, vec3 axis, 
     c[i] = center + rot(half * vec3(i & 1 ? 1 : -1, i & 2 ? 1 : -1, i & 4 ? 1 : -1));
   const int faces[6][4] = {{0, 2, 3, 1}, {4, 5, 7, 6}, {0, 1, 5, 4}, {2, 6, 7, 3}, {0, 4, 6, 2}, {1, 3, 7, 5}};
   for (auto& f : faces)
-    for (auto [i, j, k] : {std::array{f[0], f[1], f[2]}, std::array{f[0], f[2], f[3]}}) {
-      xi::Triangle t{};
-      t.v[0] = c[i], t.v[1] = c[j], t.v[2] = c[k];
-      out.push_back(t);
-    }
+    for (auto [i, j, k] : {std::array{f[0], f[1], f[2]}, std::array{f[0], f[2], f[3]}})
+      out.add_triangle(c[i], c[j], c[k]);
 }
 
 // The extend tests' scene: an icosphere of radius 1 at the origin (its kSphereTriangles triangles
@@ -198,9 +195,9 @@ xi::Scene sphere_and_boxes() {
     "materials": {"white": {"type": "diffuse", "albedo": [0.5, 0.5, 0.5]}},
     "shapes": [{"type": "sphere", "material": "white", "center": [0, 0, 0], "radius": 1, "subdivisions": 5}]})",
                                     "extend.json", ".");
-  add_box(scene.triangles, vec3(0.9f, 0.6f, 0.2f), vec3(0.4f, 0.3f, 0.5f), vec3(0, 0, 1), 0.0f);
-  add_box(scene.triangles, vec3(0.0f, -1.3f, 0.0f), vec3(2.0f, 0.05f, 2.0f), vec3(0, 1, 0), 0.0f);
-  add_box(scene.triangles, vec3(-1.6f, 0.4f, 0.8f), vec3(0.3f, 0.7f, 0.2f), vec3(1, 2, 3), 0.7f);
+  add_box(scene, vec3(0.9f, 0.6f, 0.2f), vec3(0.4f, 0.3f, 0.5f), vec3(0, 0, 1), 0.0f);
+  add_box(scene, vec3(0.0f, -1.3f, 0.0f), vec3(2.0f, 0.05f, 2.0f), vec3(0, 1, 0), 0.0f);
+  add_box(scene, vec3(-1.6f, 0.4f, 0.8f), vec3(0.3f, 0.7f, 0.2f), vec3(1, 2, 3), 0.7f);
   return scene;
 }
 
@@ -245,7 +242,7 @@ TEST_F(Kernel, ExtendMatchesBruteForce) {
   };
   const std::vector<vec4> hit_by_width[2] = {trace(cs), trace(cs8)};
 
-  BruteForce brute(scene.triangles);
+  BruteForce brute(scene);
   int hits[2] = {}, ties = 0, bad[2] = {};
   for (uint32_t i = 0; i < n && bad[0] + bad[1] < 10; ++i) {
     const vec3 o(state.ray_org[i]), d(state.ray_dir[i]);
@@ -286,14 +283,14 @@ TEST_F(Kernel, ExtendMatchesBruteForce) {
       // vertex coordinates relative to the origin, so its rounding error scales with the largest of
       // those distances, not with t (origins close to a face give t ≪ scale).
       float scale = same->t;
-      for (auto& v : scene.triangles[tri].v) scale = std::max(scale, glm::length(v - o));
+      for (auto& v : brute.tris[tri]) scale = std::max(scale, glm::length(v - o));
       bad[w] += std::abs(h.x - same->t) > 1e-5f * scale;
       EXPECT_NEAR(h.x, same->t, 1e-5f * scale);  // 1e-5 relative to the coordinates' scale: ~100 ulps
       // Barycentrics are edge functions (2×2 determinants of the vertices' offsets across the ray) over
       // their sum: a few-ulp error in each is relative to the offsets squared, and the division scales
       // it by their ratio to the determinant, large for grazing hits (NVIDIA's compiler contracts
       // differently from PoCL's and showed 1.06e-4 on one such hit).
-      const auto& tv = scene.triangles[tri].v;
+      const auto& tv = brute.tris[tri];
       float offset2 = 0.0f;
       for (auto& v : tv) {
         const vec3 e = v - o;
@@ -348,7 +345,8 @@ TEST_F(Kernel, PacketsFindTheHitsOfSingleRays) {
       const Kind k = (Kind)(p % kKinds);
       const vec3 eye(0.0f, 0.0f, -5.0f), target(box(rng), box(rng), box(rng));
       const vec3 inside = 0.5f * vec3(u01(rng), u01(rng), u01(rng));
-      const xi::Triangle& aim = scene.triangles[(size_t)(u01(rng) * (float)sphere_tris) % sphere_tris];
+      const xi::Triangle& aim_tri = scene.triangles[(size_t)(u01(rng) * (float)sphere_tris) % sphere_tris];
+      const vec3 aim[3] = {scene.position(aim_tri, 0), scene.position(aim_tri, 1), scene.position(aim_tri, 2)};
       const vec3 origin_random(box(rng), box(rng), box(rng));
       for (uint32_t lane = 0; lane < w && w * p + lane < n; ++lane) {
         const uint32_t i = w * p + lane;
@@ -360,13 +358,13 @@ TEST_F(Kernel, PacketsFindTheHitsOfSingleRays) {
           d = target - o;
         } else if (k == kInside) {  // the triangle's vertices, its edges' midpoints, two points on an edge
           o = inside;
-          const vec3 &a = aim.v[0], &b = aim.v[1], &c = aim.v[2];
+          const vec3 &a = aim[0], &b = aim[1], &c = aim[2];
           const vec3 points[8] = {a, b, c, 0.5f * (a + b), 0.5f * (b + c), 0.5f * (c + a), a + u01(rng) * (b - a),
                                   b + u01(rng) * (c - b)};
           d = points[lane % 8] - o;
         } else if (k == kSurface) {  // from a point of the triangle, outwards
-          o = aim.v[0] + 0.3f * (aim.v[1] - aim.v[0]) + 0.3f * (aim.v[2] - aim.v[0]);
-          d = glm::normalize(glm::cross(aim.v[1] - aim.v[0], aim.v[2] - aim.v[0])) + vec3(lane * 1e-3f, 0.0f, 0.0f);
+          o = aim[0] + 0.3f * (aim[1] - aim[0]) + 0.3f * (aim[2] - aim[0]);
+          d = glm::normalize(glm::cross(aim[1] - aim[0], aim[2] - aim[0])) + vec3(lane * 1e-3f, 0.0f, 0.0f);
           if (glm::dot(d, o) < 0.0f) d = -d;
         } else if (k == kRandom) {
           o = origin_random;
@@ -685,7 +683,7 @@ TEST_F(Kernel, ShadeFirstHitsFromTheCamera) {
   xi::CompiledScene cs = xi::compile_scene(xi::load_scene(XI_SCENE_DIR "/cornell-box.json"));
   const uint32_t tris = (uint32_t)cs.tri_material.size(), count = 200, slots = 256;
   auto normal_of = [&](uint32_t tri) {
-    vec3 p0(cs.tri_verts[3 * tri]), p1(cs.tri_verts[3 * tri + 1]), p2(cs.tri_verts[3 * tri + 2]);
+    vec3 p0 = cs.position(tri, 0), p1 = cs.position(tri, 1), p2 = cs.position(tri, 2);
     return glm::normalize(glm::cross(p1 - p0, p2 - p0));
   };
   PathState state(slots);
@@ -775,7 +773,7 @@ TEST_F(Kernel, ShadowAddsOnlyUnoccluded) {
                                     << (hybrid ? ", hybrid packets of " : "")
                                     << (packets || hybrid ? std::to_string(packet) : ""));
     xi::CompiledScene cs = xi::compile_scene(scene, width);
-    BruteForce brute(scene.triangles);
+    BruteForce brute(scene);
     const uint32_t n = 500, slots = 1024, extra = 64;
     std::mt19937 rng(31);
     std::uniform_real_distribution<float> x(1.0f, 555.0f), y(1.0f, 548.0f), z(1.0f, 558.0f), value(0.0f, 5.0f);

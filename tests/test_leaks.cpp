@@ -44,8 +44,7 @@ Rigid rotation(dvec3 axis, double degrees, dvec3 translate = dvec3(0.0)) {
   return {glm::dmat3(1.0) + s * k + (1.0 - c) * k * k, translate};
 }
 xi::Scene moved(xi::Scene s, const Rigid& m) {
-  for (xi::Triangle& t : s.triangles)
-    for (vec3& v : t.v) v = vec3(m(dvec3(v)));
+  for (xi::Vertex& v : s.vertices) v.position = vec3(m(dvec3(v.position)));
   s.camera.position = vec3(m(dvec3(s.camera.position)));
   s.camera.look_at = vec3(m(dvec3(s.camera.look_at)));
   s.camera.up = vec3(m.r * dvec3(s.camera.up));
@@ -270,15 +269,15 @@ TEST(Leaks, LightsInsideAClosedBoxLightNothingOutside) {
     s.width = s.height = closed ? 48 : 16;
     const uint32_t grey = add_material(s, "grey", vec3(0.8f));
     add_floor(s, add_material(s, "floor", vec3(0.5f)), -2.0f, 8.0f);
-    const size_t first = s.triangles.size();
+    const size_t first = s.vertices.size();  // the box's and the lights' vertices follow
     add_box(s, grey, vec3(-1.0f), vec3(1.0f), closed);
     add_quad(s, add_material(s, "lamp", vec3(0.0f), vec3(20.0f), true), vec3(-0.6f, -0.3f, -0.5f),
              vec3(-0.5f, 0.4f, 0.6f), vec3(0.6f, 0.3f, 0.5f), vec3(0.5f, -0.4f, -0.6f));
     add_quad(s, add_material(s, "spot", vec3(0.0f), vec3(50.0f)), vec3(-0.3f, -0.9f, -0.3f), vec3(-0.3f, -0.9f, 0.3f),
              vec3(0.3f, -0.9f, 0.3f), vec3(0.3f, -0.9f, -0.3f));  // faces up
     const Rigid turn = rotation(dvec3(1, -2, 0.5), 37.0, dvec3(0.0, 0.1, 0.0));
-    for (size_t i = first; i < s.triangles.size(); ++i)
-      for (vec3& p : s.triangles[i].v) p = vec3(turn(dvec3(p)));
+    for (size_t i = first; i < s.vertices.size(); ++i)
+      s.vertices[i].position = vec3(turn(dvec3(s.vertices[i].position)));
     set_camera(s, vec3(3.5f, 2.0f, -4.5f), vec3(0.0f, -0.3f, 0.0f), 50.0f);
     const Shot shot = render_shot(s, render_options(closed ? 64 : 16, 41, xi::Strategy::Mis, 12));
     EXPECT_EQ(shot.nonfinite, 0u);

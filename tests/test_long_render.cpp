@@ -240,8 +240,9 @@ namespace {
 // What Renderer::scene_hash reads back from the device, hashed from the compiled scene itself.
 uint64_t compiled_hash(const xi::CompiledScene& cs) {
   xi::Hasher h;
-  h.add(cs.tri_verts);
-  h.add(cs.tri_normals);
+  h.add(cs.tri_vertices);
+  h.add(cs.vertices);
+  h.add(cs.vertex_normals);
   h.add(cs.tri_material);
   h.add(cs.materials);
   h.add(cs.light_cdf);
@@ -266,15 +267,16 @@ TEST(Checkpoint, SceneHashComesFromTheDeviceAndMatchesTheCompiledScene) {
   o.spp = 1;
   xi::Renderer renderer(device, scene, o);
   const xi::CompiledScene& kept = renderer.compiled();
-  EXPECT_TRUE(kept.tri_verts.empty() && kept.tri_normals.empty() && kept.tri_material.empty() &&
-              kept.tri_light_pdf.empty() && kept.bvh.nodes.empty() && kept.bvh.nodes8.empty() && kept.bvh.blocks.empty());
+  EXPECT_TRUE(kept.tri_vertices.empty() && kept.vertices.empty() && kept.vertex_normals.empty() &&
+              kept.tri_material.empty() && kept.tri_light_pdf.empty() && kept.bvh.nodes.empty() &&
+              kept.bvh.nodes8.empty() && kept.bvh.blocks.empty());
   EXPECT_GT(kept.bvh.stats.references, 0u);
 
   const xi::CompiledScene cs = xi::compile_scene(scene, kept.bvh.width, o.spatial_splits);
   const uint64_t hash = compiled_hash(cs);
   EXPECT_EQ(renderer.scene_hash(), hash);
 
-  scene.triangles[0].v[0].x += 1.0f;  // a changed scene hashes otherwise
+  scene.vertices[scene.triangles[0].v[0]].position.x += 1.0f;  // a changed scene hashes otherwise
   xi::Renderer moved(device, scene, o);
   EXPECT_NE(moved.scene_hash(), hash);
 }
@@ -291,7 +293,19 @@ TEST(SceneUpload, LargeArraysArriveWholeInParts) {
       "shapes": [{"type": "sphere", "material": "white", "center": [0, 0, 0], "radius": 1, "subdivisions": 8}]})",
                                     "sphere.json", ".");
   scene.width = scene.height = 8;
-  ASSERT_GT(sizeof(glm::vec4) * 3 * scene.triangles.size(), size_t(32) << 20) << "the vertices fill two parts";
+  // Each triangle over three vertices of its own (the icosphere shares them), so that the vertices
+  // and their normals fill two parts.
+  xi::Mesh shared = std::move(static_cast<xi::Mesh&>(scene));
+  static_cast<xi::Mesh&>(scene) = xi::Mesh{};
+  for (const xi::Triangle& t : shared.triangles) {
+    const glm::vec3 n[3] = {shared.normal(t, 0), shared.normal(t, 1), shared.normal(t, 2)};
+    scene.add_triangle(shared.position(t, 0), shared.position(t, 1), shared.position(t, 2), t.material,
+                       t.has_normals ? n : nullptr).texcoords = t.texcoords;
+  }
+  scene.texcoords = std::move(shared.texcoords);
+  shared = xi::Mesh{};
+  ASSERT_TRUE(scene.triangles[0].has_normals);
+  ASSERT_GT(sizeof(glm::vec4) * scene.vertices.size(), size_t(32) << 20) << "the vertices fill two parts";
   xi::RenderOptions o;
   o.spp = 1;
   xi::Renderer renderer(device, scene, o);
@@ -317,7 +331,7 @@ TEST(SceneUpload, LargeArraysArriveWholeInParts) {
   std::vector<glm::vec4> hits;
   xi::RayProbe(renderer).trace_closest(rays, &hits, 1);
   ASSERT_EQ(hits.size(), rays.org.size());
-  xi::test::BruteForce brute(scene.triangles);
+  xi::test::BruteForce brute(scene);
   for (size_t i = 0; i < hits.size(); ++i) {
     const auto ref = brute.hits(glm::vec3(rays.org[i]), glm::vec3(rays.dir[i]), INFINITY);
     ASSERT_FALSE(ref.empty()) << "ray " << i;

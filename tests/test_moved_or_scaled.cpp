@@ -36,8 +36,7 @@ struct Similarity {
 
 xi::Scene transformed(xi::Scene s, const Similarity& t, bool inverse = false) {
   auto map = [&](glm::vec3 p) { return inverse ? (p - t.shift) / t.scale : t.scale * p + t.shift; };
-  for (xi::Triangle& tri : s.triangles)
-    for (glm::vec3& v : tri.v) v = map(v);
+  for (xi::Vertex& v : s.vertices) v.position = map(v.position);
   s.camera.position = map(s.camera.position);
   s.camera.look_at = map(s.camera.look_at);
   s.camera.aperture_radius *= inverse ? 1.0f / t.scale : t.scale;
@@ -67,7 +66,7 @@ const std::vector<Similarity> kTransforms = {
 Similarity smallest_accepted(const xi::Scene& s) {
   glm::vec3 lo(INFINITY), hi(-INFINITY);
   for (const xi::Triangle& t : s.triangles)
-    for (const glm::vec3& v : t.v) lo = glm::min(lo, v), hi = glm::max(hi, v);
+    for (int k = 0; k < 3; ++k) lo = glm::min(lo, s.position(t, k)), hi = glm::max(hi, s.position(t, k));
   const glm::vec3 size = hi - lo;
   return {"scaled to an extent of 1.01e-6", 1.01e-6f / std::max({size.x, size.y, size.z}), glm::vec3(0.0f)};
 }

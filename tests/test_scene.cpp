@@ -46,9 +46,13 @@ xi::Scene parse(const std::string& text, const fs::path& dir = fs::temp_director
   return xi::parse_scene(text, "test.json", dir);
 }
 
-glm::vec3 face_normal(const xi::Triangle& t) { return glm::cross(t.v[1] - t.v[0], t.v[2] - t.v[0]); }
-glm::vec3 centroid(const xi::Triangle& t) { return (t.v[0] + t.v[1] + t.v[2]) / 3.0f; }
-float area(const xi::Triangle& t) { return 0.5f * glm::length(face_normal(t)); }
+glm::vec3 face_normal(const xi::Mesh& m, const xi::Triangle& t) {
+  return glm::cross(m.position(t, 1) - m.position(t, 0), m.position(t, 2) - m.position(t, 0));
+}
+glm::vec3 centroid(const xi::Mesh& m, const xi::Triangle& t) {
+  return (m.position(t, 0) + m.position(t, 1) + m.position(t, 2)) / 3.0f;
+}
+float area(const xi::Mesh& m, const xi::Triangle& t) { return 0.5f * glm::length(face_normal(m, t)); }
 
 // The call must throw xi::Error (not some other exception) whose what() mentions `needle`.
 template <class F>
@@ -117,8 +121,8 @@ TEST(Scene, CornellBoxContents) {
   for (const auto& t : s.triangles) {
     if (!s.materials[t.material].is_emitter()) continue;
     ++emitting;
-    for (const auto& v : t.v) EXPECT_FLOAT_EQ(v.y, 548.7f);
-    expect_vec(glm::normalize(face_normal(t)), {0, -1, 0}, 1e-6f);
+    for (int k = 0; k < 3; ++k) EXPECT_FLOAT_EQ(s.position(t, k).y, 548.7f);
+    expect_vec(glm::normalize(face_normal(s, t)), {0, -1, 0}, 1e-6f);
   }
   EXPECT_EQ(emitting, 2);
 }
@@ -130,20 +134,20 @@ TEST(Scene, CornellBoxFacesPointInward) {
   const glm::vec3 box_centre(278, 274, 280);
   for (size_t i = 0; i < 12; ++i) {
     const auto& t = s.triangles[i];
-    EXPECT_GT(glm::dot(glm::normalize(face_normal(t)), glm::normalize(box_centre - centroid(t))), 0.5f)
+    EXPECT_GT(glm::dot(glm::normalize(face_normal(s, t)), glm::normalize(box_centre - centroid(s, t))), 0.5f)
         << "wall triangle " << i;
   }
   // Short block (quads 6-10) and tall block (quads 11-15) face away from their own centroid.
   for (size_t first : {12u, 22u}) {
     glm::vec3 block_centre(0.0f);
-    for (size_t i = first; i < first + 10; ++i) block_centre += centroid(s.triangles[i]) / 10.0f;
+    for (size_t i = first; i < first + 10; ++i) block_centre += centroid(s, s.triangles[i]) / 10.0f;
     for (size_t i = first; i < first + 10; ++i) {
       const auto& t = s.triangles[i];
-      EXPECT_GT(glm::dot(face_normal(t), centroid(t) - block_centre), 0.0f) << "block triangle " << i;
+      EXPECT_GT(glm::dot(face_normal(s, t), centroid(s, t) - block_centre), 0.0f) << "block triangle " << i;
     }
   }
   // The camera sees the front of the back wall.
-  EXPECT_LT(glm::dot(face_normal(s.triangles[6]), s.camera.look_at - s.camera.position), 0.0f);
+  EXPECT_LT(glm::dot(face_normal(s, s.triangles[6]), s.camera.look_at - s.camera.position), 0.0f);
 }
 
 TEST(Scene, SphereNormalsAreUnitAndOutward) {
@@ -155,11 +159,11 @@ TEST(Scene, SphereNormalsAreUnitAndOutward) {
   for (const auto& t : s.triangles) {
     ASSERT_TRUE(t.has_normals);
     for (int k = 0; k < 3; ++k) {
-      EXPECT_NEAR(glm::length(t.n[k]), 1.0f, 1e-6f);
-      expect_vec(t.n[k], (t.v[k] - c) / r, 1e-5f);  // exact sphere normal
+      EXPECT_NEAR(glm::length(s.normal(t, k)), 1.0f, 1e-6f);
+      expect_vec(s.normal(t, k), (s.position(t, k) - c) / r, 1e-5f);  // exact sphere normal
     }
-    ASSERT_GT(glm::dot(face_normal(t), centroid(t) - c), 0.0f);  // winding faces outward
-    total += area(t);
+    ASSERT_GT(glm::dot(face_normal(s, t), centroid(s, t) - c), 0.0f);  // winding faces outward
+    total += area(s, t);
   }
   const double exact = 4.0 * M_PI * r * r;
   EXPECT_NEAR(total / exact, 1.0, 0.01);
@@ -176,21 +180,21 @@ TEST(Scene, TransformScaleRotateTranslate) {
       "vertices": [[1,0,0], [0,1,0], [0,0,1]],
       "transform": {"translate": [1,2,3], "scale": 2, "rotate": {"axis": [0,1,0], "degrees": 90}}})"));
   ASSERT_EQ(s.triangles.size(), 1u);
-  expect_vec(s.triangles[0].v[0], {1, 2, 1});
-  expect_vec(s.triangles[0].v[1], {1, 4, 3});
-  expect_vec(s.triangles[0].v[2], {3, 2, 3});
+  expect_vec(s.position(s.triangles[0], 0), {1, 2, 1});
+  expect_vec(s.position(s.triangles[0], 1), {1, 4, 3});
+  expect_vec(s.position(s.triangles[0], 2), {3, 2, 3});
   EXPECT_FALSE(s.triangles[0].has_normals);
 
   // The same transform as a row-major matrix.
   const xi::Scene m = parse(scene_text(R"({"type": "triangle", "material": "white",
       "vertices": [[1,0,0], [0,1,0], [0,0,1]],
       "transform": {"matrix": [0,0,2,1, 0,2,0,2, -2,0,0,3, 0,0,0,1]}})"));
-  for (int k = 0; k < 3; ++k) expect_vec(m.triangles[0].v[k], s.triangles[0].v[k]);
+  for (int k = 0; k < 3; ++k) expect_vec(m.position(m.triangles[0], k), s.position(s.triangles[0], k));
 
   // Per-axis scale.
   const xi::Scene a = parse(scene_text(R"({"type": "triangle", "material": "white",
       "vertices": [[1,1,1], [0,1,0], [0,0,1]], "transform": {"scale": [2,3,4]}})"));
-  expect_vec(a.triangles[0].v[0], {2, 3, 4});
+  expect_vec(a.position(a.triangles[0], 0), {2, 3, 4});
 }
 
 TEST(Scene, TransformNormalsAndMirroring) {
@@ -199,16 +203,16 @@ TEST(Scene, TransformNormalsAndMirroring) {
       "subdivisions": 2, "transform": {"scale": [1, 3, 1]}})"));
   for (const auto& t : s.triangles)
     for (int k = 0; k < 3; ++k) {
-      EXPECT_NEAR(glm::length(t.n[k]), 1.0f, 1e-5f);
+      EXPECT_NEAR(glm::length(s.normal(t, k)), 1.0f, 1e-5f);
       // Ellipsoid x² + y²/9 + z² = 1: normal ∝ (x, y/9, z).
-      expect_vec(t.n[k], glm::normalize(t.v[k] * glm::vec3(1, 1.0f / 9.0f, 1)), 1e-5f);
+      expect_vec(s.normal(t, k), glm::normalize(s.position(t, k) * glm::vec3(1, 1.0f / 9.0f, 1)), 1e-5f);
     }
   // A mirroring scale keeps the front face outward (the winding is swapped with it).
   const xi::Scene m = parse(scene_text(R"({"type": "sphere", "material": "white", "center": [0,0,0], "radius": 1,
       "subdivisions": 1, "transform": {"scale": [-1, 1, 1]}})"));
   for (const auto& t : m.triangles) {
-    EXPECT_GT(glm::dot(face_normal(t), centroid(t)), 0.0f);
-    EXPECT_GT(glm::dot(t.n[0], t.v[0]), 0.0f);
+    EXPECT_GT(glm::dot(face_normal(m, t), centroid(m, t)), 0.0f);
+    EXPECT_GT(glm::dot(m.normal(t, 0), m.position(t, 0)), 0.0f);
   }
 }
 
@@ -237,9 +241,9 @@ f 2 3 7 6
   glm::vec3 lo(1e9f), hi(-1e9f);
   for (const auto& t : s.triangles) {
     EXPECT_FALSE(t.has_normals);  // the file has no vn lines
-    EXPECT_GT(glm::dot(face_normal(t), centroid(t) - glm::vec3(0.5f)), 0.0f);  // faces listed outward
-    total += area(t);
-    for (const auto& v : t.v) lo = glm::min(lo, v), hi = glm::max(hi, v);
+    EXPECT_GT(glm::dot(face_normal(s, t), centroid(s, t) - glm::vec3(0.5f)), 0.0f);  // faces listed outward
+    total += area(s, t);
+    for (int k = 0; k < 3; ++k) lo = glm::min(lo, s.position(t, k)), hi = glm::max(hi, s.position(t, k));
   }
   EXPECT_NEAR(total, 6.0f, 1e-5f);
   expect_vec(lo, {0, 0, 0}, 0.0f);
@@ -250,7 +254,7 @@ f 2 3 7 6
       << scene_text(R"({"type": "mesh", "material": "white", "file": "meshes/cube.obj", "transform": {"scale": 2}})");
   const xi::Scene big = xi::load_scene(dir / "scene.json");
   total = 0.0f;
-  for (const auto& t : big.triangles) total += area(t);
+  for (const auto& t : big.triangles) total += area(big, t);
   EXPECT_NEAR(total, 24.0f, 1e-4f);
 
   // Vertex normals in the file are kept.
@@ -258,7 +262,7 @@ f 2 3 7 6
   const xi::Scene n = parse(scene_text(R"({"type": "mesh", "material": "white", "file": "tri.obj"})"), dir);
   ASSERT_EQ(n.triangles.size(), 1u);
   EXPECT_TRUE(n.triangles[0].has_normals);
-  expect_vec(n.triangles[0].n[0], {0, 0, 1}, 0.0f);
+  expect_vec(n.normal(n.triangles[0], 0), {0, 0, 1}, 0.0f);
   fs::remove_all(dir);
 }
 
@@ -285,9 +289,9 @@ TEST(Scene, DefaultsAndOptionalFields) {
   // Triangles point at their material by index.
   EXPECT_EQ(s.materials[s.triangles[0].material].name, "white");
   // Quad split: v0 v1 v2 and v0 v2 v3, winding kept.
-  expect_vec(s.triangles[1].v[2], {0, 1, 0}, 0.0f);
-  expect_vec(glm::normalize(face_normal(s.triangles[0])), {0, 0, 1}, 0.0f);
-  expect_vec(glm::normalize(face_normal(s.triangles[1])), {0, 0, 1}, 0.0f);
+  expect_vec(s.position(s.triangles[1], 2), {0, 1, 0}, 0.0f);
+  expect_vec(glm::normalize(face_normal(s, s.triangles[0])), {0, 0, 1}, 0.0f);
+  expect_vec(glm::normalize(face_normal(s, s.triangles[1])), {0, 0, 1}, 0.0f);
 }
 
 // The features of the quad scene with these materials and, where given, this "render" block.
@@ -493,9 +497,9 @@ TEST(SceneErrors, CompileSceneChecksTheLimits) {
     change(s);
     expect_error([&] { xi::compile_scene(s); }, needle);
   };
-  refused([](xi::Scene& s) { s.triangles[0].v[1].x = 2e9f; }, "triangle 0 has a non-finite vertex coordinate or one beyond +-1e9");
-  refused([](xi::Scene& s) { s.triangles[1].v[2].y = NAN; }, "triangle 1 has a non-finite vertex coordinate");
-  refused([](xi::Scene& s) { for (auto& t : s.triangles) for (auto& v : t.v) v *= 1e-7f; }, "the geometry spans only 1e-07 units");
+  refused([](xi::Scene& s) { s.vertices[s.triangles[0].v[1]].position.x = 2e9f; }, "triangle 0 has a non-finite vertex coordinate or one beyond +-1e9");
+  refused([](xi::Scene& s) { s.vertices[s.triangles[1].v[2]].position.y = NAN; }, "triangle 1 has a non-finite vertex coordinate");
+  refused([](xi::Scene& s) { for (auto& v : s.vertices) v.position *= 1e-7f; }, "the geometry spans only 1e-07 units");
   refused([](xi::Scene& s) { s.materials[0].emission.y = NAN; }, "material 'white' has a negative or non-finite radiance");
   refused([](xi::Scene& s) { s.materials[0].emission.z = -1.0f; }, "material 'white' has a negative or non-finite radiance");
   refused([](xi::Scene& s) { s.background = glm::vec3(INFINITY); }, "the background radiance is negative or not finite");
@@ -503,6 +507,85 @@ TEST(SceneErrors, CompileSceneChecksTheLimits) {
   ASSERT_EQ(kept, 2u);
   refused([&](xi::Scene& s) { s.triangles[1].texcoords = uint32_t(kept); },
           "triangle 1 names texture coordinates 2 of 2");
+  const size_t vertices = good.vertices.size();
+  refused([&](xi::Scene& s) { s.triangles[1].v[2] = uint32_t(vertices); },
+          "triangle 1 names vertex " + std::to_string(vertices) + " of " + std::to_string(vertices));
+}
+
+// A triangle's corners index the mesh's vertices: check_scene_limits refuses one beyond them (the
+// index one past the last too) before anything reads the vertex.
+TEST(SceneErrors, VertexIndexBeyondTheMesh) {
+  xi::Scene good;
+  good.materials.emplace_back().name = "white";
+  good.add_triangle({0, 0, 0}, {1, 0, 0}, {1, 1, 0});
+  good.add_triangle({0, 0, 0}, {1, 1, 0}, {0, 1, 0});
+  ASSERT_EQ(good.vertices.size(), 6u);
+  EXPECT_NO_THROW(xi::check_scene_limits(good));
+  for (const uint32_t index : {6u, 7u, 0xffffffffu}) {
+    xi::Scene s = good;
+    s.triangles[1].v[2] = index;
+    expect_error([&] { xi::check_scene_limits(s); }, "triangle 1 names vertex " + std::to_string(index) + " of 6");
+  }
+  xi::Scene s = good;
+  s.triangles[0].v[0] = 6;
+  expect_error([&] { xi::check_scene_limits(s); }, "names vertex");
+}
+
+// add_triangle gives each triangle three vertices of its own (with normals where given); append
+// adds another mesh after the vertices, triangles and texture coordinates there, its indices
+// offset by theirs and its materials by first_material, its shared vertices still shared.
+TEST(SceneMesh, AddTriangleAndAppend) {
+  xi::Mesh a;
+  a.add_triangle({0, 0, 0}, {1, 0, 0}, {0, 1, 0}, 2).texcoords = 0;
+  a.texcoords.emplace_back().uv[0][1] = glm::vec2(0.5f, 0.125f);
+  const glm::vec3 n[3] = {{0, 0, 1}, {0, 1, 0}, {1, 0, 0}};
+  const xi::Triangle& added = a.add_triangle({0, 0, 1}, {1, 0, 1}, {0, 1, 1}, 3, n);
+  EXPECT_EQ(&added, &a.triangles.back());
+  ASSERT_EQ(a.vertices.size(), 6u);
+  ASSERT_EQ(a.triangles.size(), 2u);
+  for (int t = 0; t < 2; ++t)
+    for (int k = 0; k < 3; ++k) EXPECT_EQ(a.triangles[t].v[k], uint32_t(3 * t + k)) << t << " " << k;
+  EXPECT_EQ(a.triangles[0].material, 2u);
+  EXPECT_EQ(a.triangles[1].material, 3u);
+  EXPECT_FALSE(a.triangles[0].has_normals);
+  EXPECT_TRUE(a.triangles[1].has_normals);
+  EXPECT_EQ(a.triangles[1].texcoords, xi::kNoTexcoords);
+  EXPECT_EQ(a.position(a.triangles[1], 1), glm::vec3(1, 0, 1));
+  for (int k = 0; k < 3; ++k) EXPECT_EQ(a.normal(a.triangles[1], k), n[k]) << k;
+
+  // A quad over four shared vertices: (p0, p1, p2) and (p0, p2, p3).
+  xi::Mesh b;
+  for (const glm::vec3 p : {glm::vec3(5, 0, 0), glm::vec3(6, 0, 0), glm::vec3(6, 1, 0), glm::vec3(5, 1, 0)})
+    b.vertices.push_back({p, glm::vec3(0, 0, 1)});
+  b.triangles.resize(2);
+  b.triangles[0].v[0] = 0, b.triangles[0].v[1] = 1, b.triangles[0].v[2] = 2;
+  b.triangles[1].v[0] = 0, b.triangles[1].v[1] = 2, b.triangles[1].v[2] = 3;
+  b.triangles[0].material = 0, b.triangles[1].material = 1;
+  b.triangles[0].texcoords = 0;
+  b.triangles[1].has_normals = true;
+  b.texcoords.emplace_back().uv[0][1] = glm::vec2(0.25f, 0.75f);
+  a.append(std::move(b), 5);
+
+  ASSERT_EQ(a.vertices.size(), 10u);
+  ASSERT_EQ(a.triangles.size(), 4u);
+  ASSERT_EQ(a.texcoords.size(), 2u);
+  const uint32_t want[2][3] = {{6, 7, 8}, {6, 8, 9}};
+  for (int t = 0; t < 2; ++t)
+    for (int k = 0; k < 3; ++k) EXPECT_EQ(a.triangles[2 + t].v[k], want[t][k]) << t << " " << k;
+  EXPECT_EQ(a.triangles[2].material, 5u);
+  EXPECT_EQ(a.triangles[3].material, 6u);
+  EXPECT_EQ(a.triangles[2].texcoords, 1u);
+  EXPECT_EQ(a.triangles[3].texcoords, xi::kNoTexcoords);
+  EXPECT_FALSE(a.triangles[2].has_normals);
+  EXPECT_TRUE(a.triangles[3].has_normals);
+  EXPECT_EQ(a.position(a.triangles[3], 2), glm::vec3(5, 1, 0));
+  EXPECT_EQ(a.normal(a.triangles[3], 1), glm::vec3(0, 0, 1));
+  EXPECT_EQ(xi::texcoords_of(a.texcoords, a.triangles[2]).uv[0][1], glm::vec2(0.25f, 0.75f));
+  // What was there is as it was.
+  for (int k = 0; k < 3; ++k) EXPECT_EQ(a.triangles[0].v[k], uint32_t(k));
+  EXPECT_EQ(a.triangles[0].material, 2u);
+  EXPECT_EQ(xi::texcoords_of(a.texcoords, a.triangles[0]).uv[0][1], glm::vec2(0.5f, 0.125f));
+  EXPECT_EQ(a.position(a.triangles[1], 1), glm::vec3(1, 0, 1));
 }
 
 // The other end of single precision: geometry whose bounding box's longest side is below 1e-6 is
@@ -545,8 +628,12 @@ TEST(SceneErrors, CoordinatesBeyondTheLimit) {
       "vertices": [[1e9,1e9,0], [1e9,-1e9,0], [-1e9,-1e9,0], [-1e9,1e9,0]]})",
       R"("materials": {"light": {"type": "emitter", "radiance": [1, 1, 1]}})"));
   const xi::CompiledScene cs = xi::compile_scene(s);
-  ASSERT_EQ(cs.tri_verts.size(), 6u);
-  for (const auto& v : cs.tri_verts) EXPECT_TRUE(std::isfinite(v.x) && std::isfinite(v.y) && std::isfinite(v.z));
+  ASSERT_EQ(cs.tri_vertices.size(), 2u);
+  for (size_t i = 0; i < cs.tri_vertices.size(); ++i)
+    for (int k = 0; k < 3; ++k) {
+      const glm::vec3 v = cs.position(i, k);
+      EXPECT_TRUE(std::isfinite(v.x) && std::isfinite(v.y) && std::isfinite(v.z));
+    }
   for (float p : cs.light_cdf) EXPECT_TRUE(std::isfinite(p));
   for (float p : cs.tri_light_pdf) EXPECT_TRUE(std::isfinite(p) && p > 0.0f) << p;
 }
@@ -731,30 +818,28 @@ void grid(int w, int h, std::vector<std::vector<double>>* vertices, std::vector<
 
 // The triangles Assimp gives for a mesh file, as load_mesh reads them. (The files here have no two
 // vertices that aiProcess_JoinIdenticalVertices would merge: the two readers agree bit for bit.)
-struct Mesh {
-  std::vector<xi::Triangle> tris;
-  std::vector<xi::TriangleTexcoords> texcoords;
-};
-Mesh assimp_triangles(const fs::path& path) {
+xi::Mesh assimp_triangles(const fs::path& path) {
   Assimp::Importer importer;
   const aiScene* scene = importer.ReadFile(
       path.string(), aiProcess_Triangulate | aiProcess_JoinIdenticalVertices | aiProcess_PreTransformVertices);
-  Mesh out;
+  xi::Mesh out;
   if (!scene) return out;
-  for (unsigned i = 0; i < scene->mNumMeshes; ++i)
-    xi::scene_detail::mesh_triangles(*scene->mMeshes[i], 0, true, out.tris, out.texcoords);
+  for (unsigned i = 0; i < scene->mNumMeshes; ++i) xi::scene_detail::mesh_triangles(*scene->mMeshes[i], 0, true, out);
   return out;
 }
 
-// Field by field and bit for bit (NaN payloads and signed zeros too).
-void expect_same_triangles(const Mesh& a, const Mesh& b) {
-  ASSERT_EQ(a.tris.size(), b.tris.size());
-  for (size_t i = 0; i < a.tris.size(); ++i) {
+// Field by field and bit for bit (NaN payloads and signed zeros too): each corner's position and
+// normal, wherever in its mesh's vertices it is.
+void expect_same_triangles(const xi::Mesh& a, const xi::Mesh& b) {
+  ASSERT_EQ(a.triangles.size(), b.triangles.size());
+  for (size_t i = 0; i < a.triangles.size(); ++i) {
     SCOPED_TRACE(testing::Message() << "triangle " << i);
-    const xi::Triangle &s = a.tris[i], &t = b.tris[i];
+    const xi::Triangle &s = a.triangles[i], &t = b.triangles[i];
     const xi::TriangleTexcoords &sc = xi::texcoords_of(a.texcoords, s), &tc = xi::texcoords_of(b.texcoords, t);
-    EXPECT_EQ(std::memcmp(s.v, t.v, sizeof s.v), 0);
-    EXPECT_EQ(std::memcmp(s.n, t.n, sizeof s.n), 0);
+    for (int k = 0; k < 3; ++k) {
+      EXPECT_EQ(std::memcmp(&a.position(s, k), &b.position(t, k), sizeof(glm::vec3)), 0) << "corner " << k;
+      EXPECT_EQ(std::memcmp(&a.normal(s, k), &b.normal(t, k), sizeof(glm::vec3)), 0) << "corner " << k;
+    }
     EXPECT_EQ(std::memcmp(sc.uv, tc.uv, sizeof sc.uv), 0);
     EXPECT_EQ(std::memcmp(sc.tangent, tc.tangent, sizeof sc.tangent), 0);
     EXPECT_EQ(s.has_normals, t.has_normals);
@@ -797,12 +882,14 @@ TEST(MeshPly, SameTrianglesAsAssimp) {
     for (auto& row : v) row.resize(c.props.size());
     const fs::path file = dir / (c.name + ".ply");
     write_bytes(file, ply_bytes(c.big_endian, c.props, v, faces, c.count_type, c.index_type, c.extra));
-    const Mesh reference = assimp_triangles(file);
-    ASSERT_EQ(reference.tris.size(), faces.size());
-    Mesh ours{{xi::Triangle{}}, {xi::TriangleTexcoords{}}};  // appended after what is there
-    ASSERT_TRUE(xi::scene_detail::read_binary_ply(file, true, ours.tris, ours.texcoords));
-    ASSERT_EQ(ours.tris.size(), 1 + faces.size());
-    ours.tris.erase(ours.tris.begin());
+    const xi::Mesh reference = assimp_triangles(file);
+    ASSERT_EQ(reference.triangles.size(), faces.size());
+    xi::Mesh ours;  // appended after what is there: its corners index the vertices after these
+    ours.add_triangle(glm::vec3(7), glm::vec3(8), glm::vec3(9)).texcoords = 0;
+    ours.texcoords.emplace_back();
+    ASSERT_TRUE(xi::scene_detail::read_binary_ply(file, true, ours));
+    ASSERT_EQ(ours.triangles.size(), 1 + faces.size());
+    ours.triangles.erase(ours.triangles.begin());
     expect_same_triangles(ours, reference);
   }
   fs::remove_all(dir);
@@ -816,8 +903,8 @@ TEST(MeshPly, AssimpModels) {
   for (const auto& entry : fs::directory_iterator(models)) {
     if (entry.path().extension() != ".ply") continue;
     SCOPED_TRACE(entry.path().string());
-    Mesh ours;
-    if (!xi::scene_detail::read_binary_ply(entry.path(), true, ours.tris, ours.texcoords)) continue;
+    xi::Mesh ours;
+    if (!xi::scene_detail::read_binary_ply(entry.path(), true, ours)) continue;
     read++;
     expect_same_triangles(ours, assimp_triangles(entry.path()));
   }
@@ -857,11 +944,12 @@ TEST(MeshPly, LeavesOtherFilesToAssimp) {
   for (const auto& c : cases) {
     SCOPED_TRACE(c.name);
     write_bytes(dir / (c.name + ".ply"), c.bytes);
-    std::vector<xi::Triangle> out(3);
-    std::vector<xi::TriangleTexcoords> texcoords(2);
-    EXPECT_FALSE(xi::scene_detail::read_binary_ply(dir / (c.name + ".ply"), true, out, texcoords));
-    EXPECT_EQ(out.size(), 3u);
-    EXPECT_EQ(texcoords.size(), 2u);
+    xi::Mesh out;
+    out.vertices.resize(4), out.triangles.resize(3), out.texcoords.resize(2);
+    EXPECT_FALSE(xi::scene_detail::read_binary_ply(dir / (c.name + ".ply"), true, out));
+    EXPECT_EQ(out.vertices.size(), 4u);
+    EXPECT_EQ(out.triangles.size(), 3u);
+    EXPECT_EQ(out.texcoords.size(), 2u);
     EXPECT_EQ(parse(mesh_scene(c.name + ".ply"), dir).triangles.size(), c.triangles);
   }
   // An index out of range, a file cut short: declined after reading part of it, `out` as it was.
@@ -870,11 +958,12 @@ TEST(MeshPly, LeavesOtherFilesToAssimp) {
   write_bytes(dir / "short.ply", short_file.substr(0, short_file.size() - 1));
   for (const char* name : {"bad-index.ply", "negative-index.ply", "short.ply"}) {
     SCOPED_TRACE(name);
-    std::vector<xi::Triangle> out(3);
-    std::vector<xi::TriangleTexcoords> texcoords(2);
-    EXPECT_FALSE(xi::scene_detail::read_binary_ply(dir / name, true, out, texcoords));
-    EXPECT_EQ(out.size(), 3u);
-    EXPECT_EQ(texcoords.size(), 2u);
+    xi::Mesh out;
+    out.vertices.resize(4), out.triangles.resize(3), out.texcoords.resize(2);
+    EXPECT_FALSE(xi::scene_detail::read_binary_ply(dir / name, true, out));
+    EXPECT_EQ(out.vertices.size(), 4u);
+    EXPECT_EQ(out.triangles.size(), 3u);
+    EXPECT_EQ(out.texcoords.size(), 2u);
   }
   fs::remove_all(dir);
 }
@@ -910,7 +999,7 @@ TEST(MeshPly, InASceneBetweenOtherShapes) {
   EXPECT_NE(a, b);
   for (size_t i = 0; i < s.triangles.size(); ++i)
     EXPECT_EQ(s.triangles[i].material, i >= 2 && i < 2 + mesh ? b : a) << "triangle " << i;
-  EXPECT_EQ(s.triangles.back().v[0], glm::vec3(0, 0, 5));
+  EXPECT_EQ(s.position(s.triangles.back(), 0), glm::vec3(0, 0, 5));
   EXPECT_TRUE(s.triangles[2].has_normals);
   // The positions Assimp gives for the same vertices in an OBJ, after the same transform.
   std::vector<std::vector<int64_t>> obj_faces = faces;
@@ -923,7 +1012,36 @@ TEST(MeshPly, InASceneBetweenOtherShapes) {
   const xi::Scene through_assimp = parse(scene("grid.obj"), dir);
   ASSERT_EQ(through_assimp.triangles.size(), s.triangles.size());
   for (size_t i = 2; i < 2 + mesh; ++i)
-    for (int k = 0; k < 3; ++k) EXPECT_EQ(s.triangles[i].v[k], through_assimp.triangles[i].v[k]) << "triangle " << i;
+    for (int k = 0; k < 3; ++k)
+      EXPECT_EQ(s.position(s.triangles[i], k), through_assimp.position(through_assimp.triangles[i], k)) << "triangle " << i;
+  fs::remove_all(dir);
+}
+
+// A mesh file's triangles share its vertices: a quad of 4 vertices and 2 faces, as an OBJ (through
+// Assimp) and as a binary PLY (xi's reader), loads as 2 triangles over 4 vertices, each moved by
+// the shape's transform once.
+TEST(MeshPly, MeshFilesShareTheirVertices) {
+  const fs::path dir = temp_dir();
+  const std::vector<std::vector<double>> quad = {{0, 0, 0}, {1, 0, 0}, {1, 1, 0}, {0, 1, 0}};
+  write_bytes(dir / "quad.ply", ply_bytes(false, {{"float", "x"}, {"float", "y"}, {"float", "z"}}, quad, {{0, 1, 2}, {0, 2, 3}}));
+  std::ofstream(dir / "quad.obj") << "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nf 1 2 3\nf 1 3 4\n";
+  for (const char* file : {"quad.ply", "quad.obj"}) {
+    SCOPED_TRACE(file);
+    const xi::Scene s = parse(scene_text(R"({"type": "mesh", "material": "white", "file": ")" + std::string(file) +
+                                         R"(", "transform": {"translate": [2, 0, 0]}})"), dir);
+    ASSERT_EQ(s.triangles.size(), 2u);
+    ASSERT_EQ(s.vertices.size(), 4u);
+    const xi::Triangle &t0 = s.triangles[0], &t1 = s.triangles[1];
+    EXPECT_EQ(t0.v[0], t1.v[0]);  // the diagonal's ends, p0 and p2, are one vertex each
+    EXPECT_EQ(t0.v[2], t1.v[1]);
+    for (const xi::Triangle& t : s.triangles)
+      for (int k = 0; k < 3; ++k) EXPECT_LT(t.v[k], 4u);
+    for (int k = 0; k < 3; ++k) {
+      EXPECT_EQ(s.position(t0, k), glm::vec3(quad[k][0] + 2, quad[k][1], quad[k][2])) << k;
+      const int c = k == 0 ? 0 : k + 1;
+      EXPECT_EQ(s.position(t1, k), glm::vec3(quad[c][0] + 2, quad[c][1], quad[c][2])) << k;
+    }
+  }
   fs::remove_all(dir);
 }
 
@@ -1089,7 +1207,7 @@ TEST(SceneUv, QuadsAndTrianglesMapTheImage) {
   for (int t = 0; t < 2; ++t)
     for (int k = 0; k < 3; ++k) {
       int corner = 0;
-      while (corner < 4 && s.triangles[t].v[k] != pos[corner]) ++corner;
+      while (corner < 4 && s.position(s.triangles[t], k) != pos[corner]) ++corner;
       ASSERT_LT(corner, 4);
       for (int set = 0; set < 2; ++set) {
         EXPECT_EQ(xi::texcoords_of(s.texcoords, s.triangles[t]).uv[set][k].x, quad[corner].x);
@@ -1108,7 +1226,7 @@ TEST(SceneUv, MirroringTransformKeepsEachVertexsCoordinates) {
       "vertices": [[0,0,0], [1,0,0], [0,1,0]], "transform": {"scale": [-1, 1, 1]}})"));
   ASSERT_EQ(s.triangles.size(), 1u);
   for (int k = 0; k < 3; ++k) {  // each vertex's (u, v) is the one it had: (0,0) at the origin, (1,0) at x = -1
-    const glm::vec3 p = s.triangles[0].v[k];
+    const glm::vec3 p = s.position(s.triangles[0], k);
     const glm::vec2 want = p.x < -0.5f ? glm::vec2(1, 0) : p.y > 0.5f ? glm::vec2(0, 1) : glm::vec2(0, 0);
     EXPECT_EQ(xi::texcoords_of(s.texcoords, s.triangles[0]).uv[0][k].x, want.x);
     EXPECT_EQ(xi::texcoords_of(s.texcoords, s.triangles[0]).uv[0][k].y, want.y);
@@ -1121,7 +1239,7 @@ TEST(SceneUv, SphereIsEquirectangular) {
   for (const xi::Triangle& t : s.triangles) {
     float lo = 10, hi = -10;
     for (int k = 0; k < 3; ++k) {
-      const glm::vec3 d = glm::normalize(t.v[k]);
+      const glm::vec3 d = glm::normalize(s.position(t, k));
       const glm::vec2 uv = xi::texcoords_of(s.texcoords, t).uv[0][k];
       EXPECT_NEAR(uv.y, std::acos(std::clamp(d.y, -1.0f, 1.0f)) / float(M_PI), 1e-5f);
       lo = std::min(lo, uv.x), hi = std::max(hi, uv.x);

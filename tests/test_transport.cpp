@@ -72,9 +72,10 @@ std::vector<vec4> sample_lights(const xi::CompiledScene& cs, dvec3 org, uint32_t
   cl::Kernel k(tools().program, "sample_lights");
   cl::Buffer out(device().context(), CL_MEM_WRITE_ONLY, sizeof(vec4) * n);
   cl::Buffer cdf = upload(cs.light_cdf), tri = upload(cs.light_tri), pdf = upload(cs.tri_light_pdf),
-             verts = upload(cs.tri_verts), mat = upload(cs.tri_material), mats = upload(cs.materials);
+             corners = upload(cs.tri_vertices), verts = upload(cs.vertices), mat = upload(cs.tri_material),
+             mats = upload(cs.materials);
   int a = 0;
-  for (cl::Buffer* b : {&out, &cdf, &tri, &pdf, &verts, &mat, &mats}) k.setArg(a++, *b);
+  for (cl::Buffer* b : {&out, &cdf, &tri, &pdf, &corners, &verts, &mat, &mats}) k.setArg(a++, *b);
   k.setArg(a++, (uint32_t)cs.light_tri.size());
   k.setArg(a++, vec4(vec3(org), 0.0f));
   k.setArg(a++, xi_make_sampler_params(seed, n));
@@ -148,9 +149,9 @@ std::vector<HostLight> host_lights(const xi::Scene& s) {
     double lum = 0.2126 * l.x + 0.7152 * l.y + 0.0722 * l.z;
     if (lum <= 0.0) continue;
     HostLight h;
-    h.v0 = dvec3(t.v[0]);
-    h.e1 = dvec3(t.v[1]) - h.v0;
-    h.e2 = dvec3(t.v[2]) - h.v0;
+    h.v0 = dvec3(s.position(t, 0));
+    h.e1 = dvec3(s.position(t, 1)) - h.v0;
+    h.e2 = dvec3(s.position(t, 2)) - h.v0;
     dvec3 c = glm::cross(h.e1, h.e2);
     double area = 0.5 * glm::length(c);
     h.n = c / (2.0 * area);
@@ -552,8 +553,9 @@ TEST(TransportFurnace, SmoothDiffuseSphereLosesOnlyBelowTheFace) {
   double cos_min = 1.0;
   for (const xi::Triangle& t : scene.triangles) {
     ASSERT_TRUE(t.has_normals);
-    dvec3 ng = glm::normalize(glm::cross(dvec3(t.v[1] - t.v[0]), dvec3(t.v[2] - t.v[0])));
-    for (const glm::vec3& n : t.n) cos_min = std::min(cos_min, glm::dot(ng, glm::normalize(dvec3(n))));
+    const glm::vec3 &p0 = scene.position(t, 0), &p1 = scene.position(t, 1), &p2 = scene.position(t, 2);
+    dvec3 ng = glm::normalize(glm::cross(dvec3(p1 - p0), dvec3(p2 - p0)));
+    for (int k = 0; k < 3; ++k) cos_min = std::min(cos_min, glm::dot(ng, glm::normalize(dvec3(scene.normal(t, k)))));
   }
   const double eps = (1.0 - cos_min) / 2.0, z = sidak_critical_z(0.01, 1);
   Render r = render_shot(scene, 32, 32, render_options(256, 35, xi::Strategy::Mis, 8));

@@ -40,20 +40,20 @@ void put_float(std::string& out, float f) {
 
 // The normal at each vertex: the triangle's own, or its face normal (the same at all three, so that
 // interpolating them keeps the triangle flat). The face normal follows the winding, as xi's does.
-void vertex_normals(const Triangle& t, glm::vec3 out[3]) {
+void vertex_normals(const Mesh& mesh, const Triangle& t, glm::vec3 out[3]) {
   if (t.has_normals) {
-    for (int k = 0; k < 3; ++k) out[k] = t.n[k];
+    for (int k = 0; k < 3; ++k) out[k] = mesh.normal(t, k);
     return;
   }
-  const glm::dvec3 a(t.v[0]), b(t.v[1]), c(t.v[2]);
+  const glm::dvec3 a(mesh.position(t, 0)), b(mesh.position(t, 1)), c(mesh.position(t, 2));
   const glm::vec3 n(glm::normalize(glm::cross(b - a, c - a)));
   for (int k = 0; k < 3; ++k) out[k] = n;
 }
 
-// One material's triangles as a PLY: three vertices per triangle (x y z nx ny nz), as xi stores them,
-// and with `uv` the texture coordinates of set 0 (u v, as the file has them: v down the image).
-std::string ply(const std::vector<const Triangle*>& tris, const std::vector<TriangleTexcoords>& texcoords,
-                const std::string& material, bool uv) {
+// One material's triangles as a PLY: three vertices of its own per triangle (x y z nx ny nz: a flat
+// triangle's face normal is its own), and with `uv` the texture coordinates of set 0 (u v, as the
+// file has them: v down the image).
+std::string ply(const Mesh& mesh, const std::vector<const Triangle*>& tris, const std::string& material, bool uv) {
   const size_t n = tris.size();
   if (3 * n > (size_t)INT32_MAX) throw Error("too many triangles for a PLY file's int indices", material);
   std::string out =
@@ -64,12 +64,12 @@ std::string ply(const std::vector<const Triangle*>& tris, const std::vector<Tria
   out.reserve(out.size() + n * (3 * (uv ? 8 : 6) * 4 + 1 + 3 * 4));
   for (const Triangle* t : tris) {
     glm::vec3 normals[3];
-    vertex_normals(*t, normals);
+    vertex_normals(mesh, *t, normals);
     for (int k = 0; k < 3; ++k) {
-      for (int c = 0; c < 3; ++c) put_float(out, t->v[k][c]);
+      for (int c = 0; c < 3; ++c) put_float(out, mesh.position(*t, k)[c]);
       for (int c = 0; c < 3; ++c) put_float(out, normals[k][c]);
       if (uv)
-        for (int c = 0; c < 2; ++c) put_float(out, texcoords_of(texcoords, *t).uv[0][k][c]);
+        for (int c = 0; c < 2; ++c) put_float(out, texcoords_of(mesh.texcoords, *t).uv[0][k][c]);
     }
   }
   for (size_t i = 0; i < n; ++i) {
@@ -194,7 +194,7 @@ int export_scene(const std::vector<std::string>& argv) {
       if (by_material[m].empty()) continue;
       const std::string file = "material-" + std::to_string(m) + ".ply";
       const bool uv = scene.materials[m].has_textures();
-      write_file(out_dir / file, ply(by_material[m], scene.texcoords, scene.materials[m].name, uv));
+      write_file(out_dir / file, ply(scene, by_material[m], scene.materials[m].name, uv));
       written.push_back(out_dir / file);
       meshes.push_back({{"file", file}, {"material", scene.materials[m].name}, {"material_index", m},
                         {"triangles", by_material[m].size()}, {"flat_triangles", flat[m]}, {"texcoords", uv}});

@@ -41,6 +41,7 @@ typedef glm::vec2 float2;
 typedef glm::vec3 float3;
 typedef glm::vec4 float4;
 typedef glm::uvec2 uint2;
+typedef glm::uvec4 uint4;
 typedef glm::ivec3 int3;
 typedef glm::ivec4 int4;
 // Only for laying out buffers that kernels read as float8 (OpenCL aligns it to 32 bytes).

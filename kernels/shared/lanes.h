@@ -123,6 +123,19 @@ static inline XI_INLINE xfloat3 xi_gather_xyz(__global const float4* p, xuint i,
   if (w) *w = XI_VLOAD(0, ww);
   return make_xfloat3(XI_VLOAD(0, x), XI_VLOAD(0, y), XI_VLOAD(0, z));
 }
+// The four words of uint4 elements.
+static inline XI_INLINE void xi_gather_uint4(__global const uint4* p, xuint i, xuint* x, xuint* y, xuint* z, xuint* w) {
+  uint idx[XI_LANES], a[XI_LANES], b[XI_LANES], c[XI_LANES], d[XI_LANES];
+  XI_VSTORE(i, 0, idx);
+  XI_FOR_LANES(k) {
+    uint4 e = p[idx[k]];
+    a[k] = e.x;
+    b[k] = e.y;
+    c[k] = e.z;
+    d[k] = e.w;
+  }
+  *x = XI_VLOAD(0, a), *y = XI_VLOAD(0, b), *z = XI_VLOAD(0, c), *w = XI_VLOAD(0, d);
+}
 // Stores (xyz, w) to element i[k] of the lanes where m is true.
 static inline XI_INLINE void xi_scatter4(__global float4* p, xuint i, xfloat3 v, xfloat w, xmask m) {
   uint idx[XI_LANES];
@@ -214,6 +227,10 @@ static inline xfloat3 xi_gather_xyz(__global const float4* p, xuint i, xfloat* w
   float4 e = p[i];
   if (w) *w = e.w;
   return xyz(e);
+}
+static inline void xi_gather_uint4(__global const uint4* p, xuint i, xuint* x, xuint* y, xuint* z, xuint* w) {
+  uint4 e = p[i];
+  *x = e.x, *y = e.y, *z = e.z, *w = e.w;
 }
 #ifdef XI_DEVICE
 static inline void xi_scatter4(__global float4* p, xuint i, xfloat3 v, xfloat w, xmask m) {

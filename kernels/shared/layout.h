@@ -180,7 +180,7 @@ typedef struct {
 // ray hits, and tri XI_NO_HIT.
 typedef struct {
   float4 coord[3][3];  // [axis][j]: coordinate x, y or z of vertex j
-  uint tri[4];         // the triangles' positions in BVH order (index of tri_verts / 3)
+  uint tri[4];         // the triangles' positions in BVH order (index of tri_vertices)
 } TriBlock;
 
 typedef struct {
@@ -221,7 +221,8 @@ typedef struct {
   F(ImageHeader, images) F(uint, texels)
 #define XI_SCENE_BUFFERS(F)                                                                           \
   XI_SURFACE_BUFFERS(F)                                                                               \
-  F(float4, tri_verts) F(float4, tri_normals) F(float4, tri_tangents) F(float, light_cdf) F(uint, light_tri) \
+  F(uint4, tri_vertices) F(float4, vertices) F(float4, vertex_normals) F(float4, tri_tangents)           \
+  F(float, light_cdf) F(uint, light_tri)                                                              \
   F(float, tri_light_pdf) F(PunctualLightData, punctual) F(float4, environment_texels) F(float, environment_cdf) \
   F(float4, volumes)
 

@@ -10,6 +10,7 @@
 #include "lanes.h"
 #include "shading.h"
 #include "layout.h"
+#include "mesh.h"
 #include "spawn.h"
 #include "warps.h"
 
@@ -46,13 +47,14 @@ static inline xfloat xi_light_pdf(__global const float* tri_light_pdf, xuint tri
 }
 
 // A point uniform on emissive triangle lt (in BVH order), seen from org.
-static inline LightSample xi_sample_triangle_light(__global const float* tri_light_pdf, __global const float4* tri_verts,
+static inline LightSample xi_sample_triangle_light(__global const float* tri_light_pdf,
+                                                   __global const uint4* tri_vertices, __global const float4* vertices,
                                                    __global const uint* tri_material,
                                                    __global const MaterialData* materials, xuint lt, xfloat3 org,
                                                    xfloat2 u) {
   LightSample ls;
-  xfloat3 q0 = xi_gather_xyz(tri_verts, 3u * lt, 0), q1 = xi_gather_xyz(tri_verts, 3u * lt + 1u, 0),
-          q2 = xi_gather_xyz(tri_verts, 3u * lt + 2u, 0);
+  const TriangleCorners c = xi_triangle_corners(tri_vertices, vertices, lt);
+  xfloat3 q0 = c.p0, q1 = c.p1, q2 = c.p2;
   xfloat2 b = xi_square_to_triangle(u);
   xfloat3 q_error;
   xfloat3 q = xi_interpolate(q2, q0, q1, b.x, b.y, &q_error);  // b.x q0 + b.y q1 + (1 - b.x - b.y) q2
@@ -104,8 +106,9 @@ static inline LightSample xi_sample_punctual(__global const PunctualLightData* l
 }
 
 static inline LightSample xi_sample_light(__global const float* light_cdf, __global const uint* light_tri,
-                                          __global const float* tri_light_pdf, __global const float4* tri_verts,
-                                          __global const uint* tri_material, __global const MaterialData* materials,
+                                          __global const float* tri_light_pdf, __global const uint4* tri_vertices,
+                                          __global const float4* vertices, __global const uint* tri_material,
+                                          __global const MaterialData* materials,
                                           __global const PunctualLightData* punctual, EnvironmentData env,
                                           __global const float4* env_texels, __global const float* env_cdf,
                                           uint shading, uint light_count, xfloat3 org, xfloat2 u) {
@@ -117,8 +120,8 @@ static inline LightSample xi_sample_light(__global const float* light_cdf, __glo
   ls.dist = ls.pdf = 0.0f;
   ls.delta = XI_FALSE;
   if (XI_ANY(triangle)) {
-    ls = xi_sample_triangle_light(tri_light_pdf, tri_verts, tri_material, materials, triangle ? entry : (xuint)0u,
-                                  org, make_xfloat2(u_pick, u.y));
+    ls = xi_sample_triangle_light(tri_light_pdf, tri_vertices, vertices, tri_material, materials,
+                                  triangle ? entry : (xuint)0u, org, make_xfloat2(u_pick, u.y));
   }
   if (xi_uses(shading, XI_USE_PUNCTUAL)) {
     xmask is_punctual = !triangle && entry != XI_LIGHT_ENVIRONMENT;

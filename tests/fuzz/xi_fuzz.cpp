@@ -484,9 +484,12 @@ bool finite(const glm::vec4& v) { return std::isfinite(v.x) && std::isfinite(v.y
 std::string check_scene(const xi::Scene& s, const xi::CompiledScene& cs) {
   if (s.width < 1 || s.height < 1 || s.width > 16384 || s.height > 16384) return "film size out of range";
   if (s.render.spp < 1 || s.render.max_depth < 1) return "spp or max depth below 1";
-  if (s.triangles.empty() || cs.tri_verts.size() != 3 * s.triangles.size()) return "triangles missing";
-  for (const auto& v : cs.tri_verts)
-    if (!finite(v)) return "a non-finite vertex coordinate";
+  if (s.triangles.empty() || cs.tri_vertices.size() != s.triangles.size()) return "triangles missing";
+  for (const glm::uvec4& t : cs.tri_vertices)
+    for (int k = 0; k < 3; ++k) {
+      if (t[k] >= cs.vertices.size() || (t.w && t[k] >= cs.vertex_normals.size())) return "a vertex index out of range";
+      if (!finite(cs.vertices[t[k]])) return "a non-finite vertex coordinate";
+    }
   for (const auto& v : {cs.camera.position, cs.camera.forward, cs.camera.right, cs.camera.up})
     if (!finite(v)) return "a non-finite camera vector";
   for (float x : cs.light_cdf)

@@ -45,11 +45,9 @@ Scene load_asset(const std::filesystem::path& path, const AssetOptions& options 
 
 // An asset's shapes and materials in the file's world space (node transforms applied once), for
 // the JSON scene's "asset" shape. Triangle::material indexes `materials` (only the used ones).
-struct AssetGeometry {
+struct AssetGeometry : Mesh {
   std::vector<Material> materials;
   std::vector<TextureImage> images;  // the materials' textures (TextureSlot::image indexes them)
-  std::vector<Triangle> triangles;
-  std::vector<TriangleTexcoords> texcoords;  // Triangle::texcoords indexes it
   std::vector<Light> lights;  // punctual lights (glTF's KHR_lights_punctual, through Assimp's aiLight)
   std::vector<std::string> warnings;  // one line per kind of thing xi does not model
 };

@@ -37,7 +37,6 @@ struct Bvh {
 // threads: the cores to build on (0: all the machine has); subtrees are built, planned and laid
 // out on threads of their own, the passes of the nodes above them shared out, and the tree is the
 // same, byte for byte, for any number.
-Bvh build_bvh(const std::vector<Triangle>& triangles, int width = 4, bool spatial_splits = true,
-              unsigned threads = 0);
+Bvh build_bvh(const Mesh& mesh, int width = 4, bool spatial_splits = true, unsigned threads = 0);
 
 }  // namespace xi

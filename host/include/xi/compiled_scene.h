@@ -27,8 +27,11 @@ struct Features {
 
 struct CompiledScene {
   Bvh bvh;
-  std::vector<glm::vec4> tri_verts;    // 3 per triangle, BVH order
-  std::vector<glm::vec4> tri_normals;  // 3 per triangle; w = 1 where the triangle has vertex normals
+  // Per triangle, in BVH order: its corners (indices into vertices and vertex_normals) and w = 1
+  // where it has vertex normals.
+  std::vector<glm::uvec4> tri_vertices;
+  std::vector<glm::vec4> vertices;        // positions (w = 0), in the scene's order
+  std::vector<glm::vec4> vertex_normals;  // as vertices; one unused entry when no triangle has normals
   std::vector<uint32_t> tri_material;
   std::vector<MaterialData> materials;
   // Textures (where the scene has some; else one unused entry each, as OpenCL needs buffers):
@@ -56,14 +59,17 @@ struct CompiledScene {
   CameraData camera{};
   glm::vec4 background{0.0f};          // radiance of escaped rays
   Features features;
+
+  // Corner k's position of the triangle at position i in BVH order.
+  glm::vec3 position(size_t i, int k) const { return glm::vec3(vertices[tri_vertices[i][k]]); }
 };
 
 // bvh_width: the lanes of the BVH's nodes, 4 or 8 (the kernels' XI_BVH_WIDTH); spatial_splits and
 // build_threads: build_bvh's spatial_splits and threads.
 CompiledScene compile_scene(const Scene& scene, int bvh_width = 4, bool spatial_splits = true,
                             unsigned build_threads = 0);
-// The same, emptying scene.triangles and scene.texcoords once they are compiled, before the last
-// compiled arrays are made: a large mesh is never held whole in both forms.
+// The same, emptying the scene's mesh (triangles, texture coordinates, then vertices) as each part
+// is compiled: a large mesh is never held whole in both forms.
 CompiledScene compile_scene_freeing_triangles(Scene& scene, int bvh_width = 4, bool spatial_splits = true,
                                               unsigned build_threads = 0);
 

@@ -131,21 +131,45 @@ struct Material {
 // A triangle's texture coordinates, sets 0 and 1, as the file has them (v down), and the file's
 // tangents (glTF TANGENT): xyz along increasing u of the normal map's coordinates, w the bitangent's
 // sign (bitangent = w · normal × tangent), all 0 where the file has none. Kept beside the triangles
-// rather than in them: large scanned meshes have none, and they are over half a triangle's bytes.
+// rather than in them: large scanned meshes have none, and they are four times a triangle's bytes.
 struct TriangleTexcoords {
   glm::vec2 uv[2][3] = {};
   glm::vec4 tangent[3] = {};
 };
 constexpr uint32_t kNoTexcoords = 0xffffffffu;
 
+// A corner of one or more triangles: its position and its shading normal (zero where it has none;
+// read for the triangles with has_normals).
+struct Vertex {
+  glm::vec3 position{0.0f};
+  glm::vec3 normal{0.0f};
+};
+
 struct Triangle {
-  glm::vec3 v[3];
-  glm::vec3 n[3];            // per-vertex shading normals, valid when has_normals
-  bool has_normals = false;
-  uint32_t material = 0;     // index into Scene::materials
-  // Index into the texcoords beside the triangles (Scene::texcoords), each entry one triangle's
+  uint32_t v[3] = {0, 0, 0};  // its corners: indices into Mesh::vertices, counter-clockwise from the front
+  uint32_t material = 0;      // index into Scene::materials
+  // Index into the texcoords beside the triangles (Mesh::texcoords), each entry one triangle's
   // own; kNoTexcoords: all zero.
   uint32_t texcoords = kNoTexcoords;
+  bool has_normals = false;   // shaded with its vertices' normals, else flat
+};
+
+// Triangles over shared vertices, as mesh files store them: a vertex is held once however many
+// triangles meet there.
+struct Mesh {
+  std::vector<Vertex> vertices;
+  std::vector<Triangle> triangles;
+  std::vector<TriangleTexcoords> texcoords;  // Triangle::texcoords indexes it
+
+  const glm::vec3& position(const Triangle& t, int corner) const { return vertices[t.v[corner]].position; }
+  const glm::vec3& normal(const Triangle& t, int corner) const { return vertices[t.v[corner]].normal; }
+  // Appends a triangle over three vertices of its own (with these normals, where given) and
+  // returns it (valid until the next triangle is added).
+  Triangle& add_triangle(const glm::vec3& a, const glm::vec3& b, const glm::vec3& c, uint32_t material = 0,
+                         const glm::vec3* normals = nullptr);
+  // Appends another mesh's vertices and triangles (its texture coordinates too), their material
+  // indices offset by first_material.
+  void append(Mesh&& other, uint32_t first_material = 0);
 };
 
 // Punctual lights, reached by light sampling only. Units as glTF's KHR_lights_punctual: a point or
@@ -190,7 +214,8 @@ struct RenderSettings {
   Layering layering = Layering::AlbedoScaling;
 };
 
-struct Scene {
+// A scene's geometry is one indexed mesh (its base): every shape's vertices and triangles.
+struct Scene : Mesh {
   std::string source;  // the file it came from, for messages
   Camera camera;
   int width = 512;
@@ -200,8 +225,6 @@ struct Scene {
   std::optional<Environment> environment;  // replaces the background where set
   std::vector<Material> materials;
   std::vector<TextureImage> images;
-  std::vector<Triangle> triangles;
-  std::vector<TriangleTexcoords> texcoords;  // Triangle::texcoords indexes it
   std::vector<Light> lights;
   std::vector<std::string> notes;     // what the loader chose for the user (camera, framing, background)
   std::vector<std::string> warnings;  // what xi does not model and how it was mapped, one line per kind
@@ -219,8 +242,9 @@ Scene parse_scene(const std::string& json_text, const std::string& source_name,
 std::filesystem::path bundled_scene_file(const std::string& name);
 // Throws xi::Error if the scene breaks the limits within which single precision stays finite: a
 // vertex not finite or beyond +-1e9, geometry spanning less than 1e-6, a negative or non-finite
-// radiance (emitters, background); or names texture coordinates it does not have. The loaders
-// check these where they read them; compile_scene checks them again for scenes built in code.
+// radiance (emitters, background); or a triangle names a vertex or texture coordinates it does not
+// have. The loaders check these where they read them; compile_scene checks them again for scenes
+// built in code.
 void check_scene_limits(const Scene& scene);
 
 // Triangle t's texture coordinates and tangents in `pool` (zero where it has none; its index is

@@ -19,6 +19,7 @@
 #include <thread>
 #include <type_traits>
 
+#include "../parallel.h"
 #include "../render/memory.h"
 #include "traverse.h"
 #include "xi/error.h"
@@ -87,16 +88,6 @@ RawArray<T> raw_array(size_t n) {
   T* p = static_cast<T*>(std::malloc(std::max<size_t>(n, 1) * sizeof(T)));
   if (!p) throw std::bad_alloc();
   return RawArray<T>(p);
-}
-
-// Runs work(begin, end, part) on `parts` contiguous stretches of [0, n), each on a thread of its
-// own but the last, which the calling thread takes.
-template <class Work>
-void parallel_chunks(size_t n, unsigned parts, const Work& work) {
-  std::vector<std::thread> pool;
-  for (unsigned p = 0; p + 1 < parts; ++p) pool.emplace_back(work, n * p / parts, n * (p + 1) / parts, p);
-  work(n * (parts - 1) / parts, n, parts - 1);
-  for (std::thread& t : pool) t.join();
 }
 
 // What each part of a pass over a node's references gathers, for `parts` parts: no allocation for
@@ -183,6 +174,13 @@ Bounds bounds_of(const Ref* refs, size_t count) {
   return b.bounds();
 }
 
+// Triangle t's three corners.
+using Corners = std::array<glm::vec3, 3>;
+Corners corners(const Mesh& mesh, uint32_t t) {
+  const Triangle& tri = mesh.triangles[t];
+  return {mesh.position(tri, 0), mesh.position(tri, 1), mesh.position(tri, 2)};
+}
+
 // Where edge p–q crosses the plane p[axis] = at, if it does (an endpoint on the plane is no
 // crossing); the point's coordinate on `axis` is exactly `at`, the others rounded.
 bool edge_crossing(const glm::vec3& p, const glm::vec3& q, int axis, float at, glm::vec3* x) {
@@ -196,10 +194,10 @@ bool edge_crossing(const glm::vec3& p, const glm::vec3& q, int axis, float at, g
 // reference already stands for). An edge's crossing of a plane is rounded; the box is widened by
 // a bound on that rounding so that it never cuts off a sliver of the triangle (the intersection
 // with `within` keeps it tight). Empty when the triangle does not reach the slab.
-Box clip(const Triangle& t, int axis, float lo, float hi, const Box& within) {
+Box clip(const Corners& t, int axis, float lo, float hi, const Box& within) {
   Box part;
   for (int i = 0; i < 3; ++i) {
-    const glm::vec3 &p = t.v[i], &q = t.v[(i + 1) % 3];
+    const glm::vec3 &p = t[i], &q = t[(i + 1) % 3];
     if (p[axis] >= lo && p[axis] <= hi) part.grow(p);
     for (float plane : {lo, hi}) {
       glm::vec3 x;
@@ -225,7 +223,7 @@ struct BinaryNode {
 // Builds a subtree: the top of the tree on one thread, subtrees below it on threads of their own,
 // each with its own Builder, grafted into their parent's when done.
 struct Builder {
-  const std::vector<Triangle>& tris;
+  const Mesh& mesh;
   const bool spatial_splits;
   const float root_area;
   // Every node's references, in place: a subtree over `count` references at `first` owns
@@ -257,8 +255,8 @@ struct Builder {
 
   const unsigned threads;             // the build's; a node at depth d bins on threads >> d of them
 
-  Builder(const std::vector<Triangle>& triangles, bool splits, float area, Ref* all, Ref* spare, unsigned cores)
-      : tris(triangles), spatial_splits(splits), root_area(area), refs(all), scratch(spare), threads(cores) {}
+  Builder(const Mesh& m, bool splits, float area, Ref* all, Ref* spare, unsigned cores)
+      : mesh(m), spatial_splits(splits), root_area(area), refs(all), scratch(spare), threads(cores) {}
 
   struct Split {
     float cost = INFINITY;  // SAH area × blocks of the two sides
@@ -458,16 +456,16 @@ struct Builder {
         // Only the costs need these boxes (partition_spatial clips the references it splits), so
         // each bin gets the vertices and edge crossings of its planes, clamped to the reference's
         // box and unwidened: each crossing computed once, for the two bins it bounds.
-        const Triangle& t = tris[r.tri];
+        const Corners t = corners(mesh, r.tri);
         auto grow = [](Box4& bin, const glm::vec3& p) { bin.grow(vec4_of(p), vec4_of(p)); };
-        for (const glm::vec3& p : t.v) {
+        for (const glm::vec3& p : t) {
           int b = bin_of(p[axis]);
           if (b >= first && b <= last) grow(bin_box[b], glm::clamp(p, r.box.lo, r.box.hi));
         }
         for (int b = first + 1; b <= last; ++b) {
           for (int i = 0; i < 3; ++i) {
             glm::vec3 x;
-            if (!edge_crossing(t.v[i], t.v[(i + 1) % 3], axis, at[b], &x)) continue;
+            if (!edge_crossing(t[i], t[(i + 1) % 3], axis, at[b], &x)) continue;
             x = glm::clamp(x, r.box.lo, r.box.hi);  // (x[axis] = at stays: the box spans the plane)
             grow(bin_box[b - 1], x), grow(bin_box[b], x);
           }
@@ -513,8 +511,9 @@ struct Builder {
           case Side::Left: q.left_only++, q.lbox.grow(lo_of(r), hi_of(r)); break;
           case Side::Right: q.right_only++, q.rbox.grow(lo_of(r), hi_of(r)); break;
           case Side::Both: {
-            const Straddler& st = q.straddlers.emplace_back(Straddler{clip(tris[r.tri], s.axis, -INFINITY, at, r.box),
-                                                                      clip(tris[r.tri], s.axis, at, INFINITY, r.box), Side::Both, i});
+            const Corners t = corners(mesh, r.tri);
+            const Straddler& st = q.straddlers.emplace_back(Straddler{clip(t, s.axis, -INFINITY, at, r.box),
+                                                                      clip(t, s.axis, at, INFINITY, r.box), Side::Both, i});
             q.lbox.grow(vec4_of(st.left.lo), vec4_of(st.left.hi)), q.rbox.grow(vec4_of(st.right.lo), vec4_of(st.right.hi));
             break;
           }
@@ -704,7 +703,7 @@ struct Builder {
     nodes[node].left = l;
     nodes[node].right = r;
     if (fork_levels > 0 && nr >= kForkMin) {
-      auto right = std::make_unique<Builder>(tris, spatial_splits, root_area, refs, scratch, threads);
+      auto right = std::make_unique<Builder>(mesh, spatial_splits, root_area, refs, scratch, threads);
       // As many as it can make, reserved (never-written capacity takes no memory): growing would
       // copy them into fresh pages each time.
       right->nodes.reserve(2 * (nr + right_budget)), right->leaf_tris.reserve(nr + right_budget);
@@ -805,7 +804,7 @@ void store_node(Node& n, const float (*lo)[8], const float (*hi)[8], const uint3
 struct Collapser {
   std::span<const BinaryNode> bin;
   std::span<const uint32_t> leaf_tris;
-  const std::vector<Triangle>& tris;
+  const Mesh& mesh;
   Bvh& bvh;
 
   struct Plan {
@@ -1081,9 +1080,9 @@ struct Collapser {
         for (int k = 0; k < 4; ++k) {
           blk.tri[k] = block_tris[b][k];
           if (blk.tri[k] == XI_NO_HIT) continue;
-          const Triangle& t = tris[bvh.order[blk.tri[k]]];
+          const Corners t = corners(mesh, bvh.order[blk.tri[k]]);
           for (int j = 0; j < 3; ++j)
-            for (int a = 0; a < 3; ++a) blk.coord[a][j][k] = t.v[j][a];
+            for (int a = 0; a < 3; ++a) blk.coord[a][j][k] = t[j][a];
         }
       }
     });
@@ -1093,7 +1092,8 @@ struct Collapser {
 
 }  // namespace
 
-Bvh build_bvh(const std::vector<Triangle>& triangles, int width, bool spatial_splits, unsigned threads) {
+Bvh build_bvh(const Mesh& mesh, int width, bool spatial_splits, unsigned threads) {
+  const std::vector<Triangle>& triangles = mesh.triangles;
   auto start = std::chrono::steady_clock::now();
   if (width != 4 && width != 8) throw Error("BVH width must be 4 or 8, not " + std::to_string(width), "--bvh-width");
   if (triangles.empty()) throw Error("cannot build a BVH over an empty scene");
@@ -1108,19 +1108,19 @@ Bvh build_bvh(const std::vector<Triangle>& triangles, int width, bool spatial_sp
   // Uninitialised: pages are written only as references land there (the budget's part only if
   // spatial splits use it), not all zeroed up front.
   RawArray<Ref> refs = raw_array<Ref>(n + budget), scratch = raw_array<Ref>(n + budget);
-  const unsigned init_parts = (unsigned)std::clamp<size_t>(n >> 16, 1, threads);  // a thread per 64K triangles at most
+  const unsigned init_parts = parts_for(n, threads);
   std::vector<BoundsAcc> parts(init_parts);
   parallel_chunks(n, init_parts, [&](size_t begin, size_t end, unsigned part) {
     for (size_t i = begin; i < end; ++i) {
       Ref& r = refs[i];
       r.tri = (uint32_t)i, r.box = Box();
-      for (auto& v : triangles[i].v) r.box.grow(v);
+      for (const glm::vec3& v : corners(mesh, (uint32_t)i)) r.box.grow(v);
       parts[part].grow(r);
     }
   });
   Bounds root;
   for (const BoundsAcc& b : parts) root.grow(b.bounds());
-  Builder b(triangles, spatial_splits, root.box.area(), refs.get(), scratch.get(), threads);
+  Builder b(mesh, spatial_splits, root.box.area(), refs.get(), scratch.get(), threads);
   b.nodes.reserve(2 * n);
   b.leaf_tris.reserve(n + budget);
   // Forks down to about four subtrees per core, so that uneven halves still keep every core busy.
@@ -1152,7 +1152,7 @@ Bvh build_bvh(const std::vector<Triangle>& triangles, int width, bool spatial_sp
   for (uint32_t t : leaf_tris)
     if (position[t] == kUnplaced) position[t] = (uint32_t)bvh.order.size(), bvh.order.push_back(t);
   if (bvh.order.size() != triangles.size()) throw Error("internal: the BVH lost a triangle");
-  Collapser collapser{bin, leaf_tris, triangles, bvh, nullptr, 0.0, 0.0, {}};
+  Collapser collapser{bin, leaf_tris, mesh, bvh, nullptr, 0.0, 0.0, {}};
   collapser.plan_tree(fork_levels);
   collapser.collapse_tree(threads);
   // The binary tree and its plan are done with: freed before the blocks, the largest array, are made.

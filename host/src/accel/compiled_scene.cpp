@@ -7,6 +7,7 @@
 #include <future>
 #include <thread>
 
+#include "../parallel.h"
 #include "xi/environment.h"
 #include "xi/error.h"
 
@@ -24,9 +25,9 @@ namespace {
 
 // In double: in float, |e1 × e2|² underflows for edges below about 1e-11 (a light dropped as
 // having no area).
-double triangle_area(const Triangle& t) {
-  const glm::dvec3 v0(t.v[0]);
-  return 0.5 * glm::length(glm::cross(glm::dvec3(t.v[1]) - v0, glm::dvec3(t.v[2]) - v0));
+double triangle_area(const Mesh& mesh, const Triangle& t) {
+  const glm::dvec3 v0(mesh.position(t, 0));
+  return 0.5 * glm::length(glm::cross(glm::dvec3(mesh.position(t, 1)) - v0, glm::dvec3(mesh.position(t, 2)) - v0));
 }
 
 TextureRef texture_ref(const TextureSlot& slot) {
@@ -59,7 +60,7 @@ void upload_images(const Scene& scene, CompiledScene& cs) {
 double scene_radius(const Scene& scene) {
   glm::dvec3 lo(INFINITY), hi(-INFINITY);
   for (const Triangle& t : scene.triangles)
-    for (const glm::vec3& v : t.v) lo = glm::min(lo, glm::dvec3(v)), hi = glm::max(hi, glm::dvec3(v));
+    for (int k = 0; k < 3; ++k) lo = glm::min(lo, glm::dvec3(scene.position(t, k))), hi = glm::max(hi, glm::dvec3(scene.position(t, k)));
   return scene.triangles.empty() ? 1.0 : std::max(0.5 * glm::length(hi - lo), 1e-6);
 }
 
@@ -138,7 +139,7 @@ namespace {
 CompiledScene compile(const Scene& scene, Scene* owner, int bvh_width, bool spatial_splits, unsigned build_threads) {
   check_scene_limits(scene);  // a scene built in code has not met the loaders' checks
   CompiledScene cs;
-  cs.bvh = build_bvh(scene.triangles, bvh_width, spatial_splits, build_threads);
+  cs.bvh = build_bvh(scene, bvh_width, spatial_splits, build_threads);
   const size_t n = scene.triangles.size();
 
   for (auto& m : scene.materials) {
@@ -203,7 +204,7 @@ CompiledScene compile(const Scene& scene, Scene* owner, int bvh_width, bool spat
     const Triangle& t = scene.triangles[j];
     const Material& m = scene.materials[t.material];
     if (!m.is_emitter()) continue;
-    double area = triangle_area(t);
+    double area = triangle_area(scene, t);
     double lum = 0.2126 * m.emission.x + 0.7152 * m.emission.y + 0.0722 * m.emission.z;
     double p = lum * area * M_PI * (m.two_sided ? 2.0 : 1.0);
     // Sampled only where its area density, at most 1 / area, is finite in single precision
@@ -230,37 +231,33 @@ CompiledScene compile(const Scene& scene, Scene* owner, int bvh_width, bool spat
     const float pick = (float)(power[k] / total);
     if (k < emissive_triangles) {
       const Triangle& t = scene.triangles[cs.bvh.order[cs.light_tri[k]]];
-      cs.tri_light_pdf[cs.light_tri[k]] = (float)(power[k] / total / triangle_area(t));
+      cs.tri_light_pdf[cs.light_tri[k]] = (float)(power[k] / total / triangle_area(scene, t));
     } else if (cs.light_tri[k] == XI_LIGHT_ENVIRONMENT) {
       cs.environment.scale.w = pick;
     } else {
       cs.punctual[cs.light_tri[k] & ~XI_LIGHT_PUNCTUAL].position.w = pick;
     }
   }
-  // Always 3 normals per triangle: an --all-features build reads them even when no triangle has
-  // normals. Texture coordinates where a texture or an anisotropy direction is read, tangents where
-  // a normal map or an anisotropy direction is (both give the tangent frame).
+  // Texture coordinates where a texture or an anisotropy direction is read, tangents where a normal
+  // map or an anisotropy direction is (both give the tangent frame).
   cs.features.normal_map = std::any_of(cs.materials.begin(), cs.materials.end(), [](const MaterialData& m) {
     return m.textures[XI_TEXTURE_NORMAL] != XI_NO_TEXTURE;
   });
   const bool uv = cs.features.textures || cs.features.anisotropy;
   const bool tangents = cs.features.normal_map || cs.features.anisotropy;
-  cs.tri_normals.assign(3 * n, glm::vec4(0.0f));
+  cs.tri_vertices.resize(n);
   cs.tri_material.resize(n);
   if (uv) cs.tri_uv.resize(3 * n);
   if (tangents) cs.tri_tangents.resize(3 * n);
   // The triangles in BVH order, in one pass on every core: each read is a cache miss into the
   // scene's triangles (a 5M-triangle mesh: most of this function's time).
   const unsigned threads = std::max(1u, build_threads ? build_threads : std::thread::hardware_concurrency());
-  const unsigned parts = (unsigned)std::clamp<size_t>(n >> 16, 1, threads);
-  std::vector<std::thread> pool;
-  std::vector<char> normals(parts, 0);
-  auto gather = [&](unsigned part) {
+  std::vector<char> normals(threads, 0);
+  parallel_chunks(n, parts_for(n, threads), [&](size_t begin, size_t end, unsigned part) {
     bool any_normals = false;
-    for (size_t i = n * part / parts; i < n * (part + 1) / parts; ++i) {
+    for (size_t i = begin; i < end; ++i) {
       const Triangle& t = scene.triangles[cs.bvh.order[i]];
-      if (t.has_normals)
-        for (int k = 0; k < 3; ++k) cs.tri_normals[3 * i + k] = glm::vec4(t.n[k], 1.0f);
+      cs.tri_vertices[i] = glm::uvec4(t.v[0], t.v[1], t.v[2], t.has_normals ? 1u : 0u);
       cs.tri_material[i] = t.material;
       any_normals |= t.has_normals;
       if (!uv && !tangents) continue;
@@ -271,23 +268,25 @@ CompiledScene compile(const Scene& scene, Scene* owner, int bvh_width, bool spat
       }
     }
     normals[part] = any_normals;
-  };
-  for (unsigned part = 1; part < parts; ++part) pool.emplace_back(gather, part);
-  gather(0);
-  for (std::thread& t : pool) t.join();
+  });
   for (char has : normals) cs.features.normals |= has != 0;
   if (owner) {  // the scene's triangles are done with: freed before the vertices are laid out
     std::vector<Triangle>().swap(owner->triangles);
     std::vector<TriangleTexcoords>().swap(owner->texcoords);
   }
-  // The vertices in BVH order, from the BVH's blocks (every triangle is in one at least), which
-  // follow that order.
-  cs.tri_verts.resize(3 * n);
-  for (const TriBlock& block : cs.bvh.blocks)
-    for (int k = 0; k < 4; ++k)
-      if (const uint32_t i = block.tri[k]; i != XI_NO_HIT)
-        for (int j = 0; j < 3; ++j)
-          cs.tri_verts[3 * i + j] = glm::vec4(block.coord[0][j][k], block.coord[1][j][k], block.coord[2][j][k], 0.0f);
+  // The vertices in the scene's order; their normals where a triangle reads them (an
+  // --all-features build reads them only for triangles that have them).
+  const size_t nv = scene.vertices.size();
+  cs.vertices.resize(nv);
+  if (cs.features.normals) cs.vertex_normals.resize(nv);
+  parallel_chunks(nv, parts_for(nv, threads), [&](size_t begin, size_t end, unsigned) {
+    for (size_t i = begin; i < end; ++i) {
+      const Vertex& v = scene.vertices[i];
+      cs.vertices[i] = glm::vec4(v.position, 0.0f);
+      if (cs.features.normals) cs.vertex_normals[i] = glm::vec4(v.normal, 0.0f);
+    }
+  });
+  if (owner) std::vector<Vertex>().swap(owner->vertices);
 
   if (cs.light_cdf.empty()) {  // OpenCL needs non-empty buffers
     cs.light_cdf.push_back(1.0f);
@@ -295,6 +294,7 @@ CompiledScene compile(const Scene& scene, Scene* owner, int bvh_width, bool spat
   }
   if (cs.punctual.empty()) cs.punctual.push_back(PunctualLightData{});
   if (cs.volumes.empty()) cs.volumes.push_back(glm::vec4(0.0f));
+  if (cs.vertex_normals.empty()) cs.vertex_normals.push_back(glm::vec4(0.0f));
   if (cs.tri_uv.empty()) cs.tri_uv.push_back(glm::vec4(0.0f));
   if (cs.tri_tangents.empty()) cs.tri_tangents.push_back(glm::vec4(0.0f));
   if (cs.texture_refs.empty()) cs.texture_refs.push_back(TextureRef{});

@@ -110,11 +110,7 @@ std::vector<std::string> prebuild_kernels(Device& device, const RenderOptions& o
   Material white;
   white.albedo = glm::vec3(0.5f);
   scene.materials.push_back(white);
-  Triangle t;
-  t.v[0] = glm::vec3(-1.0f, -1.0f, 0.0f);
-  t.v[1] = glm::vec3(1.0f, -1.0f, 0.0f);
-  t.v[2] = glm::vec3(0.0f, 1.0f, 0.0f);
-  scene.triangles.push_back(t);
+  scene.add_triangle(glm::vec3(-1.0f, -1.0f, 0.0f), glm::vec3(1.0f, -1.0f, 0.0f), glm::vec3(0.0f, 1.0f, 0.0f));
   RenderOptions o = options;
   o.spp = 1;
   o.shading_program = RenderOptions::ShadingProgram::Generic;
@@ -181,8 +177,8 @@ Renderer::Renderer(Device& device, CompiledScene&& scene, const RenderOptions& o
                       : options.launch_bound == RenderOptions::LaunchBound::Exact;
   // The kernels read 3 texture coordinates per triangle wherever their word has textures, an
   // --all-features build of a scene without any too: zeros then.
-  if (kernels_.features.textures && scene_.tri_uv.size() < scene_.tri_verts.size())
-    scene_.tri_uv.assign(scene_.tri_verts.size(), glm::vec4(0.0f));
+  if (kernels_.features.textures && scene_.tri_uv.size() < 3 * scene_.tri_vertices.size())
+    scene_.tri_uv.assign(3 * scene_.tri_vertices.size(), glm::vec4(0.0f));
   build_kernels();
   size_waves();
   check_memory();
@@ -630,7 +626,7 @@ uint64_t Renderer::scene_hash() const {
       h.add(slice.data(), n);
     }
   };
-  for (const cl::Buffer* b : {&tri_verts_, &tri_normals_, &tri_material_, &materials_, &light_cdf_, &light_tri_,
+  for (const cl::Buffer* b : {&tri_vertices_, &vertices_, &vertex_normals_, &tri_material_, &materials_, &light_cdf_, &light_tri_,
                               &tri_light_pdf_})
     add_device(*b);
   h.add(&scene_.camera, sizeof scene_.camera);

@@ -25,68 +25,74 @@ namespace xi {
 
 namespace scene_detail {
 
-void mesh_triangles(const aiMesh& mesh, uint32_t material, bool flip_v, std::vector<Triangle>& out,
-                    std::vector<TriangleTexcoords>& texcoords) {
-  make_room(out, mesh.mNumFaces);
+void mesh_triangles(const aiMesh& mesh, uint32_t material, bool flip_v, Mesh& out) {
+  const uint32_t base = uint32_t(out.vertices.size());
+  make_room(out.vertices, mesh.mNumVertices);
+  for (unsigned i = 0; i < mesh.mNumVertices; ++i) {
+    Vertex& v = out.vertices.emplace_back();
+    v.position = {mesh.mVertices[i].x, mesh.mVertices[i].y, mesh.mVertices[i].z};
+    if (mesh.HasNormals()) v.normal = {mesh.mNormals[i].x, mesh.mNormals[i].y, mesh.mNormals[i].z};
+  }
+  make_room(out.triangles, mesh.mNumFaces);
   const bool tangents = mesh.HasNormals() && mesh.HasTangentsAndBitangents();
   const bool has_texcoords = tangents || mesh.HasTextureCoords(0) || mesh.HasTextureCoords(1);
-  if (has_texcoords) make_room(texcoords, mesh.mNumFaces);
+  if (has_texcoords) make_room(out.texcoords, mesh.mNumFaces);
   for (unsigned f = 0; f < mesh.mNumFaces; ++f) {
     const aiFace& face = mesh.mFaces[f];
     if (face.mNumIndices != 3) continue;  // points and lines survive triangulation; skip them
-    Triangle& t = out.emplace_back();
+    Triangle& t = out.triangles.emplace_back();
     t.has_normals = mesh.HasNormals();
     t.material = material;
     TriangleTexcoords* tc = nullptr;
-    if (has_texcoords) t.texcoords = uint32_t(texcoords.size()), tc = &texcoords.emplace_back();
+    if (has_texcoords) t.texcoords = uint32_t(out.texcoords.size()), tc = &out.texcoords.emplace_back();
     for (int k = 0; k < 3; ++k) {
-      const aiVector3D& v = mesh.mVertices[face.mIndices[k]];
-      t.v[k] = {v.x, v.y, v.z};
-      if (t.has_normals) {
-        const aiVector3D& n = mesh.mNormals[face.mIndices[k]];
-        t.n[k] = {n.x, n.y, n.z};
-        if (tangents) {  // Assimp gives glTF's w as bitangent = w · normal × tangent
-          const aiVector3D& tg = mesh.mTangents[face.mIndices[k]];
-          const aiVector3D& b = mesh.mBitangents[face.mIndices[k]];
-          const glm::vec3 tv(tg.x, tg.y, tg.z), bv(b.x, b.y, b.z);
-          const float w = glm::dot(glm::cross(t.n[k], tv), bv) < 0.0f ? -1.0f : 1.0f;
-          if (std::isfinite(tv.x + tv.y + tv.z) && glm::dot(tv, tv) > 0.0f) tc->tangent[k] = glm::vec4(tv, w);
-        }
+      const unsigned i = face.mIndices[k];
+      t.v[k] = base + i;
+      if (tangents) {  // Assimp gives glTF's w as bitangent = w · normal × tangent
+        const aiVector3D& n = mesh.mNormals[i];
+        const aiVector3D& tg = mesh.mTangents[i];
+        const aiVector3D& b = mesh.mBitangents[i];
+        const glm::vec3 tv(tg.x, tg.y, tg.z), bv(b.x, b.y, b.z);
+        const float w = glm::dot(glm::cross(glm::vec3(n.x, n.y, n.z), tv), bv) < 0.0f ? -1.0f : 1.0f;
+        if (std::isfinite(tv.x + tv.y + tv.z) && glm::dot(tv, tv) > 0.0f) tc->tangent[k] = glm::vec4(tv, w);
       }
       for (int set = 0; set < 2; ++set)
         if (mesh.HasTextureCoords(set)) {
-          const aiVector3D& uv = mesh.mTextureCoords[set][face.mIndices[k]];
+          const aiVector3D& uv = mesh.mTextureCoords[set][i];
           tc->uv[set][k] = {uv.x, flip_v ? 1.0f - uv.y : uv.y};
         }
     }
   }
 }
 
-long long place_mesh(const Transform& xf, std::vector<Triangle>& tris, std::vector<TriangleTexcoords>& texcoords,
-                     size_t first) {
-  // Each triangle on its own, on every core for a large mesh (in double precision: most of a
-  // large mesh's load after reading it); then the kept ones moved together, in order.
-  const size_t n = tris.size() - first;
+long long place_mesh(const Transform& xf, Mesh& mesh, size_t first_vertex, size_t first_triangle) {
+  // On every core for a large mesh (in double precision: most of a large mesh's load after reading
+  // it); then the kept triangles moved together, in order. Vertices of dropped triangles stay.
+  transform_mesh(xf, mesh, first_vertex, first_triangle);
+  std::vector<Triangle>& tris = mesh.triangles;
+  const size_t n = tris.size() - first_triangle;
   std::vector<uint8_t> keep(n);
   std::vector<size_t> bad(std::max(1u, std::thread::hardware_concurrency()), SIZE_MAX);  // per part, its first out of range
   in_parts(n, [&](size_t begin, size_t end, unsigned part) {
     for (size_t i = begin; i < end; ++i) {
-      Triangle& t = tris[first + i];
-      apply(xf, t, texcoords);
-      if (!within_range(t)) {
+      Triangle& t = tris[first_triangle + i];
+      if (!within_range(mesh, t)) {
         bad[part] = i;
         return;
       }
-      keep[i] = !degenerate(t);  // common in real meshes and harmless to drop
-      for (const auto& nv : t.n) t.has_normals = t.has_normals && std::isfinite(nv.x + nv.y + nv.z);
+      keep[i] = !degenerate(mesh, t);  // common in real meshes and harmless to drop
+      for (int k = 0; k < 3 && t.has_normals; ++k) {
+        const glm::vec3& nv = mesh.normal(t, k);
+        t.has_normals = std::isfinite(nv.x + nv.y + nv.z) && glm::dot(nv, nv) > 0.0f;
+      }
     }
   });
   for (size_t b : bad)
     if (b != SIZE_MAX) return (long long)b;
-  size_t kept = first;
+  size_t kept = first_triangle;
   for (size_t i = 0; i < n; ++i)
     if (keep[i]) {
-      if (kept != first + i) tris[kept] = tris[first + i];
+      if (kept != first_triangle + i) tris[kept] = tris[first_triangle + i];
       kept++;
     }
   tris.resize(kept);
@@ -302,9 +308,9 @@ AssetGeometry geometry(const fs::path& path, const aiScene& scene) {
     for (unsigned k = 0; k < node->mNumMeshes; ++k) {
       if (node->mMeshes[k] >= scene.mNumMeshes) throw Error("node names a mesh that does not exist", path.string());
       const aiMesh& mesh = *scene.mMeshes[node->mMeshes[k]];
-      const size_t first = g.triangles.size();
-      mesh_triangles(mesh, material(mesh.mMaterialIndex), gltf, g.triangles, g.texcoords);
-      if (place_mesh(make_transform(m), g.triangles, g.texcoords, first) >= 0)
+      const size_t first_vertex = g.vertices.size(), first = g.triangles.size();
+      mesh_triangles(mesh, material(mesh.mMaterialIndex), gltf, g);
+      if (place_mesh(make_transform(m), g, first_vertex, first) >= 0)
         throw Error("mesh '" + std::string(mesh.mName.C_Str()) +
                         "' has a non-finite vertex coordinate or one beyond +-1e9 (after its node transforms)",
                     path.string());
@@ -399,10 +405,9 @@ Scene load_asset(const fs::path& path, const AssetOptions& options) {
   Scene s;
   s.source = path.string();
   s.materials = std::move(g.materials);
-  s.triangles = std::move(g.triangles);
-  s.texcoords = std::move(g.texcoords);
+  static_cast<Mesh&>(s) = std::move(static_cast<Mesh&>(g));
   s.warnings = std::move(g.warnings);
-  if (const std::string small = too_small(s.triangles); !small.empty()) throw Error(small, path.string());
+  if (const std::string small = too_small(s); !small.empty()) throw Error(small, path.string());
   if (options.height < 1 || options.height > 16384) throw Error("film height must be in [1, 16384]", path.string());
 
   const std::vector<CameraInfo> list = cameras(path, *l.scene);
@@ -459,7 +464,7 @@ Scene load_asset(const fs::path& path, const AssetOptions& options) {
     }
     glm::dvec3 lo(INFINITY), hi(-INFINITY);
     for (const Triangle& t : s.triangles)
-      for (const auto& v : t.v) lo = glm::min(lo, glm::dvec3(v)), hi = glm::max(hi, glm::dvec3(v));
+      for (int k = 0; k < 3; ++k) lo = glm::min(lo, glm::dvec3(s.position(t, k))), hi = glm::max(hi, glm::dvec3(s.position(t, k)));
     const glm::dvec3 centre = 0.5 * (lo + hi);
     const double radius = std::max(0.5 * glm::length(hi - lo), 1e-6);
     const double vfov = 40.0, distance = 1.1 * radius / std::sin(glm::radians(vfov / 2.0));

@@ -15,6 +15,7 @@
 
 #include <glm/glm.hpp>
 
+#include "../parallel.h"
 #include "xi/scene.h"
 
 struct aiMesh;
@@ -42,37 +43,35 @@ constexpr float kMaxCoordinate = 1e9f;
 // right. 1e-6 leaves edges of a thousandth of the scene well clear of that.
 constexpr double kMinExtent = 1e-6;
 
-// Runs work(begin, end) over [0, n) in contiguous parts, on every core where n is large (a
-// thread per 64K items at most); the parts are in order.
+// Runs work(begin, end, part) over [0, n) in contiguous parts, on every core where n is large.
 template <class Work>
 void in_parts(size_t n, const Work& work) {
-  const unsigned parts = (unsigned)std::clamp<size_t>(n >> 16, 1, std::max(1u, std::thread::hardware_concurrency()));
-  std::vector<std::thread> pool;
-  for (unsigned p = 1; p < parts; ++p) pool.emplace_back(work, n * p / parts, n * (p + 1) / parts, p);
-  work(0, n / parts, 0u);
-  for (std::thread& t : pool) t.join();
+  parallel_chunks(n, parts_for(n), work);
 }
 
-// The longest side of the triangles' bounding box (0 for none).
-inline double extent(const std::vector<Triangle>& tris) {
+// The longest side of the bounding box of the mesh's triangles (0 for none).
+inline double extent(const Mesh& mesh) {
   std::vector<std::pair<glm::dvec3, glm::dvec3>> parts(std::max<size_t>(1, std::thread::hardware_concurrency()),
                                                        {glm::dvec3(INFINITY), glm::dvec3(-INFINITY)});
-  in_parts(tris.size(), [&](size_t begin, size_t end, unsigned part) {
+  in_parts(mesh.triangles.size(), [&](size_t begin, size_t end, unsigned part) {
     glm::dvec3 lo(INFINITY), hi(-INFINITY);
     for (size_t i = begin; i < end; ++i)
-      for (const glm::vec3& v : tris[i].v) lo = glm::min(lo, glm::dvec3(v)), hi = glm::max(hi, glm::dvec3(v));
+      for (int k = 0; k < 3; ++k) {
+        const glm::dvec3 v(mesh.position(mesh.triangles[i], k));
+        lo = glm::min(lo, v), hi = glm::max(hi, v);
+      }
     parts[part] = {lo, hi};
   });
   glm::dvec3 lo(INFINITY), hi(-INFINITY);
   for (const auto& [l, h] : parts) lo = glm::min(lo, l), hi = glm::max(hi, h);
   const glm::dvec3 size = hi - lo;
-  return tris.empty() ? 0.0 : std::max({size.x, size.y, size.z});
+  return mesh.triangles.empty() ? 0.0 : std::max({size.x, size.y, size.z});
 }
 
 // The error for geometry smaller than kMinExtent, else empty.
-inline std::string too_small(const std::vector<Triangle>& tris) {
-  const double e = extent(tris);
-  if (tris.empty() || e >= kMinExtent) return "";  // (no geometry: an error of its own)
+inline std::string too_small(const Mesh& mesh) {
+  const double e = extent(mesh);
+  if (mesh.triangles.empty() || e >= kMinExtent) return "";  // (no geometry: an error of its own)
   char buf[64];
   std::snprintf(buf, sizeof buf, "%.3g", e);
   return std::string("the geometry spans only ") + buf +
@@ -92,43 +91,54 @@ inline Transform make_transform(const glm::dmat4& m) {
   return {m, glm::transpose(glm::inverse(linear)), glm::determinant(linear) < 0.0};
 }
 
-// Moves a triangle and its texture coordinates' tangents (in `pool`, its own entry).
-inline void apply(const Transform& t, Triangle& tri, std::vector<TriangleTexcoords>& pool) {
-  for (auto& v : tri.v) v = glm::vec3(t.m * glm::dvec4(v, 1.0));
-  if (tri.has_normals)
-    for (auto& n : tri.n) n = glm::vec3(glm::normalize(t.normal * glm::dvec3(n)));
-  // Tangents lie in the surface: they move as its points do; a mirroring transform flips the frame's
-  // handedness, so the bitangent's sign too.
-  TriangleTexcoords* tc = tri.texcoords == kNoTexcoords ? nullptr : &pool[tri.texcoords];
-  if (tc)
-    for (auto& tg : tc->tangent)
-      if (tg.w != 0.0f)
-        tg = glm::vec4(glm::vec3(glm::normalize(glm::dmat3(t.m) * glm::dvec3(tg))), t.flips ? -tg.w : tg.w);
-  if (t.flips) {  // keep the front face (from the winding) on the same side as the normals
-    std::swap(tri.v[1], tri.v[2]);
-    std::swap(tri.n[1], tri.n[2]);
-    if (tc) {
-      std::swap(tc->tangent[1], tc->tangent[2]);
-      for (auto& set : tc->uv) std::swap(set[1], set[2]);
+// Moves the vertices of mesh from first_vertex on, and its triangles from first_triangle on (their
+// texture coordinates' tangents, in entries of their own).
+inline void transform_mesh(const Transform& xf, Mesh& mesh, size_t first_vertex, size_t first_triangle) {
+  in_parts(mesh.vertices.size() - first_vertex, [&](size_t begin, size_t end, unsigned) {
+    for (size_t i = first_vertex + begin; i < first_vertex + end; ++i) {
+      Vertex& v = mesh.vertices[i];
+      v.position = glm::vec3(xf.m * glm::dvec4(v.position, 1.0));
+      const glm::dvec3 n = xf.normal * glm::dvec3(v.normal);
+      v.normal = glm::dot(n, n) > 0.0 ? glm::vec3(glm::normalize(n)) : glm::vec3(0.0f);  // none, or NaN: zero
     }
-  }
+  });
+  in_parts(mesh.triangles.size() - first_triangle, [&](size_t begin, size_t end, unsigned) {
+    for (size_t i = first_triangle + begin; i < first_triangle + end; ++i) {
+      Triangle& tri = mesh.triangles[i];
+      // Tangents lie in the surface: they move as its points do; a mirroring transform flips the
+      // frame's handedness, so the bitangent's sign too.
+      TriangleTexcoords* tc = tri.texcoords == kNoTexcoords ? nullptr : &mesh.texcoords[tri.texcoords];
+      if (tc)
+        for (auto& tg : tc->tangent)
+          if (tg.w != 0.0f)
+            tg = glm::vec4(glm::vec3(glm::normalize(glm::dmat3(xf.m) * glm::dvec3(tg))), xf.flips ? -tg.w : tg.w);
+      if (xf.flips) {  // keep the front face (from the winding) on the same side as the normals
+        std::swap(tri.v[1], tri.v[2]);
+        if (tc) {
+          std::swap(tc->tangent[1], tc->tangent[2]);
+          for (auto& set : tc->uv) std::swap(set[1], set[2]);
+        }
+      }
+    }
+  });
 }
 
 // Every coordinate within +-kMaxCoordinate (false for NaN).
 inline bool within_range(glm::vec3 v) {
   return std::abs(v.x) <= kMaxCoordinate && std::abs(v.y) <= kMaxCoordinate && std::abs(v.z) <= kMaxCoordinate;
 }
-inline bool within_range(const Triangle& t) {
-  return within_range(t.v[0]) && within_range(t.v[1]) && within_range(t.v[2]);
+inline bool within_range(const Mesh& mesh, const Triangle& t) {
+  return within_range(mesh.position(t, 0)) && within_range(mesh.position(t, 1)) && within_range(mesh.position(t, 2));
 }
 
 // Zero area up to float noise: |e1 x e2| tiny next to the squared edge lengths (also catches NaN).
-inline bool degenerate(const Triangle& t) {
-  const glm::dvec3 e1 = glm::dvec3(t.v[1]) - glm::dvec3(t.v[0]), e2 = glm::dvec3(t.v[2]) - glm::dvec3(t.v[0]);
+inline bool degenerate(const Mesh& mesh, const Triangle& t) {
+  const glm::dvec3 v0(mesh.position(t, 0));
+  const glm::dvec3 e1 = glm::dvec3(mesh.position(t, 1)) - v0, e2 = glm::dvec3(mesh.position(t, 2)) - v0;
   return !(glm::length(glm::cross(e1, e2)) > 1e-6 * std::max(glm::dot(e1, e1), glm::dot(e2, e2)));
 }
 
-// Room in `tris` for `more` triangles: for a large mesh, at once (growing by doubling would copy it
+// Room in `tris` for `more` elements (triangles, vertices): for a large mesh, at once (growing by doubling would copy it
 // and hold it twice), with an eighth more for the shapes after it; for small ones, doubling as
 // push_back does. Capacity never written takes no memory.
 template <class T>
@@ -137,18 +147,16 @@ void make_room(std::vector<T>& tris, size_t more) {
   if (tris.capacity() < need) tris.reserve(std::max(need + need / 8, 2 * tris.capacity()));
 }
 
-// Appends to `out` the triangles of an Assimp mesh, in the mesh's own coordinates, with its vertex
-// normals if it has them, and their texture coordinates and tangents to `texcoords` if it has
-// either; points and lines (which survive triangulation) are skipped. Defined in asset.cpp.
+// Appends to `out` an Assimp mesh's vertices (with its vertex normals if it has them) and triangles,
+// in the mesh's own coordinates, and their texture coordinates and tangents if it has either;
+// points and lines (which survive triangulation) are skipped. Defined in asset.cpp.
 // flip_v: v = 1 - v, undoing the flip Assimp applies to glTF files (glTF's v runs down the image).
-void mesh_triangles(const aiMesh& mesh, uint32_t material, bool flip_v, std::vector<Triangle>& out,
-                    std::vector<TriangleTexcoords>& texcoords);
+void mesh_triangles(const aiMesh& mesh, uint32_t material, bool flip_v, Mesh& out);
 
-// Transforms loaded triangles, tris[first, end), in place, then checks them as every mesh is
-// checked: a vertex beyond +-1e9 (or not finite) is an error (the index from `first` of the first
-// such triangle is returned, else -1), degenerate triangles are dropped, non-finite normals turn
-// the triangle's normals off.
-long long place_mesh(const Transform& xf, std::vector<Triangle>& tris, std::vector<TriangleTexcoords>& texcoords,
-                     size_t first = 0);
+// Transforms loaded geometry in place (transform_mesh), then checks its triangles as every mesh's
+// are checked: a vertex beyond +-1e9 (or not finite) is an error (the index from first_triangle of
+// the first such triangle is returned, else -1), degenerate triangles are dropped, and a triangle
+// with a normal that is zero or not finite is shaded flat.
+long long place_mesh(const Transform& xf, Mesh& mesh, size_t first_vertex = 0, size_t first_triangle = 0);
 
 }  // namespace xi::scene_detail

@@ -225,8 +225,7 @@ struct File {
 
 }  // namespace
 
-bool read_binary_ply(const std::filesystem::path& path, bool flip_v, std::vector<Triangle>& out,
-                     std::vector<TriangleTexcoords>& texcoords) {
+bool read_binary_ply(const std::filesystem::path& path, bool flip_v, Mesh& out) {
   File file{std::fopen(path.c_str(), "rb")};
   if (!file.f) return false;
   std::string head(1 << 16, '\0');
@@ -243,26 +242,31 @@ bool read_binary_ply(const std::filesystem::path& path, bool flip_v, std::vector
   // Triangles only: the file must hold exactly what the counts say (so nothing is allocated for a
   // header that lies), or Assimp reads it.
   if (ec || nf == 0 || nv > size || nf > size || l->stride > Reader::kBlock ||
-      h->bytes + nv * l->stride + nf * face_bytes > size)
+      h->bytes + nv * l->stride + nf * face_bytes > size || out.vertices.size() + nv > UINT32_MAX)
     return false;
 
-  // The vertices, compact: position, normal, texture coordinates.
+  // The vertices straight into the mesh; texture coordinates aside, for the triangles' own entries.
   const bool normals = l->normal[0] != nullptr, uvs = l->uv[0] != nullptr;
-  std::vector<glm::vec3> pos(nv), nrm(normals ? nv : 0);
+  const size_t first_vertex = out.vertices.size(), first = out.triangles.size(), first_texcoords = out.texcoords.size();
+  auto undo = [&] {
+    out.vertices.resize(first_vertex), out.triangles.resize(first), out.texcoords.resize(first_texcoords);
+    return false;
+  };
+  make_room(out.vertices, nv);
   std::vector<glm::vec2> uv(uvs ? nv : 0);
   Reader in(file.f, h->bytes);
   for (uint64_t i = 0; i < nv; ++i) {
     const unsigned char* r = in.next(l->stride);
-    if (!r) return false;
+    if (!r) return undo();
     auto get = [&](const Property* p) { return as_float(r + p->offset, p->type, h->swap); };
-    pos[i] = {get(l->pos[0]), get(l->pos[1]), get(l->pos[2])};
-    if (normals) nrm[i] = {get(l->normal[0]), get(l->normal[1]), get(l->normal[2])};
+    Vertex& v = out.vertices.emplace_back();
+    v.position = {get(l->pos[0]), get(l->pos[1]), get(l->pos[2])};
+    if (normals) v.normal = {get(l->normal[0]), get(l->normal[1]), get(l->normal[2])};
     if (uvs) uv[i] = {get(l->uv[0]), get(l->uv[1])};
   }
 
-  const size_t first = out.size(), first_texcoords = texcoords.size();
-  make_room(out, nf);
-  if (uvs) make_room(texcoords, nf);
+  make_room(out.triangles, nf);
+  if (uvs) make_room(out.texcoords, nf);
   const size_t count_bytes = size_of(list.count_type), index_bytes = size_of(list.type);
   for (uint64_t f = 0; f < nf; ++f) {
     const unsigned char* r = in.next(face_bytes);
@@ -273,17 +277,13 @@ bool read_binary_ply(const std::filesystem::path& path, bool flip_v, std::vector
       ok = i >= 0 && (uint64_t)i < nv;
       idx[k] = (uint32_t)i;
     }
-    if (!ok) {  // a polygon, a bad index or a short file: Assimp's
-      out.resize(first), texcoords.resize(first_texcoords);
-      return false;
-    }
-    Triangle& t = out.emplace_back();
+    if (!ok) return undo();  // a polygon, a bad index or a short file: Assimp's
+    Triangle& t = out.triangles.emplace_back();
     t.has_normals = normals;
     TriangleTexcoords* tc = nullptr;
-    if (uvs) t.texcoords = uint32_t(texcoords.size()), tc = &texcoords.emplace_back();
+    if (uvs) t.texcoords = uint32_t(out.texcoords.size()), tc = &out.texcoords.emplace_back();
     for (int k = 0; k < 3; ++k) {
-      t.v[k] = pos[idx[k]];
-      if (normals) t.n[k] = nrm[idx[k]];
+      t.v[k] = uint32_t(first_vertex + idx[k]);
       if (uvs) tc->uv[0][k] = {uv[idx[k]].x, flip_v ? 1.0f - uv[idx[k]].y : uv[idx[k]].y};
     }
   }

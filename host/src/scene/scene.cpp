@@ -404,14 +404,11 @@ Transform read_transform(const Node& n) {
   return make_transform(m);
 }
 
-// A flat triangle whose texture coordinates (both sets, added to `pool`) are ta, tb, tc.
-Triangle flat(glm::vec3 a, glm::vec3 b, glm::vec3 c, glm::vec2 ta, glm::vec2 tb, glm::vec2 tc,
-              std::vector<TriangleTexcoords>& pool) {
-  Triangle t{};  // zeroed: glm vectors are not initialised by default
-  t.v[0] = a, t.v[1] = b, t.v[2] = c;
-  t.texcoords = uint32_t(pool.size());
-  for (auto& set : pool.emplace_back().uv) set[0] = ta, set[1] = tb, set[2] = tc;
-  return t;
+// Appends a flat triangle whose texture coordinates (both sets) are ta, tb, tc.
+void add_flat(Mesh& mesh, glm::vec3 a, glm::vec3 b, glm::vec3 c, glm::vec2 ta, glm::vec2 tb, glm::vec2 tc) {
+  Triangle& t = mesh.add_triangle(a, b, c);
+  t.texcoords = uint32_t(mesh.texcoords.size());
+  for (auto& set : mesh.texcoords.emplace_back().uv) set[0] = ta, set[1] = tb, set[2] = tc;
 }
 
 // Equirectangular texture coordinates of the unit direction d: v = θ/π from the +y pole (v = 0) to
@@ -421,9 +418,9 @@ glm::vec2 sphere_uv(glm::dvec3 d) {
   return {float(0.5 + std::atan2(d.x, d.z) / (2.0 * pi)), float(std::acos(std::clamp(d.y, -1.0, 1.0)) / pi)};
 }
 
-// Icosahedron subdivided `levels` times, every vertex pushed onto the unit sphere; its texture
-// coordinates are added to `pool`.
-std::vector<Triangle> icosphere(glm::vec3 center, float radius, int levels, std::vector<TriangleTexcoords>& pool) {
+// Appends an icosahedron subdivided `levels` times, every vertex pushed onto the sphere, with
+// the sphere's normals and equirectangular texture coordinates.
+void add_icosphere(Mesh& mesh, glm::vec3 center, float radius, int levels) {
   const double g = (1.0 + std::sqrt(5.0)) / 2.0;
   std::vector<glm::dvec3> p = {{-1, g, 0}, {1, g, 0}, {-1, -g, 0}, {1, -g, 0}, {0, -1, g}, {0, 1, g},
                                {0, -1, -g}, {0, 1, -g}, {g, 0, -1}, {g, 0, 1}, {-g, 0, -1}, {-g, 0, 1}};
@@ -447,17 +444,19 @@ std::vector<Triangle> icosphere(glm::vec3 center, float radius, int levels, std:
     }
     faces = std::move(next);
   }
-  std::vector<Triangle> out;
-  out.reserve(faces.size());
+  const uint32_t base = uint32_t(mesh.vertices.size());
+  for (const glm::dvec3& d : p) {
+    const glm::vec3 n(d);
+    mesh.vertices.push_back({center + radius * n, n});
+  }
   for (auto [a, b, c] : faces) {
     // Outward winding whatever the table says: the face normal must agree with the position.
     if (glm::dot(glm::cross(p[b] - p[a], p[c] - p[a]), p[a] + p[b] + p[c]) < 0.0) std::swap(b, c);
-    Triangle t{};
+    Triangle t;
     const uint32_t idx[3] = {a, b, c};
     glm::vec2 uv[3];
     for (int k = 0; k < 3; ++k) {
-      t.n[k] = glm::vec3(p[idx[k]]);
-      t.v[k] = center + radius * t.n[k];
+      t.v[k] = base + idx[k];
       uv[k] = sphere_uv(p[idx[k]]);
     }
     // A triangle across the seam takes u beyond 1 on its far side (repeat wrapping reads it right);
@@ -473,24 +472,23 @@ std::vector<Triangle> icosphere(glm::vec3 center, float radius, int levels, std:
         if (q.x < 0.5f) q.x += 1.0f;
     for (int k = 0; k < 3; ++k)
       if (pole[k]) uv[k].x = 0.5f * (uv[(k + 1) % 3].x + uv[(k + 2) % 3].x);
-    t.texcoords = uint32_t(pool.size());
-    for (auto& set : pool.emplace_back().uv) std::copy(uv, uv + 3, set);
+    t.texcoords = uint32_t(mesh.texcoords.size());
+    for (auto& set : mesh.texcoords.emplace_back().uv) std::copy(uv, uv + 3, set);
     t.has_normals = true;
-    out.push_back(t);
+    mesh.triangles.push_back(t);
   }
-  return out;
 }
 
-// Appends the mesh file's triangles to `out`, read where they land: a large mesh is never copied.
-void load_mesh(const Node& file_node, const fs::path& base_dir, std::vector<Triangle>& out,
-               std::vector<TriangleTexcoords>& texcoords) {
+// Appends the mesh file's vertices and triangles to `out`, read where they land: a large mesh is
+// never copied.
+void load_mesh(const Node& file_node, const fs::path& base_dir, Mesh& out) {
   const fs::path path = base_dir / file_node.string();
   std::error_code ec;
   if (!fs::is_regular_file(path, ec)) file_node.fail("mesh file not found: " + path.string());
   // Before Assimp allocates what the header claims (it would exhaust memory, not fail).
   if (auto why = implausible_mesh_counts(path)) file_node.fail("cannot load mesh " + path.string() + ": " + *why);
   // Binary PLY files of triangles without Assimp (Assimp picks its reader by the extension).
-  if (lower_extension(path) == ".ply" && read_binary_ply(path, true, out, texcoords)) return;
+  if (lower_extension(path) == ".ply" && read_binary_ply(path, true, out)) return;
   Assimp::Importer importer;
   const aiScene* scene = importer.ReadFile(
       path.string(), aiProcess_Triangulate | aiProcess_JoinIdenticalVertices | aiProcess_PreTransformVertices);
@@ -498,12 +496,12 @@ void load_mesh(const Node& file_node, const fs::path& base_dir, std::vector<Tria
     file_node.fail("cannot load mesh " + path.string() + ": " + importer.GetErrorString());
   for (unsigned i = 0; i < scene->mNumMeshes; ++i) {
     // Assimp puts every format's texture origin at the bottom left (it flips glTF's); xi's v runs down.
-    mesh_triangles(*scene->mMeshes[i], 0, true, out, texcoords);
+    mesh_triangles(*scene->mMeshes[i], 0, true, out);
   }
 }
 
 void read_shape(const Node& n, const std::map<std::string, uint32_t>& materials, const fs::path& base_dir,
-                std::vector<Triangle>& out, std::vector<TriangleTexcoords>& texcoords) {
+                Mesh& out) {
   const std::string type = n.at("type").string();
   if (type == "quad" || type == "triangle")
     n.expect_object({"type", "material", "transform", "vertices"});
@@ -520,7 +518,8 @@ void read_shape(const Node& n, const std::map<std::string, uint32_t>& materials,
   if (found == materials.end()) mat.fail("unknown material '" + name + "'");
   const Transform xf = n.has("transform") ? read_transform(n.at("transform")) : Transform{};
 
-  std::vector<Triangle> tris;
+  // Straight into `out`: a mesh of millions of triangles is neither copied nor held twice.
+  const size_t first_vertex = out.vertices.size(), first = out.triangles.size();
   if (type == "quad" || type == "triangle") {
     const Node verts = n.at("vertices");
     std::vector<glm::vec3> v;
@@ -528,40 +527,36 @@ void read_shape(const Node& n, const std::map<std::string, uint32_t>& materials,
     // The image's top-left corner at v0; a quad's corners (0,0), (1,0), (1,1), (0,1) at v0..v3.
     const glm::vec2 t0(0, 0), t1(1, 0), t2(1, 1), t3(0, 1);
     if (type == "quad") {
-      tris.push_back(flat(v[0], v[1], v[2], t0, t1, t2, texcoords));
-      tris.push_back(flat(v[0], v[2], v[3], t0, t2, t3, texcoords));
+      add_flat(out, v[0], v[1], v[2], t0, t1, t2);
+      add_flat(out, v[0], v[2], v[3], t0, t2, t3);
     } else {
-      tris.push_back(flat(v[0], v[1], v[2], t0, t1, t3, texcoords));
+      add_flat(out, v[0], v[1], v[2], t0, t1, t3);
     }
-    for (Triangle& t : tris) {
-      apply(xf, t, texcoords);
-      if (!within_range(t)) verts.fail(type + " has a vertex coordinate beyond +-1e9 (after its transform)");
-      if (degenerate(t)) verts.fail(type + " has zero area");
+    transform_mesh(xf, out, first_vertex, first);
+    for (size_t i = first; i < out.triangles.size(); ++i) {
+      if (!within_range(out, out.triangles[i]))
+        verts.fail(type + " has a vertex coordinate beyond +-1e9 (after its transform)");
+      if (degenerate(out, out.triangles[i])) verts.fail(type + " has zero area");
     }
   } else if (type == "sphere") {
     const glm::vec3 center = n.at("center").vec3();
     const float radius = n.at("radius").number();
     if (!(radius > 0.0f)) n.at("radius").fail("radius must be > 0");
-    tris = icosphere(center, radius, int(n.integer("subdivisions", 4, 0, 8)), texcoords);
-    for (Triangle& t : tris) {
-      apply(xf, t, texcoords);
-      if (!within_range(t)) n.fail("sphere reaches a vertex coordinate beyond +-1e9 (after its transform)");
-    }
+    add_icosphere(out, center, radius, int(n.integer("subdivisions", 4, 0, 8)));
+    transform_mesh(xf, out, first_vertex, first);
+    for (size_t i = first; i < out.triangles.size(); ++i)
+      if (!within_range(out, out.triangles[i]))
+        n.fail("sphere reaches a vertex coordinate beyond +-1e9 (after its transform)");
   } else {
-    // Straight into `out`: a mesh of millions of triangles is neither copied nor held twice.
     const Node file = n.at("file");
-    const size_t first = out.size();
-    load_mesh(file, base_dir, out, texcoords);
-    const long long bad = place_mesh(xf, out, texcoords, first);
+    load_mesh(file, base_dir, out);
+    const long long bad = place_mesh(xf, out, first_vertex, first);
     if (bad >= 0)  // NaN or Inf in the file's data, or overflow in the transform
       file.fail("mesh " + file.string() + ": triangle " + std::to_string(bad) +
                 " has a non-finite vertex coordinate or one beyond +-1e9 (after its transform)");
-    if (out.size() == first) file.fail("mesh has no triangles (after dropping degenerate ones)");
-    for (size_t i = first; i < out.size(); ++i) out[i].material = found->second;
-    return;
+    if (out.triangles.size() == first) file.fail("mesh has no triangles (after dropping degenerate ones)");
   }
-  for (Triangle& t : tris) t.material = found->second;
-  out.insert(out.end(), tris.begin(), tris.end());
+  for (size_t i = first; i < out.triangles.size(); ++i) out.triangles[i].material = found->second;
 }
 
 // {"type": "asset", "file": ..., "transform": ...}: an asset file's shapes with its own materials
@@ -579,7 +574,7 @@ void read_asset_shape(const Node& n, const fs::path& base_dir, Scene& s) {
     file.fail(e.message());
   }
   const Transform xf = n.has("transform") ? read_transform(n.at("transform")) : Transform{};
-  const long long bad = place_mesh(xf, g.triangles, g.texcoords);
+  const long long bad = place_mesh(xf, g);
   if (bad >= 0)
     file.fail("asset " + file.string() + ": triangle " + std::to_string(bad) +
               " has a coordinate beyond +-1e9 (after its transform)");
@@ -598,15 +593,7 @@ void read_asset_shape(const Node& n, const fs::path& base_dir, Scene& s) {
     light.direction = glm::vec3(glm::normalize(glm::dmat3(xf.m) * glm::dvec3(light.direction)));
     s.lights.push_back(light);
   }
-  const uint32_t first_texcoords = uint32_t(s.texcoords.size());
-  for (Triangle& t : g.triangles) {
-    t.material += first;
-    if (t.texcoords != kNoTexcoords) t.texcoords += first_texcoords;
-  }
-  if (s.triangles.empty()) s.triangles = std::move(g.triangles);  // the common case: no copy
-  else s.triangles.insert(s.triangles.end(), g.triangles.begin(), g.triangles.end());
-  if (s.texcoords.empty()) s.texcoords = std::move(g.texcoords);
-  else s.texcoords.insert(s.texcoords.end(), g.texcoords.begin(), g.texcoords.end());
+  s.append(std::move(g), first);
   for (const std::string& w : g.warnings)
     if (std::find(s.warnings.begin(), s.warnings.end(), w) == s.warnings.end()) s.warnings.push_back(w);
 }
@@ -771,9 +758,9 @@ Scene parse_scene(const std::string& json_text, const std::string& source_name, 
   if (list.empty()) shapes.fail("scene has no shapes");
   for (const Node& shape : list) {
     if (shape.has("type") && shape.at("type").raw() == "asset") read_asset_shape(shape, base_dir, s);
-    else read_shape(shape, index, base_dir, s.triangles, s.texcoords);
+    else read_shape(shape, index, base_dir, s);
   }
-  if (const std::string small = too_small(s.triangles); !small.empty()) shapes.fail(small + " with a transform");
+  if (const std::string small = too_small(s); !small.empty()) shapes.fail(small + " with a transform");
   return s;
 }
 
@@ -782,17 +769,53 @@ const TriangleTexcoords& texcoords_of(const std::vector<TriangleTexcoords>& pool
   return t.texcoords == kNoTexcoords ? none : pool[t.texcoords];
 }
 
+Triangle& Mesh::add_triangle(const glm::vec3& a, const glm::vec3& b, const glm::vec3& c, uint32_t material,
+                             const glm::vec3* normals) {
+  const uint32_t first = uint32_t(vertices.size());
+  const glm::vec3 corners[3] = {a, b, c};
+  for (int k = 0; k < 3; ++k) vertices.push_back({corners[k], normals ? normals[k] : glm::vec3(0.0f)});
+  Triangle& t = triangles.emplace_back();
+  t.v[0] = first, t.v[1] = first + 1, t.v[2] = first + 2;
+  t.material = material;
+  t.has_normals = normals != nullptr;
+  return t;
+}
+
+void Mesh::append(Mesh&& other, uint32_t first_material) {
+  const uint32_t first_vertex = uint32_t(vertices.size()), first_texcoords = uint32_t(texcoords.size());
+  for (Triangle& t : other.triangles) {
+    for (uint32_t& v : t.v) v += first_vertex;
+    t.material += first_material;
+    if (t.texcoords != kNoTexcoords) t.texcoords += first_texcoords;
+  }
+  // Moved where this mesh is empty (the common case: one asset): no copy.
+  auto join = [](auto& to, auto& from) {
+    if (to.empty()) to = std::move(from);
+    else to.insert(to.end(), from.begin(), from.end());
+  };
+  join(vertices, other.vertices);
+  join(triangles, other.triangles);
+  join(texcoords, other.texcoords);
+}
+
 void check_scene_limits(const Scene& scene) {
+  const size_t vertices = scene.vertices.size();
+  for (size_t i = 0; i < scene.triangles.size(); ++i)
+    for (const uint32_t v : scene.triangles[i].v)
+      if (v >= vertices)
+        throw Error("triangle " + std::to_string(i) + " names vertex " + std::to_string(v) + " of " +
+                        std::to_string(vertices),
+                    scene.source);
   std::vector<size_t> bad(std::max(1u, std::thread::hardware_concurrency()), SIZE_MAX);  // per part, its first
   in_parts(scene.triangles.size(), [&](size_t begin, size_t end, unsigned part) {
     for (size_t i = begin; i < end && bad[part] == SIZE_MAX; ++i)
-      if (!within_range(scene.triangles[i])) bad[part] = i;
+      if (!within_range(scene, scene.triangles[i])) bad[part] = i;
   });
   for (size_t i : bad)
     if (i != SIZE_MAX)
       throw Error("triangle " + std::to_string(i) + " has a non-finite vertex coordinate or one beyond +-1e9",
                   scene.source);
-  if (const std::string small = too_small(scene.triangles); !small.empty()) throw Error(small, scene.source);
+  if (const std::string small = too_small(scene); !small.empty()) throw Error(small, scene.source);
   for (size_t i = 0; i < scene.triangles.size(); ++i)
     if (const uint32_t k = scene.triangles[i].texcoords; k != kNoTexcoords && k >= scene.texcoords.size())
       throw Error("triangle " + std::to_string(i) + " names texture coordinates " + std::to_string(k) + " of " +
