@@ -433,7 +433,8 @@ static inline XI_INLINE ShadeResult xi_shade_paths(XI_PATH_PARAMS xuint slot, xm
     xfloat2 ul = xi_sample_2d(sampler_kind, sampler, pixel, sample_index, XI_PAIR_BOUNCE(d, XI_BOUNCE_LIGHT));
     xfloat3 org = xi_offset_ray_origin(p, p_error, bsdf.n_geo, bsdf.n_geo);  // lights behind n_geo are skipped
     LightSample ls = xi_sample_light(light_cdf, light_tri, tri_light_pdf, tri_vertices, vertices, tri_material,
-                                     materials, punctual, env, environment_texels, environment_cdf, shading, light_count, org, ul);
+                                     materials, punctual, env, environment_texels, environment_cdf, shading,
+                                     light_count, org, ul);
     BsdfValue f = xi_bsdf_eval(bsdf, shading, wo, ls.wi);
     xfloat cos_s = xi_dot3(bsdf.n, ls.wi);
     xfloat w = 1.0f;

@@ -60,7 +60,10 @@ void upload_images(const Scene& scene, CompiledScene& cs) {
 double scene_radius(const Scene& scene) {
   glm::dvec3 lo(INFINITY), hi(-INFINITY);
   for (const Triangle& t : scene.triangles)
-    for (int k = 0; k < 3; ++k) lo = glm::min(lo, glm::dvec3(scene.position(t, k))), hi = glm::max(hi, glm::dvec3(scene.position(t, k)));
+    for (int k = 0; k < 3; ++k) {
+      const glm::dvec3 v(scene.position(t, k));
+      lo = glm::min(lo, v), hi = glm::max(hi, v);
+    }
   return scene.triangles.empty() ? 1.0 : std::max(0.5 * glm::length(hi - lo), 1e-6);
 }
 
