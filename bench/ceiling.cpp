@@ -303,7 +303,9 @@ int main(int argc, char** argv) {
       // (the same build again: the renderer keeps no host copy).
       const xi::CompiledScene ordered =
           xi::compile_scene(scene, xi::KernelConfig::bvh_width_for(device.info(), opt), opt.spatial_splits);
-      Embree embree(ordered.vertices, ordered.tri_vertices, embree_quality);
+      std::vector<glm::vec4> positions(ordered.vertices.size() / 2);  // (each vertex's normal beside it)
+      for (size_t i = 0; i < positions.size(); ++i) positions[i] = ordered.vertices[2 * i];
+      Embree embree(positions, ordered.tri_vertices, embree_quality);
 
       const xi::RayBatch& rays = probe.recorded();
       std::vector<double> xi_s, em_s, em16_s;

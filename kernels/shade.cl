@@ -145,10 +145,10 @@ static inline XI_INLINE Bsdf xi_surface_bsdf(XI_SCENE_PARAMS, uint shading, Shad
   b.n = b.n_geo;
   if (xi_uses(shading, XI_USE_NORMALS)) {
     xmask smooth = c.smooth;
-    if (XI_ANY(smooth)) {  // (lanes of flat triangles read normals of vertices without any: unused)
-      xfloat3 ns = xi_normalize3(xi_add3(xi_add3(xi_scale3(xi_gather_xyz(vertex_normals, c.v0, 0), 1.0f - b1 - b2),
-                                                 xi_scale3(xi_gather_xyz(vertex_normals, c.v1, 0), b1)),
-                                         xi_scale3(xi_gather_xyz(vertex_normals, c.v2, 0), b2)));
+    if (XI_ANY(smooth)) {  // (lanes of flat triangles read their vertices' zero normals, unused)
+      xfloat3 ns = xi_normalize3(xi_add3(xi_add3(xi_scale3(xi_vertex_normal(vertices, c.v0), 1.0f - b1 - b2),
+                                                 xi_scale3(xi_vertex_normal(vertices, c.v1), b1)),
+                                         xi_scale3(xi_vertex_normal(vertices, c.v2), b2)));
       ns = xi_select3(xi_dot3(ns, b.n_geo) < 0.0f, xi_neg3(ns), ns);
       b.n = xi_select3(smooth, ns, b.n_geo);
     }

@@ -452,7 +452,6 @@ TEST(BvhBuild, FreeingTheTrianglesCompilesTheSame) {
   };
   EXPECT_TRUE(same_bytes(freed.tri_vertices, kept.tri_vertices));
   EXPECT_TRUE(same_bytes(freed.vertices, kept.vertices));
-  EXPECT_TRUE(same_bytes(freed.vertex_normals, kept.vertex_normals));
   EXPECT_TRUE(same_bytes(freed.tri_material, kept.tri_material));
   EXPECT_TRUE(same_bytes(freed.tri_uv, kept.tri_uv));
   EXPECT_TRUE(same_bytes(freed.tri_tangents, kept.tri_tangents));

@@ -242,7 +242,6 @@ uint64_t compiled_hash(const xi::CompiledScene& cs) {
   xi::Hasher h;
   h.add(cs.tri_vertices);
   h.add(cs.vertices);
-  h.add(cs.vertex_normals);
   h.add(cs.tri_material);
   h.add(cs.materials);
   h.add(cs.light_cdf);
@@ -267,7 +266,7 @@ TEST(Checkpoint, SceneHashComesFromTheDeviceAndMatchesTheCompiledScene) {
   o.spp = 1;
   xi::Renderer renderer(device, scene, o);
   const xi::CompiledScene& kept = renderer.compiled();
-  EXPECT_TRUE(kept.tri_vertices.empty() && kept.vertices.empty() && kept.vertex_normals.empty() &&
+  EXPECT_TRUE(kept.tri_vertices.empty() && kept.vertices.empty() &&
               kept.tri_material.empty() && kept.tri_light_pdf.empty() && kept.bvh.nodes.empty() &&
               kept.bvh.nodes8.empty() && kept.bvh.blocks.empty());
   EXPECT_GT(kept.bvh.stats.references, 0u);

@@ -221,7 +221,7 @@ typedef struct {
   F(ImageHeader, images) F(uint, texels)
 #define XI_SCENE_BUFFERS(F)                                                                           \
   XI_SURFACE_BUFFERS(F)                                                                               \
-  F(uint4, tri_vertices) F(float4, vertices) F(float4, vertex_normals) F(float4, tri_tangents)           \
+  F(uint4, tri_vertices) F(float4, vertices) F(float4, tri_tangents)                                  \
   F(float, light_cdf) F(uint, light_tri)                                                              \
   F(float, tri_light_pdf) F(PunctualLightData, punctual) F(float4, environment_texels) F(float, environment_cdf) \
   F(float4, volumes)

@@ -27,11 +27,11 @@ struct Features {
 
 struct CompiledScene {
   Bvh bvh;
-  // Per triangle, in BVH order: its corners (indices into vertices and vertex_normals) and w = 1
-  // where it has vertex normals.
+  // Per triangle, in BVH order: its corners (vertex indices) and w = 1 where it has vertex normals.
   std::vector<glm::uvec4> tri_vertices;
-  std::vector<glm::vec4> vertices;        // positions (w = 0), in the scene's order
-  std::vector<glm::vec4> vertex_normals;  // as vertices; one unused entry when no triangle has normals
+  // Two per vertex, in the scene's order: its position (w = 0), then its normal (zero where it has
+  // none), side by side so that shading finds both in one cache line.
+  std::vector<glm::vec4> vertices;
   std::vector<uint32_t> tri_material;
   std::vector<MaterialData> materials;
   // Textures (where the scene has some; else one unused entry each, as OpenCL needs buffers):
@@ -61,7 +61,7 @@ struct CompiledScene {
   Features features;
 
   // Corner k's position of the triangle at position i in BVH order.
-  glm::vec3 position(size_t i, int k) const { return glm::vec3(vertices[tri_vertices[i][k]]); }
+  glm::vec3 position(size_t i, int k) const { return glm::vec3(vertices[2 * tri_vertices[i][k]]); }
 };
 
 // bvh_width: the lanes of the BVH's nodes, 4 or 8 (the kernels' XI_BVH_WIDTH); spatial_splits and

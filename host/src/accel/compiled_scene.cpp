@@ -277,16 +277,14 @@ CompiledScene compile(const Scene& scene, Scene* owner, int bvh_width, bool spat
     std::vector<Triangle>().swap(owner->triangles);
     std::vector<TriangleTexcoords>().swap(owner->texcoords);
   }
-  // The vertices in the scene's order; their normals where a triangle reads them (an
-  // --all-features build reads them only for triangles that have them).
+  // The vertices in the scene's order, each position beside its normal.
   const size_t nv = scene.vertices.size();
-  cs.vertices.resize(nv);
-  if (cs.features.normals) cs.vertex_normals.resize(nv);
+  cs.vertices.resize(2 * nv);
   parallel_chunks(nv, parts_for(nv, threads), [&](size_t begin, size_t end, unsigned) {
     for (size_t i = begin; i < end; ++i) {
       const Vertex& v = scene.vertices[i];
-      cs.vertices[i] = glm::vec4(v.position, 0.0f);
-      if (cs.features.normals) cs.vertex_normals[i] = glm::vec4(v.normal, 0.0f);
+      cs.vertices[2 * i] = glm::vec4(v.position, 0.0f);
+      cs.vertices[2 * i + 1] = glm::vec4(v.normal, 0.0f);
     }
   });
   if (owner) std::vector<Vertex>().swap(owner->vertices);
@@ -297,7 +295,6 @@ CompiledScene compile(const Scene& scene, Scene* owner, int bvh_width, bool spat
   }
   if (cs.punctual.empty()) cs.punctual.push_back(PunctualLightData{});
   if (cs.volumes.empty()) cs.volumes.push_back(glm::vec4(0.0f));
-  if (cs.vertex_normals.empty()) cs.vertex_normals.push_back(glm::vec4(0.0f));
   if (cs.tri_uv.empty()) cs.tri_uv.push_back(glm::vec4(0.0f));
   if (cs.tri_tangents.empty()) cs.tri_tangents.push_back(glm::vec4(0.0f));
   if (cs.texture_refs.empty()) cs.texture_refs.push_back(TextureRef{});

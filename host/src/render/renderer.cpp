@@ -626,8 +626,8 @@ uint64_t Renderer::scene_hash() const {
       h.add(slice.data(), n);
     }
   };
-  for (const cl::Buffer* b : {&tri_vertices_, &vertices_, &vertex_normals_, &tri_material_, &materials_, &light_cdf_,
-                              &light_tri_, &tri_light_pdf_})
+  for (const cl::Buffer* b : {&tri_vertices_, &vertices_, &tri_material_, &materials_, &light_cdf_, &light_tri_,
+                              &tri_light_pdf_})
     add_device(*b);
   h.add(&scene_.camera, sizeof scene_.camera);
   h.add(&scene_.background, sizeof scene_.background);
