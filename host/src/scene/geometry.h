@@ -138,13 +138,13 @@ inline bool degenerate(const Mesh& mesh, const Triangle& t) {
   return !(glm::length(glm::cross(e1, e2)) > 1e-6 * std::max(glm::dot(e1, e1), glm::dot(e2, e2)));
 }
 
-// Room in `tris` for `more` elements (triangles, vertices): for a large mesh, at once (growing by doubling would copy it
-// and hold it twice), with an eighth more for the shapes after it; for small ones, doubling as
-// push_back does. Capacity never written takes no memory.
+// Room in `items` (triangles, vertices) for `more`: for a large mesh, at once (growing by doubling
+// would copy it and hold it twice), with an eighth more for the shapes after it; for small ones,
+// doubling as push_back does. Capacity never written takes no memory.
 template <class T>
-void make_room(std::vector<T>& tris, size_t more) {
-  const size_t need = tris.size() + more;
-  if (tris.capacity() < need) tris.reserve(std::max(need + need / 8, 2 * tris.capacity()));
+void make_room(std::vector<T>& items, size_t more) {
+  const size_t need = items.size() + more;
+  if (items.capacity() < need) items.reserve(std::max(need + need / 8, 2 * items.capacity()));
 }
 
 // Appends to `out` an Assimp mesh's vertices (with its vertex normals if it has them) and triangles,
