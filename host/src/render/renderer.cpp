@@ -7,8 +7,10 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <cstring>
 #include <string>
 
+#include "../parallel.h"
 #include "memory.h"
 #include "ray_probe.h"
 #include "xi/error.h"
@@ -56,12 +58,14 @@ cl::Buffer upload(cl::Context& ctx, const std::vector<T>& data) {
 // Uploads a host array of the compiled scene, then frees it: from then on the device's copy is the
 // only one (a large mesh's triangles and BVH are most of a render's memory). In parts, each handed
 // back once written, so that the array is never held whole twice (on a CPU device both copies are
-// host memory).
+// host memory). Each part is copied through a mapping of the buffer on every core: on a CPU device
+// the copy is where the buffer's fresh pages are first written, and faulting them in is most of
+// its time.
 template <typename T>
 cl::Buffer upload_and_free(cl::Context& ctx, cl::CommandQueue& queue, std::vector<T>& data) {
   constexpr size_t kPart = size_t(32) << 20;
   const size_t bytes = sizeof(T) * data.size();
-  if (bytes <= kPart) {
+  if (bytes <= kPart / 8) {
     cl::Buffer buffer = upload(ctx, data);
     std::vector<T>().swap(data);
     return buffer;
@@ -70,7 +74,12 @@ cl::Buffer upload_and_free(cl::Context& ctx, cl::CommandQueue& queue, std::vecto
   const char* host = reinterpret_cast<const char*>(data.data());
   for (size_t at = 0; at < bytes; at += kPart) {
     const size_t part = std::min(kPart, bytes - at);
-    queue.enqueueWriteBuffer(buffer, CL_TRUE, at, part, host + at);
+    char* mapped = static_cast<char*>(queue.enqueueMapBuffer(buffer, CL_TRUE, CL_MAP_WRITE_INVALIDATE_REGION, at, part));
+    parallel_chunks(part, parts_for(part / sizeof(T)), [&](size_t begin, size_t end, unsigned) {
+      std::memcpy(mapped + begin, host + at + begin, end - begin);
+    });
+    queue.enqueueUnmapMemObject(buffer, mapped);
+    queue.finish();
     release_pages(host + at, part);
   }
   std::vector<T>().swap(data);
