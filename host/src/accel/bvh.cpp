@@ -446,7 +446,9 @@ struct Builder {
         Box4* bin_box = bins4[axis];
         const float* at = planes[axis];
         auto bin_of = [&](float x) { return bin_in(at, box.lo[axis], scale[axis], x); };
-        int first = bin_of(r.box.lo[axis]), last = bin_of(r.box.hi[axis]);
+        // Most references end in the bin they start in: one comparison tells, not a second search.
+        const int first = bin_of(r.box.lo[axis]);
+        const int last = first == kBins - 1 || r.box.hi[axis] < at[first + 1] ? first : bin_of(r.box.hi[axis]);
         enters[axis][first]++;
         exits[axis][last]++;
         if (first == last) {
