@@ -3,6 +3,7 @@
 #pragma once
 #include <algorithm>
 #include <cstddef>
+#include <cstdint>
 #include <thread>
 #include <vector>
 
@@ -23,6 +24,23 @@ void parallel_chunks(size_t n, unsigned parts, const Work& work) {
 inline unsigned parts_for(size_t n, unsigned threads = 0) {
   if (threads == 0) threads = std::max(1u, std::thread::hardware_concurrency());
   return (unsigned)std::clamp<size_t>(n >> 16, 1, threads);
+}
+
+// The first i in [0, n) for which bad(i) holds, or SIZE_MAX: each part stops at its first.
+template <class Bad>
+size_t first_where(size_t n, const Bad& bad) {
+  const unsigned parts = parts_for(n);
+  std::vector<size_t> first(parts, SIZE_MAX);
+  parallel_chunks(n, parts, [&](size_t begin, size_t end, unsigned part) {
+    for (size_t i = begin; i < end; ++i)
+      if (bad(i)) {
+        first[part] = i;
+        return;
+      }
+  });
+  for (size_t i : first)
+    if (i != SIZE_MAX) return i;
+  return SIZE_MAX;
 }
 
 }  // namespace xi

@@ -13,8 +13,8 @@
 
 namespace xi {
 
-// What a scene uses; each feature maps to one -D flag, so absent features compile no code.
-// What a scene uses, one flag per XI_FEATURES entry (shading.h: their meaning and bits).
+// What a scene uses, one flag per XI_FEATURES entry (shading.h: their meaning and bits); each maps
+// to one -D flag, so absent features compile no code.
 struct Features {
 #define XI_FEATURE_FIELD(name, bit, word, in_all) bool name = false;
   XI_FEATURES(XI_FEATURE_FIELD)

@@ -7,6 +7,7 @@
 #include <limits>
 #include <optional>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include <glm/glm.hpp>
@@ -170,6 +171,8 @@ struct Mesh {
   // Appends another mesh's vertices and triangles (its texture coordinates too), their material
   // indices offset by first_material.
   void append(Mesh&& other, uint32_t first_material = 0);
+  // The bounding box of the triangles' corners, {lo, hi} (lo > hi where there are none).
+  std::pair<glm::vec3, glm::vec3> bounds() const;
 };
 
 // Punctual lights, reached by light sampling only. Units as glTF's KHR_lights_punctual: a point or

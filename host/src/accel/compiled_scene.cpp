@@ -58,18 +58,14 @@ void upload_images(const Scene& scene, CompiledScene& cs) {
 // The radius of the scene's bounding sphere: light arriving from infinity (the environment, a
 // directional light) is picked by the power it brings onto a sphere that size.
 double scene_radius(const Scene& scene) {
-  glm::dvec3 lo(INFINITY), hi(-INFINITY);
-  for (const Triangle& t : scene.triangles)
-    for (int k = 0; k < 3; ++k) {
-      const glm::dvec3 v(scene.position(t, k));
-      lo = glm::min(lo, v), hi = glm::max(hi, v);
-    }
-  return scene.triangles.empty() ? 1.0 : std::max(0.5 * glm::length(hi - lo), 1e-6);
+  const auto [lo, hi] = scene.bounds();
+  return scene.triangles.empty() ? 1.0 : std::max(0.5 * glm::length(glm::dvec3(hi) - glm::dvec3(lo)), 1e-6);
 }
 
 double luminance(glm::vec3 c) { return 0.2126 * c.x + 0.7152 * c.y + 0.0722 * c.z; }
 
 void add_punctual_lights(const Scene& scene, CompiledScene& cs, std::vector<double>& power) {
+  if (scene.lights.empty()) return;  // (the radius is a pass over every triangle)
   const double r = scene_radius(scene);
   for (const Light& l : scene.lights) {
     PunctualLightData d{};

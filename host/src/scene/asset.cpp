@@ -462,12 +462,8 @@ Scene load_asset(const fs::path& path, const AssetOptions& options) {
                     orbit.pitch);
       throw Error(buf, "--orbit");
     }
-    glm::dvec3 lo(INFINITY), hi(-INFINITY);
-    for (const Triangle& t : s.triangles)
-      for (int k = 0; k < 3; ++k) {
-        const glm::dvec3 v(s.position(t, k));
-        lo = glm::min(lo, v), hi = glm::max(hi, v);
-      }
+    const auto [box_lo, box_hi] = s.bounds();
+    const glm::dvec3 lo(box_lo), hi(box_hi);
     const glm::dvec3 centre = 0.5 * (lo + hi);
     const double radius = std::max(0.5 * glm::length(hi - lo), 1e-6);
     const double vfov = 40.0, distance = 1.1 * radius / std::sin(glm::radians(vfov / 2.0));

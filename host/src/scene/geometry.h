@@ -51,20 +51,8 @@ void in_parts(size_t n, const Work& work) {
 
 // The longest side of the bounding box of the mesh's triangles (0 for none).
 inline double extent(const Mesh& mesh) {
-  std::vector<std::pair<glm::dvec3, glm::dvec3>> parts(std::max<size_t>(1, std::thread::hardware_concurrency()),
-                                                       {glm::dvec3(INFINITY), glm::dvec3(-INFINITY)});
-  in_parts(mesh.triangles.size(), [&](size_t begin, size_t end, unsigned part) {
-    glm::dvec3 lo(INFINITY), hi(-INFINITY);
-    for (size_t i = begin; i < end; ++i)
-      for (int k = 0; k < 3; ++k) {
-        const glm::dvec3 v(mesh.position(mesh.triangles[i], k));
-        lo = glm::min(lo, v), hi = glm::max(hi, v);
-      }
-    parts[part] = {lo, hi};
-  });
-  glm::dvec3 lo(INFINITY), hi(-INFINITY);
-  for (const auto& [l, h] : parts) lo = glm::min(lo, l), hi = glm::max(hi, h);
-  const glm::dvec3 size = hi - lo;
+  const auto [lo, hi] = mesh.bounds();
+  const glm::dvec3 size = glm::dvec3(hi) - glm::dvec3(lo);
   return mesh.triangles.empty() ? 0.0 : std::max({size.x, size.y, size.z});
 }
 

@@ -781,6 +781,23 @@ Triangle& Mesh::add_triangle(const glm::vec3& a, const glm::vec3& b, const glm::
   return t;
 }
 
+std::pair<glm::vec3, glm::vec3> Mesh::bounds() const {
+  const unsigned parts = parts_for(triangles.size());
+  std::vector<std::pair<glm::vec3, glm::vec3>> part_bounds(parts, {glm::vec3(INFINITY), glm::vec3(-INFINITY)});
+  parallel_chunks(triangles.size(), parts, [&](size_t begin, size_t end, unsigned part) {
+    glm::vec3 lo(INFINITY), hi(-INFINITY);
+    for (size_t i = begin; i < end; ++i)
+      for (int k = 0; k < 3; ++k) {
+        const glm::vec3& v = position(triangles[i], k);
+        lo = glm::min(lo, v), hi = glm::max(hi, v);
+      }
+    part_bounds[part] = {lo, hi};
+  });
+  glm::vec3 lo(INFINITY), hi(-INFINITY);
+  for (const auto& [l, h] : part_bounds) lo = glm::min(lo, l), hi = glm::max(hi, h);
+  return {lo, hi};
+}
+
 void Mesh::append(Mesh&& other, uint32_t first_material) {
   const uint32_t first_vertex = uint32_t(vertices.size()), first_texcoords = uint32_t(texcoords.size());
   for (Triangle& t : other.triangles) {
@@ -799,28 +816,31 @@ void Mesh::append(Mesh&& other, uint32_t first_material) {
 }
 
 void check_scene_limits(const Scene& scene) {
-  const size_t vertices = scene.vertices.size();
-  for (size_t i = 0; i < scene.triangles.size(); ++i)
-    for (const uint32_t v : scene.triangles[i].v)
-      if (v >= vertices)
-        throw Error("triangle " + std::to_string(i) + " names vertex " + std::to_string(v) + " of " +
-                        std::to_string(vertices),
-                    scene.source);
-  std::vector<size_t> bad(std::max(1u, std::thread::hardware_concurrency()), SIZE_MAX);  // per part, its first
-  in_parts(scene.triangles.size(), [&](size_t begin, size_t end, unsigned part) {
-    for (size_t i = begin; i < end && bad[part] == SIZE_MAX; ++i)
-      if (!within_range(scene, scene.triangles[i])) bad[part] = i;
-  });
-  for (size_t i : bad)
-    if (i != SIZE_MAX)
-      throw Error("triangle " + std::to_string(i) + " has a non-finite vertex coordinate or one beyond +-1e9",
-                  scene.source);
+  const size_t n = scene.triangles.size(), vertices = scene.vertices.size();
+  if (size_t i = first_where(n, [&](size_t i) {
+        const uint32_t* v = scene.triangles[i].v;
+        return v[0] >= vertices || v[1] >= vertices || v[2] >= vertices;
+      });
+      i != SIZE_MAX) {
+    const uint32_t* v = scene.triangles[i].v;
+    const uint32_t beyond = v[0] >= vertices ? v[0] : v[1] >= vertices ? v[1] : v[2];
+    throw Error("triangle " + std::to_string(i) + " names vertex " + std::to_string(beyond) + " of " +
+                    std::to_string(vertices),
+                scene.source);
+  }
+  if (size_t i = first_where(n, [&](size_t i) { return !within_range(scene, scene.triangles[i]); }); i != SIZE_MAX)
+    throw Error("triangle " + std::to_string(i) + " has a non-finite vertex coordinate or one beyond +-1e9",
+                scene.source);
   if (const std::string small = too_small(scene); !small.empty()) throw Error(small, scene.source);
-  for (size_t i = 0; i < scene.triangles.size(); ++i)
-    if (const uint32_t k = scene.triangles[i].texcoords; k != kNoTexcoords && k >= scene.texcoords.size())
-      throw Error("triangle " + std::to_string(i) + " names texture coordinates " + std::to_string(k) + " of " +
-                      std::to_string(scene.texcoords.size()),
-                  scene.source);
+  const size_t texcoords = scene.texcoords.size();
+  if (size_t i = first_where(n, [&](size_t i) {
+        const uint32_t k = scene.triangles[i].texcoords;
+        return k != kNoTexcoords && k >= texcoords;
+      });
+      i != SIZE_MAX)
+    throw Error("triangle " + std::to_string(i) + " names texture coordinates " +
+                    std::to_string(scene.triangles[i].texcoords) + " of " + std::to_string(texcoords),
+                scene.source);
   auto radiance_ok = [](glm::vec3 c) {  // (false for NaN)
     return c.x >= 0.0f && c.y >= 0.0f && c.z >= 0.0f && std::isfinite(c.x + c.y + c.z);
   };
