@@ -283,9 +283,7 @@ def main():
 
 
 def plot(rows, path, info, mitsuba):
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = c.pyplot()
     n = [r["triangles"] for r in rows]
     fig, axes = plt.subplots(1, 3, figsize=(15, 4.5))
     for ax, (key, label) in zip(axes, (("first_s", "first pass, s after start"), ("peak_mb", "peak RSS, MB"),
