@@ -588,6 +588,37 @@ TEST(SceneMesh, AddTriangleAndAppend) {
   EXPECT_EQ(a.position(a.triangles[1], 1), glm::vec3(1, 0, 1));
 }
 
+// The box of the corners only: a vertex no triangle names does not widen it. Over enough triangles
+// to be split between threads, the extremes in different parts.
+TEST(SceneMesh, BoundsOfTheTrianglesCorners) {
+  xi::Mesh mesh;
+  const auto [empty_lo, empty_hi] = mesh.bounds();
+  EXPECT_GT(empty_lo.x, empty_hi.x) << "no triangles: an empty box";
+  const size_t n = 300000;
+  for (size_t i = 0; i < n; ++i) {
+    const float x = float(i) * 1e-3f;
+    mesh.add_triangle({x, 0, 0}, {x, 1, 0}, {x, 0, -1});
+  }
+  mesh.vertices.push_back({glm::vec3(1e6f), glm::vec3(0.0f)});  // named by no triangle
+  mesh.vertices[3 * 100].position.y = -7.0f;                      // the first part's
+  mesh.vertices[3 * (n - 5) + 2].position.z = 9.5f;             // the last part's
+  const auto [lo, hi] = mesh.bounds();
+  EXPECT_EQ(lo, glm::vec3(0.0f, -7.0f, -1.0f));
+  EXPECT_EQ(hi, glm::vec3(float(n - 1) * 1e-3f, 1.0f, 9.5f));
+}
+
+// The first index that fails, wherever the parts split the range.
+TEST(Parallel, FirstWhereFindsTheFirst) {
+  const size_t n = 1 << 20;
+  EXPECT_EQ(xi::first_where(n, [](size_t) { return false; }), SIZE_MAX);
+  EXPECT_EQ(xi::first_where(0, [](size_t) { return true; }), SIZE_MAX);
+  for (size_t first : {size_t(0), size_t(70000), n / 2 + 3, n - 1}) {
+    // Failing at `first` and at every index a quarter of the range beyond it: each part's first
+    // failure is found, and the earliest wins.
+    EXPECT_EQ(xi::first_where(n, [&](size_t i) { return i >= first && (i - first) % (n / 4) == 0; }), first);
+  }
+}
+
 // The other end of single precision: geometry whose bounding box's longest side is below 1e-6 is
 // refused, in a scene file after every transform (edges of 1e-12 made normals and light areas
 // underflow: the Cornell box rendered black but for its light). AssetScene.GeometryBelowTheSmallestExtent:
