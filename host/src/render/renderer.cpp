@@ -65,7 +65,7 @@ template <typename T>
 cl::Buffer upload_and_free(cl::Context& ctx, cl::CommandQueue& queue, std::vector<T>& data) {
   constexpr size_t kPart = size_t(32) << 20;
   const size_t bytes = sizeof(T) * data.size();
-  if (bytes <= kPart / 8) {
+  if (bytes <= kPart / 8) {  // small: copied as the buffer is made
     cl::Buffer buffer = upload(ctx, data);
     std::vector<T>().swap(data);
     return buffer;

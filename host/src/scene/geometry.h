@@ -10,7 +10,6 @@
 #include <utility>
 #include <string>
 #include <string_view>
-#include <thread>
 #include <vector>
 
 #include <glm/glm.hpp>
