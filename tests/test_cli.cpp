@@ -123,6 +123,23 @@ TEST_F(CliRender, ThreadsCapsPoclsComputeUnits) {
                     before);
 }
 
+// --threads N caps the BVH build too: an 81,920-triangle sphere, large enough to be built in
+// subtrees on threads of their own, is built on one thread with --threads 1 and on more with 2,
+// whatever the machine's cores.
+TEST_F(CliRender, ThreadsCapsTheBvhBuild) {
+  xi_test::write_text(work_ / "sphere.json", R"({"camera": {"position": [0, 0, 3], "look_at": [0, 0, 0], "up": [0, 1, 0], "fov": 40},
+    "film": {"width": 8, "height": 8}, "background": [1, 1, 1],
+    "materials": {"w": {"type": "diffuse", "albedo": [0.5, 0.5, 0.5]}},
+    "shapes": [{"type": "sphere", "material": "w", "center": [0, 0, 0], "radius": 1, "subdivisions": 6}]})");
+  for (const char* threads : {"1", "2"}) {
+    const Outcome r = run_xi({"render", "sphere.json", "--spp", "1", "--threads", threads, "-o", "out.exr"});
+    ASSERT_EQ(r.code, 0) << r.err;
+    ASSERT_NE(r.out.find("81920 triangles"), std::string::npos) << r.out;
+    const bool one = r.out.find(" on 1 thread;") != std::string::npos;
+    EXPECT_EQ(one, std::string(threads) == "1") << "--threads " << threads << ": " << r.out;
+  }
+}
+
 // A new scene's kernels are compiled once each, with their program: PoCL is not left to generate
 // another work-group function for each launch configuration at the first launches (seconds per
 // kernel), so its cache holds one function per kernel, the general one ("0-0-0").

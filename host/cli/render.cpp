@@ -525,12 +525,14 @@ void open_renderer(Job& job, const Args& args, const Team& team) {
   if (!job.resume.empty() && team.leader()) job.resumed = read_checkpoint(job.resume, job.key);
 }
 
-// --threads N caps the CPU threads PoCL runs work groups on. PoCL reads its environment when the
-// OpenCL platform is first queried, so this comes before anything opens a device. (PoCL 3 reads
-// POCL_MAX_PTHREAD_COUNT, PoCL 4 and later POCL_CPU_MAX_CU_COUNT; other drivers ignore both.)
+// --threads N caps the CPU threads PoCL runs work groups on, and the BVH build's. PoCL reads its
+// environment when the OpenCL platform is first queried, so this comes before anything opens a
+// device. (PoCL 3 reads POCL_MAX_PTHREAD_COUNT, PoCL 4 and later POCL_CPU_MAX_CU_COUNT; other
+// drivers ignore both.)
 void limit_cpu_threads(Job& job, const Args& args) {
   job.threads = args.get_int("--threads", 0, 1, 4096);
   if (job.threads == 0) return;
+  job.opt.build_threads = (unsigned)job.threads;
   const std::string n = std::to_string(job.threads);
   setenv("POCL_MAX_PTHREAD_COUNT", n.c_str(), 1);
   setenv("POCL_CPU_MAX_CU_COUNT", n.c_str(), 1);
