@@ -74,7 +74,8 @@ cl::Buffer upload_and_free(cl::Context& ctx, cl::CommandQueue& queue, std::vecto
   const char* host = reinterpret_cast<const char*>(data.data());
   for (size_t at = 0; at < bytes; at += kPart) {
     const size_t part = std::min(kPart, bytes - at);
-    char* mapped = static_cast<char*>(queue.enqueueMapBuffer(buffer, CL_TRUE, CL_MAP_WRITE_INVALIDATE_REGION, at, part));
+    char* mapped =
+        static_cast<char*>(queue.enqueueMapBuffer(buffer, CL_TRUE, CL_MAP_WRITE_INVALIDATE_REGION, at, part));
     parallel_chunks(part, parts_for(part / sizeof(T)), [&](size_t begin, size_t end, unsigned) {
       std::memcpy(mapped + begin, host + at + begin, end - begin);
     });
@@ -146,7 +147,8 @@ float pixel_relative_error(const glm::vec4& sum, const glm::vec4& sum_sq) {
   const glm::vec3 variance = glm::max((glm::vec3(sum_sq) - n * mean * mean) / (n - 1.0f), glm::vec3(0.0f));
   const glm::vec3 standard_error = glm::sqrt(variance / n);
   const float intensity = (mean.x + mean.y + mean.z) / 3.0f;
-  return std::max({standard_error.x, standard_error.y, standard_error.z}) / std::sqrt(intensity * intensity + kAdaptiveDarkFloor * kAdaptiveDarkFloor);
+  return std::max({standard_error.x, standard_error.y, standard_error.z}) /
+         std::sqrt(intensity * intensity + kAdaptiveDarkFloor * kAdaptiveDarkFloor);
 }
 
 int adaptive_check_after(int count) { return count + std::max(1, count / 4); }
@@ -309,7 +311,8 @@ void Renderer::allocate() {
   counter_count_ = XI_COUNTER_COUNT(options_.max_depth);
   counters_ = cl::Buffer(ctx, CL_MEM_READ_WRITE, sizeof(uint32_t) * counter_count_);
   queue_counts_.assign(counter_count_, 0);
-  nodes_ = scene_.bvh.width == 8 ? upload_and_free(ctx, queue, scene_.bvh.nodes8) : upload_and_free(ctx, queue, scene_.bvh.nodes);
+  nodes_ = scene_.bvh.width == 8 ? upload_and_free(ctx, queue, scene_.bvh.nodes8)
+                                 : upload_and_free(ctx, queue, scene_.bvh.nodes);
   std::vector<BvhNode>().swap(scene_.bvh.nodes);  // the 4-wide nodes an 8-wide tree was collapsed from
   tri_blocks_ = upload_and_free(ctx, queue, scene_.bvh.blocks);
   light_count_ = scene_.features.lights() ? (uint32_t)scene_.light_tri.size() : 0u;
