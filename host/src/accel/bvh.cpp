@@ -375,27 +375,30 @@ struct Builder {
   Split exact_split(std::span<const Ref> refs, Ref* sorted) const {
     Split best;
     const size_t n = refs.size();
-    Ref order[kMaxLeaf];
+    glm::vec3 centre[kMaxLeaf];  // each reference's centroid, once
+    for (size_t i = 0; i < n; ++i) centre[i] = refs[i].box.centre();
+    static_assert(kMaxLeaf <= 256);
+    uint8_t order[kMaxLeaf], best_order[kMaxLeaf];  // the references' indices, not the references
     Box right[kMaxLeaf];
     for (int axis = 0; axis < 3; ++axis) {
       // Insertion sort by centroid: stable, and fast for a few.
       for (size_t i = 0; i < n; ++i) {
         size_t j = i;
-        for (; j > 0 && order[j - 1].box.centre()[axis] > refs[i].box.centre()[axis]; --j) order[j] = order[j - 1];
-        order[j] = refs[i];
+        for (; j > 0 && centre[order[j - 1]][axis] > centre[i][axis]; --j) order[j] = order[j - 1];
+        order[j] = (uint8_t)i;
       }
-      right[n - 1] = order[n - 1].box;
-      for (size_t i = n - 1; i-- > 1;) right[i] = right[i + 1], right[i].grow(order[i].box);
+      right[n - 1] = refs[order[n - 1]].box;
+      for (size_t i = n - 1; i-- > 1;) right[i] = right[i + 1], right[i].grow(refs[order[i]].box);
       Box left;
-      bool improved = false;
       for (size_t i = 1; i < n; ++i) {
-        left.grow(order[i - 1].box);
-        if (!(order[i - 1].box.centre()[axis] < order[i].box.centre()[axis])) continue;  // no plane between
+        left.grow(refs[order[i - 1]].box);
+        if (!(centre[order[i - 1]][axis] < centre[order[i]][axis])) continue;  // no plane between
         const float cost = left.area() * blocks_cost(i) + right[i].area() * blocks_cost(n - i);
-        if (cost < best.cost) best = Split{cost, axis, (int)i, false}, improved = true;
+        if (cost < best.cost) best = Split{cost, axis, (int)i, false}, std::copy(order, order + n, best_order);
       }
-      if (improved) std::copy(order, order + n, sorted);
     }
+    if (best.axis >= 0)
+      for (size_t i = 0; i < n; ++i) sorted[i] = refs[best_order[i]];
     return best;
   }
 
