@@ -303,8 +303,8 @@ int main(int argc, char** argv) {
       // (the same build again: the renderer keeps no host copy).
       const xi::CompiledScene ordered =
           xi::compile_scene(scene, xi::KernelConfig::bvh_width_for(device.info(), opt), opt.spatial_splits);
-      std::vector<glm::vec4> positions(ordered.vertices.size() / 2);  // (each vertex's normal beside it)
-      for (size_t i = 0; i < positions.size(); ++i) positions[i] = ordered.vertices[2 * i];
+      std::vector<glm::vec4> positions(ordered.vertex_count());
+      for (size_t i = 0; i < positions.size(); ++i) positions[i] = glm::vec4(ordered.vertex_position(i), 0.0f);
       Embree embree(positions, ordered.tri_vertices, embree_quality);
 
       const xi::RayBatch& rays = probe.recorded();

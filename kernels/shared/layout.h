@@ -212,6 +212,10 @@ typedef struct {
   F(float4, shadow_dir)     /* xyz: unit direction */       \
   F(float4, shadow_contrib) /* rgb; w: as_float(path slot) */
 
+// A vertex in the vertices buffer: two float4s, its position (w = 0), then its normal (zero where
+// it has none), so that shading finds both in one cache line.
+#define XI_VERTEX_FLOAT4S 2u
+
 // The scene's device buffers, each declared once as F(element type in the kernels, name): the
 // host's buffers, the kernels' parameters and the host's bindings all expand these lists, and each
 // buffer is uploaded from the CompiledScene field of its name. The tracing stages read the surface

@@ -1,6 +1,6 @@
 // A triangle of the scene's indexed mesh as the shading stages read it: its vertices' indices
-// (tri_vertices, in BVH order), their positions and their normals (vertices: two float4s each,
-// the position, then the normal). Written on lane types (lanes.h).
+// (tri_vertices, in BVH order), their positions and their normals (vertices, XI_VERTEX_FLOAT4S
+// each: layout.h). Written on lane types (lanes.h).
 #ifndef XI_MESH_H
 #define XI_MESH_H
 #include "lanes.h"
@@ -12,10 +12,10 @@ typedef struct {
 } TriangleCorners;
 
 static inline XI_INLINE xfloat3 xi_vertex_position(__global const float4* vertices, xuint v) {
-  return xi_gather_xyz(vertices, 2u * v, 0);
+  return xi_gather_xyz(vertices, XI_VERTEX_FLOAT4S * v, 0);
 }
 static inline XI_INLINE xfloat3 xi_vertex_normal(__global const float4* vertices, xuint v) {
-  return xi_gather_xyz(vertices, 2u * v + 1u, 0);
+  return xi_gather_xyz(vertices, XI_VERTEX_FLOAT4S * v + 1u, 0);
 }
 
 static inline XI_INLINE TriangleCorners xi_triangle_corners(__global const uint4* tri_vertices,

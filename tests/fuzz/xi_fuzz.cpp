@@ -487,8 +487,8 @@ std::string check_scene(const xi::Scene& s, const xi::CompiledScene& cs) {
   if (s.triangles.empty() || cs.tri_vertices.size() != s.triangles.size()) return "triangles missing";
   for (const glm::uvec4& t : cs.tri_vertices)
     for (int k = 0; k < 3; ++k) {
-      if (2 * size_t(t[k]) + 1 >= cs.vertices.size()) return "a vertex index out of range";
-      if (!finite(cs.vertices[2 * size_t(t[k])])) return "a non-finite vertex coordinate";
+      if (t[k] >= cs.vertex_count()) return "a vertex index out of range";
+      if (!finite(glm::vec4(cs.vertex_position(t[k]), 0.0f))) return "a non-finite vertex coordinate";
     }
   for (const auto& v : {cs.camera.position, cs.camera.forward, cs.camera.right, cs.camera.up})
     if (!finite(v)) return "a non-finite camera vector";

@@ -29,8 +29,7 @@ struct CompiledScene {
   Bvh bvh;
   // Per triangle, in BVH order: its corners (vertex indices) and w = 1 where it has vertex normals.
   std::vector<glm::uvec4> tri_vertices;
-  // Two per vertex, in the scene's order: its position (w = 0), then its normal (zero where it has
-  // none), side by side so that shading finds both in one cache line.
+  // XI_VERTEX_FLOAT4S per vertex (layout.h: its position, then its normal), in the scene's order.
   std::vector<glm::vec4> vertices;
   std::vector<uint32_t> tri_material;
   std::vector<MaterialData> materials;
@@ -61,7 +60,9 @@ struct CompiledScene {
   Features features;
 
   // Corner k's position of the triangle at position i in BVH order.
-  glm::vec3 position(size_t i, int k) const { return glm::vec3(vertices[2 * tri_vertices[i][k]]); }
+  glm::vec3 position(size_t i, int k) const { return vertex_position(tri_vertices[i][k]); }
+  glm::vec3 vertex_position(size_t v) const { return glm::vec3(vertices[XI_VERTEX_FLOAT4S * v]); }
+  size_t vertex_count() const { return vertices.size() / XI_VERTEX_FLOAT4S; }
 };
 
 // bvh_width: the lanes of the BVH's nodes, 4 or 8 (the kernels' XI_BVH_WIDTH); spatial_splits and

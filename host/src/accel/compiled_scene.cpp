@@ -275,12 +275,12 @@ CompiledScene compile(const Scene& scene, Scene* owner, int bvh_width, bool spat
   }
   // The vertices in the scene's order, each position beside its normal.
   const size_t nv = scene.vertices.size();
-  cs.vertices.resize(2 * nv);
+  cs.vertices.resize(XI_VERTEX_FLOAT4S * nv);
   parallel_chunks(nv, parts_for(nv, threads), [&](size_t begin, size_t end, unsigned) {
     for (size_t i = begin; i < end; ++i) {
       const Vertex& v = scene.vertices[i];
-      cs.vertices[2 * i] = glm::vec4(v.position, 0.0f);
-      cs.vertices[2 * i + 1] = glm::vec4(v.normal, 0.0f);
+      cs.vertices[XI_VERTEX_FLOAT4S * i] = glm::vec4(v.position, 0.0f);
+      cs.vertices[XI_VERTEX_FLOAT4S * i + 1] = glm::vec4(v.normal, 0.0f);
     }
   });
   if (owner) std::vector<Vertex>().swap(owner->vertices);

@@ -49,12 +49,6 @@ void enqueue_items(cl::CommandQueue& queue, cl::Kernel& kernel, size_t global_it
                              nullptr, event);
 }
 
-template <typename T>
-cl::Buffer upload(cl::Context& ctx, const std::vector<T>& data) {
-  return cl::Buffer(ctx, CL_MEM_READ_ONLY | CL_MEM_COPY_HOST_PTR, sizeof(T) * data.size(),
-                    const_cast<T*>(data.data()));
-}
-
 // Uploads a host array of the compiled scene, then frees it: from then on the device's copy is the
 // only one (a large mesh's triangles and BVH are most of a render's memory). In parts, each handed
 // back once written, so that the array is never held whole twice (on a CPU device both copies are
@@ -65,11 +59,6 @@ template <typename T>
 cl::Buffer upload_and_free(cl::Context& ctx, cl::CommandQueue& queue, std::vector<T>& data) {
   constexpr size_t kPart = size_t(32) << 20;
   const size_t bytes = sizeof(T) * data.size();
-  if (bytes <= kPart / 8) {  // small: copied as the buffer is made
-    cl::Buffer buffer = upload(ctx, data);
-    std::vector<T>().swap(data);
-    return buffer;
-  }
   cl::Buffer buffer(ctx, CL_MEM_READ_ONLY, bytes);
   const char* host = reinterpret_cast<const char*>(data.data());
   for (size_t at = 0; at < bytes; at += kPart) {
