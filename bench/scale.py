@@ -15,12 +15,14 @@ and --spp:
 
 Peak RSS is each child process's own (GNU time's %M). One untimed run of each at the smallest size
 first fills both kernel caches (PoCL's and xi's, Dr.Jit's), so no timed run compiles a kernel from scratch.
-Each renderer runs --runs times in a row at each size (default 3) and the table gives, figure by
-figure, the median of its runs after the first: on a virtual machine that hands freed memory back to its
-host (the 2-core Firecracker VM these figures come from did, within a minute), a page first written after
-that costs a fault in the host, about 2 s per GB against a tenth of that for a page the guest still holds,
-so a first run pays for its whole footprint over again and the figures wander with whatever ran before;
-the run before it frees that footprint just in time. --runs 1 measures the first runs. Prints a table and writes bench/out/scale.csv and scale.png
+Each renderer runs --runs times at each size (default 3), xi and Mitsuba taking turns so that a machine
+whose speed drifts through the bench slows both alike, and the table gives, figure by figure, the median
+of each one's runs after the first: on a virtual machine that hands freed memory back to its host (the
+2-core Firecracker VM these figures come from did, within a minute), a page first written after that
+costs a fault in the host, about 2 s per GB against a tenth of that for a page the guest still holds, so
+a first run pays for its whole footprint over again and the figures wander with whatever ran before; the
+run before it (the other renderer's, of a like footprint) frees that footprint just in time. --runs 1
+measures the first runs. Prints a table and writes bench/out/scale.csv and scale.png
 (log-log).
 
   bench/scale.py --xi build/xi                  # 0.1M to 10M triangles
@@ -253,14 +255,19 @@ def main():
         rows = []
         for k, (millions, count, scene, ply) in enumerate(scenes):
             if k == 0:  # untimed: fills the kernel caches
-                xi_run(xi, scene, Path(tmp) / "warm.exr", a.spp)
-            x = medians([xi_run(xi, scene, Path(tmp) / f"xi-{millions:g}m.exr", a.spp) for _ in range(max(1, a.runs))])
-            m = None
-            if not a.no_mitsuba:
-                if k == 0:
-                    mitsuba_run(box, export, ply, a.resolution, x["per_pass"], a.spp, a.mitsuba_variant)
-                m = medians([mitsuba_run(box, export, ply, a.resolution, x["per_pass"], a.spp, a.mitsuba_variant)
-                             for _ in range(max(1, a.runs))])
+                warm = xi_run(xi, scene, Path(tmp) / "warm.exr", a.spp)
+                if not a.no_mitsuba:
+                    mitsuba_run(box, export, ply, a.resolution, warm["per_pass"], a.spp, a.mitsuba_variant)
+            # Each xi run is followed by Mitsuba's, so that a machine whose speed drifts through the
+            # bench slows both alike.
+            xi_runs, mi_runs = [], []
+            for _ in range(max(1, a.runs)):
+                xi_runs.append(xi_run(xi, scene, Path(tmp) / f"xi-{millions:g}m.exr", a.spp))
+                if not a.no_mitsuba:
+                    mi_runs.append(mitsuba_run(box, export, ply, a.resolution, xi_runs[-1]["per_pass"], a.spp,
+                                               a.mitsuba_variant))
+            x = medians(xi_runs)
+            m = medians(mi_runs) if mi_runs else None
             row = dict(triangles=count + 12, millions=millions, xi_first_s=x["first"], xi_peak_mb=x["peak"],
                        xi_bvh_s=x["bvh"], xi_bvh_threads=x["bvh_threads"], xi_ms_per_spp=1e3 * x["sample"],
                        xi_spp_per_pass=x["per_pass"],

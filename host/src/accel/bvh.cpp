@@ -28,6 +28,7 @@ namespace xi {
 namespace {
 
 constexpr int kBins = 16;
+constexpr size_t kTwoBinSets = 256;  // references in a pass, at least, to bin into two sets of bins
 constexpr size_t kMaxLeaf = 8;      // triangles in a leaf, at most: two blocks of four
 static_assert((kMaxLeaf + 3) / 4 <= XI_BVH_LEAF_MAX, "a leaf's block count must fit its child entry");
 constexpr int kMaxSahDepth = 48;    // below it, ranges are halved by index: no deeper SAH recursion
@@ -125,6 +126,11 @@ struct Box4 {
   void grow(Vec4 l, Vec4 h) { lo = l < lo ? l : lo, hi = hi < h ? h : hi; }
   void grow(const Box4& b) { grow(b.lo, b.hi); }
   Box box() const { return Box{glm::vec3(lo[0], lo[1], lo[2]), glm::vec3(hi[0], hi[1], hi[2])}; }
+  // As Box::area(), the same products summed in the same order, so the same bits.
+  float area() const {
+    const Vec4 d = hi - lo, p = d * __builtin_shufflevector(d, d, 1, 2, 0, 3);  // dx dy, dy dz, dz dx
+    return !(lo[0] <= hi[0] && lo[1] <= hi[1] && lo[2] <= hi[2]) ? 0.0f : 2.0f * (p[0] + p[1] + p[2]);
+  }
 };
 Vec4 vec4_of(const glm::vec3& v) { return Vec4{v.x, v.y, v.z, 0.0f}; }
 // A reference's box corners as vectors, read from within the reference (lanes 3 unused).
@@ -154,7 +160,7 @@ struct Bounds {
 struct BoundsAcc {
   Box4 box, centroids;
   Vec4 largest = {0.0f, 0.0f, 0.0f, 0.0f};
-  void grow(const Ref& r) {
+  [[gnu::always_inline]] void grow(const Ref& r) {  // (the partitions' inner loops)
     const Vec4 lo = lo_of(r), hi = hi_of(r), c = 0.5f * (lo + hi), d = hi - lo;  // as Box::centre()
     box.grow(lo, hi), centroids.grow(c, c);
     largest = largest < d ? d : largest;
@@ -295,17 +301,17 @@ struct Builder {
   // take(b, cost, left box, right box, left count, right count) for each plane with references on
   // both sides.
   template <class Take>
-  static void sweep(const Box* bins, const size_t* left_counts, const size_t* right_counts, Take take) {
-    Box right_box[kBins];
+  static void sweep(const Box4* bins, const size_t* left_counts, const size_t* right_counts, Take take) {
+    Box4 right_box[kBins];
     size_t right_n[kBins];
-    Box acc;
+    Box4 acc;
     size_t n = 0;
     for (int b = kBins - 1; b > 0; --b) {
       acc.grow(bins[b]);
       n += right_counts[b];
       right_box[b] = acc, right_n[b] = n;
     }
-    acc = Box();
+    acc = Box4();
     n = 0;
     for (int b = 1; b < kBins; ++b) {
       acc.grow(bins[b - 1]);
@@ -316,15 +322,24 @@ struct Builder {
     }
   }
 
-  // The bins of a pass over part of a node's references. The parts' bins are merged in order, and
-  // min and max do not round, so they are those of one pass over them all.
+  // The bins of a pass over part of a node's references. Min and max do not round and counts add,
+  // so the parts' bins merged, in any order, are those of one pass over them all.
   struct ObjectBins {
     Box4 box[3][kBins];
     size_t count[3][kBins] = {};
+    void add(const ObjectBins& o) {
+      for (int axis = 0; axis < 3; ++axis)
+        for (int b = 0; b < kBins; ++b) box[axis][b].grow(o.box[axis][b]), count[axis][b] += o.count[axis][b];
+    }
   };
   struct SpatialBins {
     Box4 box[3][kBins];
     size_t enters[3][kBins] = {}, exits[3][kBins] = {};
+    void add(const SpatialBins& o) {
+      for (int axis = 0; axis < 3; ++axis)
+        for (int b = 0; b < kBins; ++b)
+          box[axis][b].grow(o.box[axis][b]), enters[axis][b] += o.enters[axis][b], exits[axis][b] += o.exits[axis][b];
+    }
   };
 
   // Binned SAH over the centroids of the references' boxes; *overlap gets the area where the
@@ -335,34 +350,35 @@ struct Builder {
     const glm::vec3 scale = bin_scale(cbox);
     const Vec4 origin = vec4_of(cbox.lo), scale4 = vec4_of(scale);
     Parts<ObjectBins> part_bins(parts);
+    auto bin = [&](ObjectBins& bins, const Ref& r) {
+      const Vec4 lo = lo_of(r), hi = hi_of(r), at = (0.5f * (lo + hi) - origin) * scale4;  // centroid_bin's
+      for (int axis = 0; axis < 3; ++axis) {
+        const int b = std::min(kBins - 1, (int)at[axis]);
+        bins.box[axis][b].grow(lo, hi);
+        bins.count[axis][b]++;
+      }
+    };
     parallel_chunks(refs.size(), parts, [&](size_t begin, size_t end, unsigned part) {
       ObjectBins& bins = part_bins[part];
-      for (size_t i = begin; i < end; ++i) {
-        const Ref& r = refs[i];
-        const Vec4 lo = lo_of(r), hi = hi_of(r), at = (0.5f * (lo + hi) - origin) * scale4;  // centroid_bin's
-        for (int axis = 0; axis < 3; ++axis) {
-          const int b = std::min(kBins - 1, (int)at[axis]);
-          bins.box[axis][b].grow(lo, hi);
-          bins.count[axis][b]++;
-        }
+      size_t i = begin;
+      // Neighbouring references mostly fall in the same bins: binned alternately into two sets,
+      // one's box need not wait for the other's to be stored.
+      if (end - begin >= kTwoBinSets) {
+        ObjectBins odd;
+        for (; i + 1 < end; i += 2) bin(bins, refs[i]), bin(odd, refs[i + 1]);
+        bins.add(odd);
       }
+      for (; i < end; ++i) bin(bins, refs[i]);
     });
-    Box bins[3][kBins];
-    size_t counts[3][kBins] = {};
-    for (int axis = 0; axis < 3; ++axis)
-      for (int b = 0; b < kBins; ++b) {
-        Box4 merged;
-        for (unsigned p = 0; p < part_bins.size(); ++p)
-          merged.grow(part_bins[p].box[axis][b]), counts[axis][b] += part_bins[p].count[axis][b];
-        bins[axis][b] = merged.box();
-      }
+    ObjectBins& bins = part_bins[0];  // the parts' bins, merged
+    for (unsigned p = 1; p < part_bins.size(); ++p) bins.add(part_bins[p]);
     for (int axis = 0; axis < 3; ++axis) {
       if (scale[axis] == 0.0f) continue;
-      sweep(bins[axis], counts[axis], counts[axis],
-            [&](int bin, float cost, const Box& left, const Box& right, size_t, size_t) {
+      sweep(bins.box[axis], bins.count[axis], bins.count[axis],
+            [&](int bin, float cost, const Box4& left, const Box4& right, size_t, size_t) {
               if (cost >= best.cost) return;
               best = Split{cost, axis, bin, false};
-              *overlap = left.intersect(right).area();
+              *overlap = left.box().intersect(right.box()).area();
             });
     }
     return best;
@@ -379,7 +395,7 @@ struct Builder {
     for (size_t i = 0; i < n; ++i) centre[i] = refs[i].box.centre();
     static_assert(kMaxLeaf <= 256);
     uint8_t order[kMaxLeaf], best_order[kMaxLeaf];  // the references' indices, not the references
-    Box right[kMaxLeaf];
+    Box4 right[kMaxLeaf];
     for (int axis = 0; axis < 3; ++axis) {
       // Insertion sort by centroid: stable, and fast for a few.
       for (size_t i = 0; i < n; ++i) {
@@ -387,11 +403,13 @@ struct Builder {
         for (; j > 0 && centre[order[j - 1]][axis] > centre[i][axis]; --j) order[j] = order[j - 1];
         order[j] = (uint8_t)i;
       }
-      right[n - 1] = refs[order[n - 1]].box;
-      for (size_t i = n - 1; i-- > 1;) right[i] = right[i + 1], right[i].grow(refs[order[i]].box);
-      Box left;
+      auto grow = [&](Box4& b, size_t k) { b.grow(lo_of(refs[order[k]]), hi_of(refs[order[k]])); };
+      right[n - 1] = Box4();
+      grow(right[n - 1], n - 1);
+      for (size_t i = n - 1; i-- > 1;) right[i] = right[i + 1], grow(right[i], i);
+      Box4 left;
       for (size_t i = 1; i < n; ++i) {
-        left.grow(refs[order[i - 1]].box);
+        grow(left, i - 1);
         if (!(centre[order[i - 1]][axis] < centre[order[i]][axis])) continue;  // no plane between
         const float cost = left.area() * blocks_cost(i) + right[i].area() * blocks_cost(n - i);
         if (cost < best.cost) best = Split{cost, axis, (int)i, false}, std::copy(order, order + n, best_order);
@@ -413,22 +431,13 @@ struct Builder {
     parallel_chunks(refs.size(), parts, [&](size_t begin, size_t end, unsigned part) {
       bin_spatial(refs.subspan(begin, end - begin), box, scale, planes, part_bins[part]);
     });
-    Box bins[3][kBins];
-    size_t enters[3][kBins] = {}, exits[3][kBins] = {};
-    for (int axis = 0; axis < 3; ++axis)
-      for (int b = 0; b < kBins; ++b) {
-        Box4 merged;
-        for (unsigned p = 0; p < part_bins.size(); ++p) {
-          const SpatialBins& pb = part_bins[p];
-          merged.grow(pb.box[axis][b]), enters[axis][b] += pb.enters[axis][b], exits[axis][b] += pb.exits[axis][b];
-        }
-        bins[axis][b] = merged.box();
-      }
+    SpatialBins& bins = part_bins[0];  // the parts' bins, merged
+    for (unsigned p = 1; p < part_bins.size(); ++p) bins.add(part_bins[p]);
     Split best;
     for (int axis = 0; axis < 3; ++axis) {
       if (scale[axis] == 0.0f) continue;
-      sweep(bins[axis], enters[axis], exits[axis],
-            [&](int bin, float cost, const Box&, const Box&, size_t left, size_t right) {
+      sweep(bins.box[axis], bins.enters[axis], bins.exits[axis],
+            [&](int bin, float cost, const Box4&, const Box4&, size_t left, size_t right) {
               // (Both sides may hold every reference: each gets its clipped part of all of them.)
               if (left + right - refs.size() <= budget && cost < best.cost) best = Split{cost, axis, bin, true};
             });
@@ -436,43 +445,74 @@ struct Builder {
     return best;
   }
 
-  // Bins references into spatial bins: each clipped into the bins it spans.
+  // Bins references into spatial bins: each clipped into the bins it spans. A batch's references
+  // within one bin on an axis are binned whole first; the few that span planes wait in a list
+  // while their triangles are fetched ahead (read in the references' order, those loads miss the
+  // cache). Min, max and counts do not depend on the order.
   void bin_spatial(std::span<const Ref> refs, const Box& box, const glm::vec3& scale, const float (*planes)[kBins + 1],
                    SpatialBins& out) const {
     Box4 (&bins4)[3][kBins] = out.box;
     size_t (&enters)[3][kBins] = out.enters;
     size_t (&exits)[3][kBins] = out.exits;
-    for (const Ref& r : refs) {
-      const Vec4 lo = lo_of(r), hi = hi_of(r);
-      for (int axis = 0; axis < 3; ++axis) {
-        if (scale[axis] == 0.0f) continue;
-        Box4* bin_box = bins4[axis];
-        const float* at = planes[axis];
-        auto bin_of = [&](float x) { return bin_in(at, box.lo[axis], scale[axis], x); };
-        // Most references end in the bin they start in: one comparison tells, not a second search.
-        const int first = bin_of(r.box.lo[axis]);
-        const int last = first == kBins - 1 || r.box.hi[axis] < at[first + 1] ? first : bin_of(r.box.hi[axis]);
-        enters[axis][first]++;
-        exits[axis][last]++;
-        if (first == last) {
-          bin_box[first].grow(lo, hi);
-          continue;
+    struct Spanning {
+      const Ref* ref;
+      int8_t first[3], last[3];  // per axis; first == last: binned already
+    };
+    constexpr size_t kBatch = 256, kAhead = 8;
+    Spanning spanning[kBatch];
+    for (size_t begin = 0; begin < refs.size(); begin += kBatch) {
+      const size_t end = std::min(refs.size(), begin + kBatch);
+      size_t n = 0;
+      for (size_t i = begin; i < end; ++i) {
+        const Ref& r = refs[i];
+        const Vec4 lo = lo_of(r), hi = hi_of(r);
+        Spanning s{&r, {}, {}};
+        bool spans = false;
+        for (int axis = 0; axis < 3; ++axis) {
+          if (scale[axis] == 0.0f) continue;
+          const float* at = planes[axis];
+          // Most references end in the bin they start in: one comparison tells, not a second search.
+          const int first = bin_in(at, box.lo[axis], scale[axis], r.box.lo[axis]);
+          const int last = first == kBins - 1 || r.box.hi[axis] < at[first + 1]
+                               ? first
+                               : bin_in(at, box.lo[axis], scale[axis], r.box.hi[axis]);
+          enters[axis][first]++;
+          exits[axis][last]++;
+          s.first[axis] = (int8_t)first, s.last[axis] = (int8_t)last;
+          if (first == last) bins4[axis][first].grow(lo, hi);
+          else spans = true;
         }
-        // Only the costs need these boxes (partition_spatial clips the references it splits), so
-        // each bin gets the vertices and edge crossings of its planes, clamped to the reference's
-        // box and unwidened: each crossing computed once, for the two bins it bounds.
+        if (spans) {
+          __builtin_prefetch(&mesh.triangles[r.tri]);
+          spanning[n++] = s;
+        }
+      }
+      for (size_t k = 0; k < n; ++k) {
+        if (k + kAhead < n)
+          for (uint32_t v : mesh.triangles[spanning[k + kAhead].ref->tri].v) __builtin_prefetch(&mesh.vertices[v]);
+        const Spanning& s = spanning[k];
+        const Ref& r = *s.ref;
         const Corners t = corners(mesh, r.tri);
-        auto grow = [](Box4& bin, const glm::vec3& p) { bin.grow(vec4_of(p), vec4_of(p)); };
-        for (const glm::vec3& p : t) {
-          int b = bin_of(p[axis]);
-          if (b >= first && b <= last) grow(bin_box[b], glm::clamp(p, r.box.lo, r.box.hi));
-        }
-        for (int b = first + 1; b <= last; ++b) {
-          for (int i = 0; i < 3; ++i) {
-            glm::vec3 x;
-            if (!edge_crossing(t[i], t[(i + 1) % 3], axis, at[b], &x)) continue;
-            x = glm::clamp(x, r.box.lo, r.box.hi);  // (x[axis] = at stays: the box spans the plane)
-            grow(bin_box[b - 1], x), grow(bin_box[b], x);
+        for (int axis = 0; axis < 3; ++axis) {
+          const int first = s.first[axis], last = s.last[axis];
+          if (scale[axis] == 0.0f || first == last) continue;
+          // Only the costs need these boxes (partition_spatial clips the references it splits), so
+          // each bin gets the vertices and edge crossings of its planes, clamped to the reference's
+          // box and unwidened: each crossing computed once, for the two bins it bounds.
+          Box4* bin_box = bins4[axis];
+          const float* at = planes[axis];
+          auto grow = [](Box4& bin, const glm::vec3& p) { bin.grow(vec4_of(p), vec4_of(p)); };
+          for (const glm::vec3& p : t) {
+            int b = bin_in(at, box.lo[axis], scale[axis], p[axis]);
+            if (b >= first && b <= last) grow(bin_box[b], glm::clamp(p, r.box.lo, r.box.hi));
+          }
+          for (int b = first + 1; b <= last; ++b) {
+            for (int i = 0; i < 3; ++i) {
+              glm::vec3 x;
+              if (!edge_crossing(t[i], t[(i + 1) % 3], axis, at[b], &x)) continue;
+              x = glm::clamp(x, r.box.lo, r.box.hi);  // (x[axis] = at stays: the box spans the plane)
+              grow(bin_box[b - 1], x), grow(bin_box[b], x);
+            }
           }
         }
       }
