@@ -649,7 +649,7 @@ TEST(BvhBuild, CoincidentCopies) {
   // Each copy is reachable by traversal: with every other copy collapsed to a point (which no ray
   // hits) but the same tree, the ray must still find it, in whichever leaf it was put.
   for (uint32_t keep = 0; keep < 100; ++keep) {
-    std::vector<TriBlock> blocks = cs.bvh.blocks;
+    auto blocks = cs.bvh.blocks;
     for (TriBlock& b : blocks)
       for (int l = 0; l < 4; ++l)
         if (b.tri[l] != keep && b.tri[l] != XI_NO_HIT)

@@ -98,8 +98,8 @@ class Kernel : public ::testing::Test {
   // A compiled scene's BVH nodes, of whichever width it was built with.
   cl::Buffer bvh_nodes(const xi::Bvh& bvh) { return bvh.width == 8 ? buffer(bvh.nodes8) : buffer(bvh.nodes); }
 
-  template <class T>
-  cl::Buffer buffer(const std::vector<T>& data) {
+  template <class T, class A>
+  cl::Buffer buffer(const std::vector<T, A>& data) {
     return cl::Buffer(ctx(), CL_MEM_READ_WRITE | CL_MEM_COPY_HOST_PTR, sizeof(T) * data.size(),
                       const_cast<T*>(data.data()));
   }

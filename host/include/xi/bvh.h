@@ -3,12 +3,37 @@
 // kernels traverse (kernels/shared/traverse.h).
 #pragma once
 #include <cstdint>
+#include <memory>
+#include <type_traits>
+#include <utility>
 #include <vector>
 
 #include "layout.h"
 #include "xi/scene.h"
 
 namespace xi {
+
+// An allocator whose vectors leave new elements default-initialised (plain data: unwritten) where
+// std::allocator's zero them: a large array filled afterwards on every core is not first zeroed,
+// its pages all faulted in, on one thread.
+template <class T>
+struct DefaultInitAllocator : std::allocator<T> {
+  template <class U>
+  struct rebind {
+    using other = DefaultInitAllocator<U>;
+  };
+  DefaultInitAllocator() = default;
+  template <class U>
+  DefaultInitAllocator(const DefaultInitAllocator<U>&) noexcept {}
+  template <class U>
+  void construct(U* p) noexcept(std::is_nothrow_default_constructible_v<U>) {
+    ::new (static_cast<void*>(p)) U;
+  }
+  template <class U, class... Args>
+  void construct(U* p, Args&&... args) {
+    ::new (static_cast<void*>(p)) U(std::forward<Args>(args)...);
+  }
+};
 
 struct BvhStats {
   double build_seconds = 0.0;
@@ -25,7 +50,7 @@ struct Bvh {
   int width = 4;                 // lanes per node: 4 (nodes) or 8 (nodes8; the other vector is empty)
   std::vector<BvhNode> nodes;
   std::vector<BvhNode8> nodes8;
-  std::vector<TriBlock> blocks; // the leaves' triangles, in blocks of four
+  std::vector<TriBlock, DefaultInitAllocator<TriBlock>> blocks;  // the leaves' triangles, in blocks of four
   std::vector<uint32_t> order;     // order[i]: the scene triangle at position i (blocks name triangles by position)
   std::vector<uint32_t> position;  // position[t]: where scene triangle t is in order (order's inverse)
   BvhStats stats;

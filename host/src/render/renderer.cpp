@@ -55,8 +55,8 @@ void enqueue_items(cl::CommandQueue& queue, cl::Kernel& kernel, size_t global_it
 // host memory). Each part is copied through a mapping of the buffer on every core: on a CPU device
 // the copy is where the buffer's fresh pages are first written, and faulting them in is most of
 // its time.
-template <typename T>
-cl::Buffer upload_and_free(cl::Context& ctx, cl::CommandQueue& queue, std::vector<T>& data) {
+template <typename T, typename Allocator>
+cl::Buffer upload_and_free(cl::Context& ctx, cl::CommandQueue& queue, std::vector<T, Allocator>& data) {
   constexpr size_t kPart = size_t(32) << 20;
   const size_t bytes = sizeof(T) * data.size();
   cl::Buffer buffer(ctx, CL_MEM_READ_ONLY, bytes);
@@ -72,7 +72,7 @@ cl::Buffer upload_and_free(cl::Context& ctx, cl::CommandQueue& queue, std::vecto
     queue.finish();
     release_pages(host + at, part);
   }
-  std::vector<T>().swap(data);
+  std::vector<T, Allocator>().swap(data);
   return buffer;
 }
 
