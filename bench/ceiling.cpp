@@ -21,6 +21,7 @@
 #include <fstream>
 #include <functional>
 #include <numeric>
+#include <span>
 #include <string>
 #include <thread>
 #include <vector>
@@ -84,7 +85,7 @@ struct Embree {
   double build_seconds = 0.0;  // rtcCommitScene's, after the vertices are in Embree's buffer
 
   // vertices: positions (xyz); tris: each triangle's corners (xyz), indices into vertices.
-  Embree(const std::vector<glm::vec4>& vertices, const std::vector<glm::uvec4>& tris, RTCBuildQuality quality) {
+  Embree(std::span<const glm::vec4> vertices, std::span<const glm::uvec4> tris, RTCBuildQuality quality) {
     const size_t n = tris.size();
     RTCGeometry geom = rtcNewGeometry(device, RTC_GEOMETRY_TYPE_TRIANGLE);
     auto* v = (float*)rtcSetNewGeometryBuffer(geom, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3, 3 * sizeof(float),

@@ -51,8 +51,8 @@ const xi::Program& tools() {
   return p;
 }
 
-template <class T>
-cl::Buffer upload(const std::vector<T>& v) {
+template <class T, class A>
+cl::Buffer upload(const std::vector<T, A>& v) {
   return cl::Buffer(device().context(), CL_MEM_READ_ONLY | CL_MEM_COPY_HOST_PTR, sizeof(T) * v.size(),
                     const_cast<T*>(v.data()));
 }

@@ -26,12 +26,15 @@ struct Features {
 };
 
 struct CompiledScene {
+  // The arrays of one entry per triangle or vertex are filled on every core, not zeroed first.
+  template <class T>
+  using Array = std::vector<T, DefaultInitAllocator<T>>;
   Bvh bvh;
   // Per triangle, in BVH order: its corners (vertex indices) and w = 1 where it has vertex normals.
-  std::vector<glm::uvec4> tri_vertices;
+  Array<glm::uvec4> tri_vertices;
   // XI_VERTEX_FLOAT4S per vertex (layout.h: its position, then its normal), in the scene's order.
-  std::vector<glm::vec4> vertices;
-  std::vector<uint32_t> tri_material;
+  Array<glm::vec4> vertices;
+  Array<uint32_t> tri_material;
   std::vector<MaterialData> materials;
   // Textures (where the scene has some; else one unused entry each, as OpenCL needs buffers):
   std::vector<glm::vec4> tri_uv;       // 3 per triangle: texture coordinates u0, v0 (set 0), u1, v1 (set 1)

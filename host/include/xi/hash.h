@@ -17,8 +17,8 @@ struct Hasher {
     add(s.data(), s.size());
     add("\0", 1);
   }
-  template <typename T>
-  void add(const std::vector<T>& v) {
+  template <typename T, typename A>
+  void add(const std::vector<T, A>& v) {
     add(v.data(), sizeof(T) * v.size());
   }
 };
