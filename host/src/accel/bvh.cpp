@@ -61,10 +61,7 @@ struct Box {
   bool empty() const { return !(lo.x <= hi.x && lo.y <= hi.y && lo.z <= hi.z); }
   Box intersect(const Box& b) const { return Box{glm::max(lo, b.lo), glm::min(hi, b.hi)}; }
   glm::vec3 centre() const { return 0.5f * (lo + hi); }
-  float area() const {
-    glm::vec3 d = hi - lo;
-    return empty() ? 0.0f : 2.0f * (d.x * d.y + d.y * d.z + d.z * d.x);
-  }
+  float area() const;  // (Box4::area, below)
 };
 
 // A triangle, or the part of it on one side of the spatial splits above it: `box` bounds that part.
@@ -126,13 +123,14 @@ struct Box4 {
   void grow(Vec4 l, Vec4 h) { lo = l < lo ? l : lo, hi = hi < h ? h : hi; }
   void grow(const Box4& b) { grow(b.lo, b.hi); }
   Box box() const { return Box{glm::vec3(lo[0], lo[1], lo[2]), glm::vec3(hi[0], hi[1], hi[2])}; }
-  // As Box::area(), the same products summed in the same order, so the same bits.
+  // Surface area, 0 for an empty box.
   float area() const {
     const Vec4 d = hi - lo, p = d * __builtin_shufflevector(d, d, 1, 2, 0, 3);  // dx dy, dy dz, dz dx
     return !(lo[0] <= hi[0] && lo[1] <= hi[1] && lo[2] <= hi[2]) ? 0.0f : 2.0f * (p[0] + p[1] + p[2]);
   }
 };
 Vec4 vec4_of(const glm::vec3& v) { return Vec4{v.x, v.y, v.z, 0.0f}; }
+float Box::area() const { return Box4{vec4_of(lo), vec4_of(hi)}.area(); }
 // A reference's box corners as vectors, read from within the reference (lanes 3 unused).
 Vec4 lo_of(const Ref& r) {
   Vec4 v;
@@ -495,7 +493,7 @@ struct Builder {
         const Corners t = corners(mesh, r.tri);
         for (int axis = 0; axis < 3; ++axis) {
           const int first = s.first[axis], last = s.last[axis];
-          if (scale[axis] == 0.0f || first == last) continue;
+          if (first == last) continue;  // (so is an axis of no extent: both stay 0)
           // Only the costs need these boxes (partition_spatial clips the references it splits), so
           // each bin gets the vertices and edge crossings of its planes, clamped to the reference's
           // box and unwidened: each crossing computed once, for the two bins it bounds.
