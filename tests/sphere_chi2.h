@@ -116,9 +116,7 @@ inline std::vector<double> cell_integrals(const SphereGrid& g, const std::functi
         near = near || (dt < 0.15 && (std::sin(pk.x) < 0.2 || dp * std::sin(pk.x) < 0.15));
       }
       int depth = near ? near_depth : far_depth;
-      double rough = xi::stats::integrate_2d(integrand, t0, t1, p0, p1, 0.0, depth, depth);
-      out.push_back(
-          xi::stats::integrate_2d(integrand, t0, t1, p0, p1, std::max(abs_tol, rel_tol * std::fabs(rough)), max_depth, depth));
+      out.push_back(xi::stats::integrate_2d_relative(integrand, t0, t1, p0, p1, rel_tol, abs_tol, max_depth, depth));
     }
   return out;
 }

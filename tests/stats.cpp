@@ -56,17 +56,44 @@ double gauss3(const std::function<double(double, double)>& f, double x0, double 
   return sum * hx * hy;
 }
 
-double adapt(const std::function<double(double, double)>& f, double x0, double x1, double y0, double y1,
-             double whole, double tol, int depth, int min_depth) {
+// The 3×3-point values adapt asks for, in the order it asks for them. Those of the boxes down to
+// `replayed_levels` (the root is level 0) can be recorded on one pass and replayed on the next, which
+// visits them in the same order.
+struct Cells {
+  const std::function<double(double, double)>& f;
+  int replayed_levels = -1;
+  bool recording = false;
+  std::vector<double> recorded;
+  size_t next = 0;
+
+  double at(double x0, double x1, double y0, double y1, int level) {
+    if (level > replayed_levels) return gauss3(f, x0, x1, y0, y1);
+    if (!recording) return recorded[next++];
+    recorded.push_back(gauss3(f, x0, x1, y0, y1));
+    return recorded.back();
+  }
+};
+
+double adapt(Cells& cells, double x0, double x1, double y0, double y1, int level, double whole, double tol, int depth,
+             int min_depth) {
   double xm = 0.5 * (x0 + x1), ym = 0.5 * (y0 + y1);
-  double q[4] = {gauss3(f, x0, xm, y0, ym), gauss3(f, xm, x1, y0, ym), gauss3(f, x0, xm, ym, y1),
-                 gauss3(f, xm, x1, ym, y1)};
+  const int below = level + 1;
+  double q[4] = {cells.at(x0, xm, y0, ym, below), cells.at(xm, x1, y0, ym, below), cells.at(x0, xm, ym, y1, below),
+                 cells.at(xm, x1, ym, y1, below)};
   double parts = q[0] + q[1] + q[2] + q[3];
   if (depth <= 0 || (min_depth <= 0 && std::fabs(parts - whole) <= tol)) return parts;
   tol *= 0.25;
   --depth, --min_depth;
-  return adapt(f, x0, xm, y0, ym, q[0], tol, depth, min_depth) + adapt(f, xm, x1, y0, ym, q[1], tol, depth, min_depth) +
-         adapt(f, x0, xm, ym, y1, q[2], tol, depth, min_depth) + adapt(f, xm, x1, ym, y1, q[3], tol, depth, min_depth);
+  return adapt(cells, x0, xm, y0, ym, below, q[0], tol, depth, min_depth) +
+         adapt(cells, xm, x1, y0, ym, below, q[1], tol, depth, min_depth) +
+         adapt(cells, x0, xm, ym, y1, below, q[2], tol, depth, min_depth) +
+         adapt(cells, xm, x1, ym, y1, below, q[3], tol, depth, min_depth);
+}
+
+double integrate(Cells& cells, double x0, double x1, double y0, double y1, double abs_tol, int max_depth,
+                 int min_depth) {
+  const double whole = cells.at(x0, x1, y0, y1, 0);
+  return adapt(cells, x0, x1, y0, y1, 0, whole, abs_tol, max_depth - 1, min_depth - 1);
 }
 
 }  // namespace
@@ -180,7 +207,17 @@ double pearson_correlation(std::span<const double> x, std::span<const double> y)
 
 double integrate_2d(const std::function<double(double, double)>& f, double x0, double x1, double y0, double y1,
                     double abs_tol, int max_depth, int min_depth) {
-  return adapt(f, x0, x1, y0, y1, gauss3(f, x0, x1, y0, y1), abs_tol, max_depth - 1, min_depth - 1);
+  Cells cells{f};
+  return integrate(cells, x0, x1, y0, y1, abs_tol, max_depth, min_depth);
+}
+
+double integrate_2d_relative(const std::function<double(double, double)>& f, double x0, double x1, double y0,
+                             double y1, double rel_tol, double abs_tol, int max_depth, int min_depth) {
+  min_depth = std::max(min_depth, 1);
+  Cells cells{f, min_depth, true};
+  const double rough = integrate(cells, x0, x1, y0, y1, 0.0, min_depth, min_depth);
+  cells.recording = false;
+  return integrate(cells, x0, x1, y0, y1, std::max(abs_tol, rel_tol * std::fabs(rough)), max_depth, min_depth);
 }
 
 }  // namespace xi::stats

@@ -58,4 +58,9 @@ double pearson_correlation(std::span<const double> x, std::span<const double> y)
 double integrate_2d(const std::function<double(double, double)>& f, double x0, double x1, double y0,
                     double y1, double abs_tol = 1e-10, int max_depth = 12, int min_depth = 0);
 
+// integrate_2d to within max(abs_tol, rel_tol × |I|), where I is the estimate on the uniform grid of
+// min_depth (at least 1) levels, whose values the adaptive pass then reuses.
+double integrate_2d_relative(const std::function<double(double, double)>& f, double x0, double x1, double y0,
+                             double y1, double rel_tol, double abs_tol, int max_depth, int min_depth);
+
 }  // namespace xi::stats

@@ -202,7 +202,12 @@ TEST(MicrofacetChi2, MaterialSamplesMatchPdf) {
     PbrLobes m = lobes(c.roughness, c.metallic, c.transmission, c.eta, kBase);
     glm::vec3 wo = wo_at(c.degrees);
     SphereGrid g = sphere_grid(wo, c.eta, 24, 32);
-    std::vector<double> expected = cell_integrals(g, [&](glm::vec3 w) { return (double)xi_pbr_pdf(m, wo, w); });
+    const PbrAtWo at = xi_pbr_at(m, wo);
+    std::vector<double> expected = cell_integrals(g, [&](glm::vec3 w) {
+      float pdf;
+      xi_pbr_eval_pdf_at(m, at, wo, w, &pdf);
+      return (double)pdf;
+    });
     double total = 0.0;
     for (double e : expected) total += e;
     expected.push_back(std::max(1.0 - total, 1e-12));
@@ -353,8 +358,11 @@ TEST(MicrofacetReciprocity, ReflectionIsSymmetric) {
 // the chart of test 2 around wo.
 double cubature_albedo(const PbrLobes& m, glm::vec3 wo) {
   double sum = 0.0;
-  for (double v : cell_integrals(sphere_grid(wo, m.eta, 12, 16),
-                                 [&](glm::vec3 w) { return (double)xi_pbr_eval(m, wo, w).x * std::fabs(w.z); }))
+  const PbrAtWo at = xi_pbr_at(m, wo);
+  float pdf;
+  for (double v : cell_integrals(sphere_grid(wo, m.eta, 12, 16), [&](glm::vec3 w) {
+         return (double)xi_pbr_eval_pdf_at(m, at, wo, w, &pdf).x * std::fabs(w.z);
+       }))
     sum += v;
   return sum;
 }
