@@ -120,11 +120,12 @@ static inline XI_INLINE PacketInt xi_packet_entering(const Packet* p, bool coher
 }
 
 // Whether any ray enters child k of node n before its best hit, each by xi_trace's slab test; if
-// so, *t_enter is the nearest distance at which one does.
+// so, *t_enter is the nearest distance at which one does (else ∞).
 static inline XI_INLINE bool xi_packet_enters(const Packet* p, bool coherent, __global const BvhNode8* n, uint k,
                                               PacketFloat best, float* t_enter) {
   PacketFloat tn;
   const PacketInt enter = xi_packet_entering(p, coherent, n, k, best, &tn);
+  *t_enter = INFINITY;
   if (xi_packet_bits(enter) == 0u) return false;
   *t_enter = xi_packet_min(select((PacketFloat)INFINITY, tn, enter));
   return true;
@@ -157,7 +158,7 @@ static inline XI_INLINE void xi_packet_leaf(__global const TriBlock* blocks, uin
 static inline XI_INLINE void xi_packet_traverse(__global const BvhNode8* nodes, __global const TriBlock* blocks,
                                                 const Packet* p, bool coherent, bool any_hit, PacketFloat tmax,
                                                 PacketFloat* t, PacketFloat* u, PacketFloat* v, PacketUint* tri) {
-  uint2 stack[XI_BVH_STACK];  // distances: the nearest at which one of the rays enters the entry
+  uint2 stack[XI_BVH_STACK + 1];  // distances: the nearest at which one of the rays enters the entry
   uint sp = 0u, entry = 0u;
   PacketFloat best = tmax, best_u = 0.0f, best_v = 0.0f;
   PacketUint found = (PacketUint)XI_NO_HIT;
@@ -178,9 +179,7 @@ static inline XI_INLINE void xi_packet_traverse(__global const BvhNode8* nodes, 
         entry = n->child[31 - clz(hits)];
         continue;
       }
-      const uint base = sp;
-      for (uint k = 0u; k < 8u; ++k)
-        if (hits & (1u << k)) xi_push(stack, &sp, base, n->child[k], t_enter[k], any_hit);
+      xi_push_children(stack, &sp, n->child, t_enter, hits, any_hit);
     }
     // The nearest entry that some ray enters before its best hit so far.
     if (!xi_pop(stack, &sp, xi_packet_max(best) * XI_BOX_SLACK, &entry)) {

@@ -45,14 +45,27 @@ static inline bool xi_one_bit(uint bits) { return bits != 0u && (bits & (bits - 
 // host checks that no tree needs more than XI_BVH_STACK entries (xi::Bvh::stats.stack). One uint2
 // per entry, (entry, distance as bits): one move each.
 //
-// Pushes a child entered at t_enter. A closest-hit query keeps the entries pushed for one node
-// (those above `base`) sorted, nearest on top, so the nearest is visited first; an any-hit query
-// (shadow rays) stops at whichever hit it finds, so it skips the sort. (Branch-free placement, each
-// lane's rank among the entered lanes by vector compares, was slower on PoCL.)
-static inline XI_INLINE void xi_push(uint2* stack, uint* sp, uint base, uint child, float t_enter, bool any_hit) {
-  uint j = (*sp)++;
-  for (; !any_hit && j > base && as_float(stack[j - 1u].y) < t_enter; --j) stack[j] = stack[j - 1u];
-  stack[j] = make_uint2(child, as_uint(t_enter));
+// Pushes the children of a node that the ray enters (bit k of `entered`: child k, entered at
+// t_enter[k]). Every child is written and only the entered ones kept, with no branch on which ones
+// those are (it differs from node to node, which a branch would mispredict). A closest-hit query
+// then sorts them nearest on top, ties in the children's order, so the nearest is visited first; an
+// any-hit query (shadow rays) stops at whichever hit it finds, so it skips the sort. (Branch-free
+// placement, each lane's rank among the entered lanes by vector compares, was slower on PoCL.)
+// The stack needs one entry more than a tree does: the last child is written, kept or not.
+static inline XI_INLINE void xi_push_children(uint2* stack, uint* sp, __global const uint* children,
+                                              const float* t_enter, uint entered, bool any_hit) {
+  const uint base = *sp;
+  XI_UNROLL for (uint k = 0u; k < XI_BVH_WIDTH; ++k) {
+    stack[*sp] = make_uint2(children[k], as_uint(t_enter[k]));
+    *sp += (entered >> k) & 1u;
+  }
+  if (any_hit) return;
+  for (uint i = base + 1u; i < *sp; ++i) {
+    const uint2 e = stack[i];
+    uint j = i;
+    for (; j > base && as_float(stack[j - 1u].y) < as_float(e.y); --j) stack[j] = stack[j - 1u];
+    stack[j] = e;
+  }
 }
 
 // Pops the next entry entered no farther than `limit` into *entry; false once the stack is empty.
@@ -83,7 +96,7 @@ static inline uint xi_trace_from(__global const TraceNode* nodes, __global const
   // Which of a node's bounds (lo x, hi x, lo y, ...) is each axis's near plane: an index, so a
   // node's slab test loads its planes without a choice per plane.
   int near_x = inv_d.x < 0.0f ? 1 : 0, near_y = inv_d.y < 0.0f ? 3 : 2, near_z = inv_d.z < 0.0f ? 5 : 4;
-  uint2 stack[XI_BVH_STACK];
+  uint2 stack[XI_BVH_STACK + 1];
   uint sp = 0u;
   uint found = XI_NO_HIT;
   float best = tmax;
@@ -130,9 +143,7 @@ static inline uint xi_trace_from(__global const TraceNode* nodes, __global const
         entry = n->child[31 - clz(hits)];
         continue;
       }
-      const uint base = sp;
-      XI_UNROLL for (uint k = 0u; k < XI_BVH_WIDTH; ++k)
-        if (hits & (1u << k)) xi_push(stack, &sp, base, n->child[k], xi_lane(tn, k), any_hit);
+      xi_push_children(stack, &sp, n->child, (const float*)&tn, hits, any_hit);
     }
     // The nearest entry the ray enters before its best hit so far.
     if (!xi_pop(stack, &sp, best * XI_BOX_SLACK, &entry)) return found;
