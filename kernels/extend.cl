@@ -42,9 +42,12 @@ static inline void xi_extend_packet(__global const float4* ray_org, __global con
   PacketUint tri;
   if (hybrid)
     xi_trace_hybrid(nodes, tri_blocks, o, d, &t, &u, &v, &tri);
-  else
-    xi_trace_packet(nodes, tri_blocks, XI_PACKET_OF(o, x), XI_PACKET_OF(o, y), XI_PACKET_OF(o, z), XI_PACKET_OF(d, x),
-                    XI_PACKET_OF(d, y), XI_PACKET_OF(d, z), &t, &u, &v, &tri);
+  else {
+    PacketFloat ox, oy, oz, ow, dx, dy, dz, dw;
+    xi_packet_columns(o, &ox, &oy, &oz, &ow);
+    xi_packet_columns(d, &dx, &dy, &dz, &dw);
+    xi_trace_packet(nodes, tri_blocks, ox, oy, oz, dx, dy, dz, &t, &u, &v, &tri);
+  }
   XI_UNROLL for (uint k = 0u; k < XI_PACKET_WIDTH; ++k)
     xi_store_hit(hit, slot[k], XI_PACKET_LANE(uint, tri, k), XI_PACKET_LANE(float, t, k), XI_PACKET_LANE(float, u, k),
                  XI_PACKET_LANE(float, v, k));

@@ -89,10 +89,15 @@ static inline void xi_shadow_packet(__global float4* radiance, __global const fl
     o[k] = shadow_org[first + k];
     d[k] = shadow_dir[first + k];
   }
-  const uint occluded =
-      hybrid ? xi_occluded_hybrid(nodes, tri_blocks, o, d)
-             : xi_occluded_packet(nodes, tri_blocks, XI_PACKET_OF(o, x), XI_PACKET_OF(o, y), XI_PACKET_OF(o, z),
-                                  XI_PACKET_OF(d, x), XI_PACKET_OF(d, y), XI_PACKET_OF(d, z), XI_PACKET_OF(o, w));
+  uint occluded;
+  if (hybrid) {
+    occluded = xi_occluded_hybrid(nodes, tri_blocks, o, d);
+  } else {
+    PacketFloat ox, oy, oz, ow, dx, dy, dz, dw;
+    xi_packet_columns(o, &ox, &oy, &oz, &ow);
+    xi_packet_columns(d, &dx, &dy, &dz, &dw);
+    occluded = xi_occluded_packet(nodes, tri_blocks, ox, oy, oz, dx, dy, dz, ow);
+  }
   for (uint k = 0u; k < XI_PACKET_WIDTH; ++k)
     if (!(occluded & (1u << k))) xi_add_unoccluded(radiance, shadow_contrib[first + k]);
 }

@@ -162,6 +162,41 @@ static inline uint xi_lane_bits16(int16 m) { return xi_lane_bits8(m.lo) | xi_lan
 #define XI_PREFETCH(p, rw) ((void)0)
 #endif
 
+// XI_TRANSPOSE4(W, a, b, c, d): rows of float4s to columns and back in vectors of W = 8 or 16 floats.
+// a holds rows 0, 4, 8, 12 in its 128-bit parts (XI_ROWS(W, r, 0)), b rows 1, 5, 9, 13, c rows 2,
+// 6, 10, 14, d rows 3, 7, 11, 15; a 4×4 transpose within each part leaves the rows' x in a in row
+// order, their y in b, z in c, w in d, and back again (it is its own inverse; XI_ROW_OF(W, v, q):
+// part q of v). Two rounds of shuffles, where moving the values one by one took an extract and an
+// insert each. Where clang compiles (XI_HAS_SHUFFLE), with its __builtin_shufflevector.
+#if defined(__OPENCL_VERSION__) && defined(__clang__)
+#define XI_HAS_SHUFFLE 1
+#define XI_CAT_(a, b) a##b
+#define XI_CAT(a, b) XI_CAT_(a, b)
+#define XI_TRANSPOSE4(W, a, b, c, d)                                                                     \
+  {                                                                                                      \
+    const __typeof__(a) t0 = XI_CAT(XI_PAIR_LOW, W)(a, b), t1 = XI_CAT(XI_PAIR_LOW, W)(c, d);              \
+    const __typeof__(a) t2 = XI_CAT(XI_PAIR_HIGH, W)(a, b), t3 = XI_CAT(XI_PAIR_HIGH, W)(c, d);            \
+    a = XI_CAT(XI_HALVES_LOW, W)(t0, t1), b = XI_CAT(XI_HALVES_HIGH, W)(t0, t1);                          \
+    c = XI_CAT(XI_HALVES_LOW, W)(t2, t3), d = XI_CAT(XI_HALVES_HIGH, W)(t2, t3);                          \
+  }
+#define XI_ROWS(W, r, j) XI_CAT(XI_ROWS, W)(r, j)
+#define XI_ROW_OF(W, v, q) XI_CAT(XI_ROW_OF, W)(v, q)
+#define XI_PAIR_LOW8(a, b) __builtin_shufflevector(a, b, 0, 8, 1, 9, 4, 12, 5, 13)
+#define XI_PAIR_HIGH8(a, b) __builtin_shufflevector(a, b, 2, 10, 3, 11, 6, 14, 7, 15)
+#define XI_HALVES_LOW8(a, b) __builtin_shufflevector(a, b, 0, 1, 8, 9, 4, 5, 12, 13)
+#define XI_HALVES_HIGH8(a, b) __builtin_shufflevector(a, b, 2, 3, 10, 11, 6, 7, 14, 15)
+#define XI_ROWS8(r, j) (float8)(r[j], r[(j) + 4])
+#define XI_ROW_OF8(v, q) ((q) == 0 ? (v).s0123 : (v).s4567)
+#define XI_PAIR_LOW16(a, b) __builtin_shufflevector(a, b, 0, 16, 1, 17, 4, 20, 5, 21, 8, 24, 9, 25, 12, 28, 13, 29)
+#define XI_PAIR_HIGH16(a, b) __builtin_shufflevector(a, b, 2, 18, 3, 19, 6, 22, 7, 23, 10, 26, 11, 27, 14, 30, 15, 31)
+#define XI_HALVES_LOW16(a, b) __builtin_shufflevector(a, b, 0, 1, 16, 17, 4, 5, 20, 21, 8, 9, 24, 25, 12, 13, 28, 29)
+#define XI_HALVES_HIGH16(a, b) __builtin_shufflevector(a, b, 2, 3, 18, 19, 6, 7, 22, 23, 10, 11, 26, 27, 14, 15, 30, 31)
+#define XI_ROWS16(r, j) (float16)(r[j], r[(j) + 4], r[(j) + 8], r[(j) + 12])
+#define XI_ROW_OF16(v, q) ((q) == 0 ? (v).s0123 : (q) == 1 ? (v).s4567 : (q) == 2 ? (v).s89ab : (v).scdef)
+#else
+#define XI_HAS_SHUFFLE 0
+#endif
+
 // gamma(n) = n eps / (1 - n eps), eps = 2^-24: the relative error bound of n rounded operations.
 #define XI_GAMMA(n) ((n) * 0x1p-24f / (1.0f - (n) * 0x1p-24f))
 

@@ -108,42 +108,23 @@ XI_GATHER(xi_gather_float, __global, float, xfloat)
 XI_GATHER(xi_gather_uint, __global, uint, xuint)
 XI_GATHER(xi_gather_table, __constant, float, xfloat)
 XI_GATHER(xi_local_gather_uint, __local, uint, xuint)
-// Rows of float4s and their columns as lane vectors: lane vector a holds rows 0, 4, 8, ... in its
-// 128-bit parts, b rows 1, 5, 9, ..., c rows 2, 6, ..., d rows 3, 7, ...; a 4×4 transpose within each
-// 128-bit part (two rounds of shuffles) turns them into x, y, z, w of rows 0, 1, 2, ... in lane order,
-// and back, where element by element each value took an extract and an insert of its own.
-#if XI_LANES == 16
-#define XI_PAIR_LOW(a, b) __builtin_shufflevector(a, b, 0, 16, 1, 17, 4, 20, 5, 21, 8, 24, 9, 25, 12, 28, 13, 29)
-#define XI_PAIR_HIGH(a, b) __builtin_shufflevector(a, b, 2, 18, 3, 19, 6, 22, 7, 23, 10, 26, 11, 27, 14, 30, 15, 31)
-#define XI_HALVES_LOW(a, b) __builtin_shufflevector(a, b, 0, 1, 16, 17, 4, 5, 20, 21, 8, 9, 24, 25, 12, 13, 28, 29)
-#define XI_HALVES_HIGH(a, b) __builtin_shufflevector(a, b, 2, 3, 18, 19, 6, 7, 22, 23, 10, 11, 26, 27, 14, 15, 30, 31)
-#define XI_ROWS(r, j) (float16)(r[j], r[(j) + 4], r[(j) + 8], r[(j) + 12])
-#define XI_ROW_OF(v, q) ((q) == 0 ? (v).s0123 : (q) == 1 ? (v).s4567 : (q) == 2 ? (v).s89ab : (v).scdef)
-#else
-#define XI_PAIR_LOW(a, b) __builtin_shufflevector(a, b, 0, 8, 1, 9, 4, 12, 5, 13)
-#define XI_PAIR_HIGH(a, b) __builtin_shufflevector(a, b, 2, 10, 3, 11, 6, 14, 7, 15)
-#define XI_HALVES_LOW(a, b) __builtin_shufflevector(a, b, 0, 1, 8, 9, 4, 5, 12, 13)
-#define XI_HALVES_HIGH(a, b) __builtin_shufflevector(a, b, 2, 3, 10, 11, 6, 7, 14, 15)
-#define XI_ROWS(r, j) (float8)(r[j], r[(j) + 4])
-#define XI_ROW_OF(v, q) ((q) == 0 ? (v).s0123 : (v).s4567)
-#endif
-// The 4×4 transposes of a, b, c, d (in place: its own inverse).
-#define XI_TRANSPOSE4(a, b, c, d)                                           \
-  {                                                                         \
-    const xfloat t0 = XI_PAIR_LOW(a, b), t1 = XI_PAIR_LOW(c, d);            \
-    const xfloat t2 = XI_PAIR_HIGH(a, b), t3 = XI_PAIR_HIGH(c, d);          \
-    a = XI_HALVES_LOW(t0, t1), b = XI_HALVES_HIGH(t0, t1);                  \
-    c = XI_HALVES_LOW(t2, t3), d = XI_HALVES_HIGH(t2, t3);                  \
-  }
+// The x, y, z and w of float4 elements, each as lane vectors (XI_TRANSPOSE4).
 static inline XI_INLINE void xi_gather_columns(__global const float4* p, xuint i, xfloat* x, xfloat* y, xfloat* z,
                                                xfloat* w) {
   uint idx[XI_LANES];
   float4 r[XI_LANES];
   XI_VSTORE(i, 0, idx);
   XI_FOR_LANES(k) r[k] = p[idx[k]];
-  xfloat a = XI_ROWS(r, 0), b = XI_ROWS(r, 1), c = XI_ROWS(r, 2), d = XI_ROWS(r, 3);
-  XI_TRANSPOSE4(a, b, c, d)
+#if XI_HAS_SHUFFLE
+  xfloat a = XI_ROWS(XI_LANES, r, 0), b = XI_ROWS(XI_LANES, r, 1), c = XI_ROWS(XI_LANES, r, 2),
+         d = XI_ROWS(XI_LANES, r, 3);
+  XI_TRANSPOSE4(XI_LANES, a, b, c, d)
   *x = a, *y = b, *z = c, *w = d;
+#else
+  float cx[XI_LANES], cy[XI_LANES], cz[XI_LANES], cw[XI_LANES];
+  XI_FOR_LANES(k) cx[k] = r[k].x, cy[k] = r[k].y, cz[k] = r[k].z, cw[k] = r[k].w;
+  *x = XI_VLOAD(0, cx), *y = XI_VLOAD(0, cy), *z = XI_VLOAD(0, cz), *w = XI_VLOAD(0, cw);
+#endif
 }
 // xyz of float4 elements, and their w.
 static inline XI_INLINE xfloat3 xi_gather_xyz(__global const float4* p, xuint i, xfloat* w) {
@@ -164,14 +145,23 @@ static inline XI_INLINE void xi_scatter4(__global float4* p, xuint i, xfloat3 v,
   int on[XI_LANES];
   XI_VSTORE(i, 0, idx);
   XI_VSTORE(m, 0, on);
+#if XI_HAS_SHUFFLE
   xfloat a = v.x, b = v.y, c = v.z, d = w;
-  XI_TRANSPOSE4(a, b, c, d)
+  XI_TRANSPOSE4(XI_LANES, a, b, c, d)
   XI_FOR_LANES(k) {
     if (on[k]) {
       const xfloat rows = (k & 3) == 0 ? a : (k & 3) == 1 ? b : (k & 3) == 2 ? c : d;
-      p[idx[k]] = XI_ROW_OF(rows, k >> 2);
+      p[idx[k]] = XI_ROW_OF(XI_LANES, rows, k >> 2);
     }
   }
+#else
+  float x[XI_LANES], y[XI_LANES], z[XI_LANES], ww[XI_LANES];
+  XI_VSTORE(v.x, 0, x);
+  XI_VSTORE(v.y, 0, y);
+  XI_VSTORE(v.z, 0, z);
+  XI_VSTORE(w, 0, ww);
+  XI_FOR_LANES(k) if (on[k]) p[idx[k]] = (float4)(x[k], y[k], z[k], ww[k]);
+#endif
 }
 // The number of lanes where m is true.
 static inline XI_INLINE uint xi_count(xmask m) {

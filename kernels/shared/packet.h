@@ -79,6 +79,19 @@ static inline XI_INLINE Packet xi_packet(PacketFloat ox, PacketFloat oy, PacketF
 #else
 #define XI_PACKET_OF(a, c) (PacketFloat)(XI_PACKET_OF8(a, c))
 #endif
+// The rays' float4s r[0], r[1], ... as a packet's x, y, z and w (XI_TRANSPOSE4).
+static inline XI_INLINE void xi_packet_columns(const float4* r, PacketFloat* x, PacketFloat* y, PacketFloat* z,
+                                               PacketFloat* w) {
+#if XI_HAS_SHUFFLE
+  PacketFloat a = XI_ROWS(XI_PACKET_WIDTH, r, 0), b = XI_ROWS(XI_PACKET_WIDTH, r, 1),
+              c = XI_ROWS(XI_PACKET_WIDTH, r, 2), d = XI_ROWS(XI_PACKET_WIDTH, r, 3);
+  XI_TRANSPOSE4(XI_PACKET_WIDTH, a, b, c, d)
+  *x = a, *y = b, *z = c, *w = d;
+#else
+  *x = XI_PACKET_OF(r, x), *y = XI_PACKET_OF(r, y), *z = XI_PACKET_OF(r, z), *w = XI_PACKET_OF(r, w);
+#endif
+}
+
 // Lane k of a packet's vector; k is a constant once a loop over the lanes is unrolled.
 #define XI_PACKET_LANE(type, v, k) (((const type*)&(v))[k])
 
@@ -304,8 +317,10 @@ static inline XI_INLINE void xi_hybrid_traverse(__global const BvhNode8* nodes, 
 // Closest hits of the rays o[k], d[k] in (0, ∞), as xi_trace_packet's.
 static inline void xi_trace_hybrid(__global const BvhNode8* nodes, __global const TriBlock* blocks, const float4* o,
                                    const float4* d, PacketFloat* t, PacketFloat* u, PacketFloat* v, PacketUint* tri) {
-  const Packet p = xi_packet(XI_PACKET_OF(o, x), XI_PACKET_OF(o, y), XI_PACKET_OF(o, z), XI_PACKET_OF(d, x),
-                             XI_PACKET_OF(d, y), XI_PACKET_OF(d, z));
+  PacketFloat ox, oy, oz, ow, dx, dy, dz, dw;
+  xi_packet_columns(o, &ox, &oy, &oz, &ow);
+  xi_packet_columns(d, &dx, &dy, &dz, &dw);
+  const Packet p = xi_packet(ox, oy, oz, dx, dy, dz);
   xi_hybrid_traverse(nodes, blocks, &p, false, false, o, d, (PacketFloat)INFINITY, t, u, v, tri);
 }
 
@@ -313,11 +328,13 @@ static inline void xi_trace_hybrid(__global const BvhNode8* nodes, __global cons
 // xi_occluded_packet's.
 static inline uint xi_occluded_hybrid(__global const BvhNode8* nodes, __global const TriBlock* blocks, const float4* o,
                                       const float4* d) {
-  const Packet p = xi_packet(XI_PACKET_OF(o, x), XI_PACKET_OF(o, y), XI_PACKET_OF(o, z), XI_PACKET_OF(d, x),
-                             XI_PACKET_OF(d, y), XI_PACKET_OF(d, z));
+  PacketFloat ox, oy, oz, ow, dx, dy, dz, dw;
+  xi_packet_columns(o, &ox, &oy, &oz, &ow);
+  xi_packet_columns(d, &dx, &dy, &dz, &dw);
+  const Packet p = xi_packet(ox, oy, oz, dx, dy, dz);
   PacketFloat t, u, v;
   PacketUint tri;
-  xi_hybrid_traverse(nodes, blocks, &p, false, true, o, d, XI_PACKET_OF(o, w), &t, &u, &v, &tri);
+  xi_hybrid_traverse(nodes, blocks, &p, false, true, o, d, ow, &t, &u, &v, &tri);
   return xi_packet_bits(tri != (PacketUint)XI_NO_HIT);
 }
 
