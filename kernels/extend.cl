@@ -48,9 +48,9 @@ static inline void xi_extend_packet(__global const float4* ray_org, __global con
     xi_packet_columns(d, &dx, &dy, &dz, &dw);
     xi_trace_packet(nodes, tri_blocks, ox, oy, oz, dx, dy, dz, &t, &u, &v, &tri);
   }
-  XI_UNROLL for (uint k = 0u; k < XI_PACKET_WIDTH; ++k)
-    xi_store_hit(hit, slot[k], XI_PACKET_LANE(uint, tri, k), XI_PACKET_LANE(float, t, k), XI_PACKET_LANE(float, u, k),
-                 XI_PACKET_LANE(float, v, k));
+  const PacketInt miss = tri == (PacketUint)XI_NO_HIT;  // stored as xi_store_hit stores a miss
+  xi_packet_store_rows(hit, slot, select(t, (PacketFloat)-1.0f, miss), select(u, (PacketFloat)0.0f, miss),
+                       select(v, (PacketFloat)0.0f, miss), select(xi_as_packet_float(tri), (PacketFloat)0.0f, miss));
 }
 #endif
 

@@ -92,6 +92,21 @@ static inline XI_INLINE void xi_packet_columns(const float4* r, PacketFloat* x, 
 #endif
 }
 
+// The inverse: rows x[k], y[k], z[k], w[k] of the packet's lanes stored to p[slot[k]].
+static inline XI_INLINE void xi_packet_store_rows(__global float4* p, const uint* slot, PacketFloat x, PacketFloat y,
+                                                  PacketFloat z, PacketFloat w) {
+#if XI_HAS_SHUFFLE
+  XI_TRANSPOSE4(XI_PACKET_WIDTH, x, y, z, w)
+  XI_UNROLL for (uint k = 0u; k < XI_PACKET_WIDTH; ++k) {
+    const PacketFloat rows = (k & 3u) == 0u ? x : (k & 3u) == 1u ? y : (k & 3u) == 2u ? z : w;
+    p[slot[k]] = XI_ROW_OF(XI_PACKET_WIDTH, rows, k >> 2);
+  }
+#else
+  XI_UNROLL for (uint k = 0u; k < XI_PACKET_WIDTH; ++k)
+    p[slot[k]] = (float4)(((const float*)&x)[k], ((const float*)&y)[k], ((const float*)&z)[k], ((const float*)&w)[k]);
+#endif
+}
+
 // Lane k of a packet's vector; k is a constant once a loop over the lanes is unrolled.
 #define XI_PACKET_LANE(type, v, k) (((const type*)&(v))[k])
 

@@ -190,11 +190,13 @@ static inline uint xi_intersect_block(RayShear s, __global const TriBlock* b0, _
 typedef float16 PacketFloat;
 typedef int16 PacketInt;
 typedef uint16 PacketUint;
+#define xi_as_packet_float as_float16
 static inline uint xi_packet_bits(PacketInt m) { return xi_lane_bits16(m); }
 #else
 typedef float8 PacketFloat;
 typedef int8 PacketInt;
 typedef uint8 PacketUint;
+#define xi_as_packet_float as_float8
 static inline uint xi_packet_bits(PacketInt m) { return xi_lane_bits8(m); }
 #endif
 #define XI_PACKET_ALL ((1u << XI_PACKET_WIDTH) - 1u)
