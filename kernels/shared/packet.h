@@ -79,6 +79,9 @@ static inline XI_INLINE Packet xi_packet(PacketFloat ox, PacketFloat oy, PacketF
 #else
 #define XI_PACKET_OF(a, c) (PacketFloat)(XI_PACKET_OF8(a, c))
 #endif
+// Lane k of a packet's vector; k is a constant once a loop over the lanes is unrolled.
+#define XI_PACKET_LANE(type, v, k) (((const type*)&(v))[k])
+
 // The rays' float4s r[0], r[1], ... as a packet's x, y, z and w (XI_TRANSPOSE4).
 static inline XI_INLINE void xi_packet_columns(const float4* r, PacketFloat* x, PacketFloat* y, PacketFloat* z,
                                                PacketFloat* w) {
@@ -103,12 +106,10 @@ static inline XI_INLINE void xi_packet_store_rows(__global float4* p, const uint
   }
 #else
   XI_UNROLL for (uint k = 0u; k < XI_PACKET_WIDTH; ++k)
-    p[slot[k]] = (float4)(((const float*)&x)[k], ((const float*)&y)[k], ((const float*)&z)[k], ((const float*)&w)[k]);
+    p[slot[k]] = (float4)(XI_PACKET_LANE(float, x, k), XI_PACKET_LANE(float, y, k), XI_PACKET_LANE(float, z, k),
+                          XI_PACKET_LANE(float, w, k));
 #endif
 }
-
-// Lane k of a packet's vector; k is a constant once a loop over the lanes is unrolled.
-#define XI_PACKET_LANE(type, v, k) (((const type*)&(v))[k])
 
 // Lane k of node n's bound `plane` (lo x, hi x, lo y, ...: 0 to 5), for all the packet's rays.
 static inline XI_INLINE PacketFloat xi_node_plane(__global const BvhNode8* n, int plane, uint k) {
