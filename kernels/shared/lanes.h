@@ -135,9 +135,19 @@ static inline XI_INLINE xfloat3 xi_gather_xyz(__global const float4* p, xuint i,
 }
 // The four words of uint4 elements.
 static inline XI_INLINE void xi_gather_uint4(__global const uint4* p, xuint i, xuint* x, xuint* y, xuint* z, xuint* w) {
+#if XI_HAS_SHUFFLE  // shuffles move the bits as they are (small integers are denormal floats)
   xfloat a, b, c, d;
   xi_gather_columns((__global const float4*)p, i, &a, &b, &c, &d);
   *x = xi_as_uint(a), *y = xi_as_uint(b), *z = xi_as_uint(c), *w = xi_as_uint(d);
+#else
+  uint idx[XI_LANES], a[XI_LANES], b[XI_LANES], c[XI_LANES], d[XI_LANES];
+  XI_VSTORE(i, 0, idx);
+  XI_FOR_LANES(k) {
+    const uint4 e = p[idx[k]];
+    a[k] = e.x, b[k] = e.y, c[k] = e.z, d[k] = e.w;
+  }
+  *x = XI_VLOAD(0, a), *y = XI_VLOAD(0, b), *z = XI_VLOAD(0, c), *w = XI_VLOAD(0, d);
+#endif
 }
 // Stores (xyz, w) to element i[k] of the lanes where m is true.
 static inline XI_INLINE void xi_scatter4(__global float4* p, xuint i, xfloat3 v, xfloat w, xmask m) {
