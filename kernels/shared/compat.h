@@ -163,11 +163,12 @@ static inline uint xi_lane_bits16(int16 m) { return xi_lane_bits8(m.lo) | xi_lan
 #endif
 
 // XI_TRANSPOSE4(W, a, b, c, d): rows of float4s to columns and back in vectors of W = 8 or 16 floats.
-// a holds rows 0, 4, 8, 12 in its 128-bit parts (XI_ROWS(W, r, 0)), b rows 1, 5, 9, 13, c rows 2,
-// 6, 10, 14, d rows 3, 7, 11, 15; a 4×4 transpose within each part leaves the rows' x in a in row
-// order, their y in b, z in c, w in d, and back again (it is its own inverse; XI_ROW_OF(W, v, q):
-// part q of v). Two rounds of shuffles, where moving the values one by one took an extract and an
-// insert each. Where clang compiles (XI_HAS_SHUFFLE), with its __builtin_shufflevector.
+// a holds rows 0, 4, 8, 12 in its 128-bit parts, b rows 1, 5, 9, 13, c rows 2, 6, 10, 14, d rows 3,
+// 7, 11, 15; a 4×4 transpose within each part leaves the rows' x in a in row order, their y in b, z
+// in c, w in d, and back again (it is its own inverse). XI_COLUMNS(W, r, a, b, c, d): rows r[0..W-1]
+// into columns a, b, c, d; XI_ROW(W, a, b, c, d, k): row k of columns transposed back. Two rounds of
+// shuffles, where moving the values one by one took an extract and an insert each. Where clang
+// compiles (XI_HAS_SHUFFLE), with its __builtin_shufflevector.
 #if defined(__OPENCL_VERSION__) && defined(__clang__)
 #define XI_HAS_SHUFFLE 1
 #define XI_CAT_(a, b) a##b
@@ -179,8 +180,14 @@ static inline uint xi_lane_bits16(int16 m) { return xi_lane_bits8(m.lo) | xi_lan
     a = XI_CAT(XI_HALVES_LOW, W)(t0, t1), b = XI_CAT(XI_HALVES_HIGH, W)(t0, t1);                          \
     c = XI_CAT(XI_HALVES_LOW, W)(t2, t3), d = XI_CAT(XI_HALVES_HIGH, W)(t2, t3);                          \
   }
-#define XI_ROWS(W, r, j) XI_CAT(XI_ROWS, W)(r, j)
-#define XI_ROW_OF(W, v, q) XI_CAT(XI_ROW_OF, W)(v, q)
+#define XI_COLUMNS(W, r, a, b, c, d)                                                                     \
+  {                                                                                                      \
+    a = XI_CAT(XI_ROWS, W)(r, 0), b = XI_CAT(XI_ROWS, W)(r, 1);                                          \
+    c = XI_CAT(XI_ROWS, W)(r, 2), d = XI_CAT(XI_ROWS, W)(r, 3);                                          \
+    XI_TRANSPOSE4(W, a, b, c, d)                                                                         \
+  }
+#define XI_ROW(W, a, b, c, d, k) \
+  XI_CAT(XI_ROW_OF, W)(((k) & 3) == 0 ? (a) : ((k) & 3) == 1 ? (b) : ((k) & 3) == 2 ? (c) : (d), (k) >> 2)
 #define XI_PAIR_LOW8(a, b) __builtin_shufflevector(a, b, 0, 8, 1, 9, 4, 12, 5, 13)
 #define XI_PAIR_HIGH8(a, b) __builtin_shufflevector(a, b, 2, 10, 3, 11, 6, 14, 7, 15)
 #define XI_HALVES_LOW8(a, b) __builtin_shufflevector(a, b, 0, 1, 8, 9, 4, 5, 12, 13)

@@ -116,10 +116,7 @@ static inline XI_INLINE void xi_gather_columns(__global const float4* p, xuint i
   XI_VSTORE(i, 0, idx);
   XI_FOR_LANES(k) r[k] = p[idx[k]];
 #if XI_HAS_SHUFFLE
-  xfloat a = XI_ROWS(XI_LANES, r, 0), b = XI_ROWS(XI_LANES, r, 1), c = XI_ROWS(XI_LANES, r, 2),
-         d = XI_ROWS(XI_LANES, r, 3);
-  XI_TRANSPOSE4(XI_LANES, a, b, c, d)
-  *x = a, *y = b, *z = c, *w = d;
+  XI_COLUMNS(XI_LANES, r, *x, *y, *z, *w)
 #else
   float cx[XI_LANES], cy[XI_LANES], cz[XI_LANES], cw[XI_LANES];
   XI_FOR_LANES(k) cx[k] = r[k].x, cy[k] = r[k].y, cz[k] = r[k].z, cw[k] = r[k].w;
@@ -158,12 +155,7 @@ static inline XI_INLINE void xi_scatter4(__global float4* p, xuint i, xfloat3 v,
 #if XI_HAS_SHUFFLE
   xfloat a = v.x, b = v.y, c = v.z, d = w;
   XI_TRANSPOSE4(XI_LANES, a, b, c, d)
-  XI_FOR_LANES(k) {
-    if (on[k]) {
-      const xfloat rows = (k & 3) == 0 ? a : (k & 3) == 1 ? b : (k & 3) == 2 ? c : d;
-      p[idx[k]] = XI_ROW_OF(XI_LANES, rows, k >> 2);
-    }
-  }
+  XI_FOR_LANES(k) if (on[k]) p[idx[k]] = XI_ROW(XI_LANES, a, b, c, d, k);
 #else
   float x[XI_LANES], y[XI_LANES], z[XI_LANES], ww[XI_LANES];
   XI_VSTORE(v.x, 0, x);

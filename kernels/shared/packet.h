@@ -86,10 +86,7 @@ static inline XI_INLINE Packet xi_packet(PacketFloat ox, PacketFloat oy, PacketF
 static inline XI_INLINE void xi_packet_columns(const float4* r, PacketFloat* x, PacketFloat* y, PacketFloat* z,
                                                PacketFloat* w) {
 #if XI_HAS_SHUFFLE
-  PacketFloat a = XI_ROWS(XI_PACKET_WIDTH, r, 0), b = XI_ROWS(XI_PACKET_WIDTH, r, 1),
-              c = XI_ROWS(XI_PACKET_WIDTH, r, 2), d = XI_ROWS(XI_PACKET_WIDTH, r, 3);
-  XI_TRANSPOSE4(XI_PACKET_WIDTH, a, b, c, d)
-  *x = a, *y = b, *z = c, *w = d;
+  XI_COLUMNS(XI_PACKET_WIDTH, r, *x, *y, *z, *w)
 #else
   *x = XI_PACKET_OF(r, x), *y = XI_PACKET_OF(r, y), *z = XI_PACKET_OF(r, z), *w = XI_PACKET_OF(r, w);
 #endif
@@ -100,10 +97,7 @@ static inline XI_INLINE void xi_packet_store_rows(__global float4* p, const uint
                                                   PacketFloat z, PacketFloat w) {
 #if XI_HAS_SHUFFLE
   XI_TRANSPOSE4(XI_PACKET_WIDTH, x, y, z, w)
-  XI_UNROLL for (uint k = 0u; k < XI_PACKET_WIDTH; ++k) {
-    const PacketFloat rows = (k & 3u) == 0u ? x : (k & 3u) == 1u ? y : (k & 3u) == 2u ? z : w;
-    p[slot[k]] = XI_ROW_OF(XI_PACKET_WIDTH, rows, k >> 2);
-  }
+  XI_UNROLL for (uint k = 0u; k < XI_PACKET_WIDTH; ++k) p[slot[k]] = XI_ROW(XI_PACKET_WIDTH, x, y, z, w, k);
 #else
   XI_UNROLL for (uint k = 0u; k < XI_PACKET_WIDTH; ++k)
     p[slot[k]] = (float4)(XI_PACKET_LANE(float, x, k), XI_PACKET_LANE(float, y, k), XI_PACKET_LANE(float, z, k),
