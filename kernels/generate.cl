@@ -16,15 +16,20 @@ __kernel void generate(XI_PATH_PARAMS __global uint* restrict queue, __global ui
   const int sampler_kind = xi_sampler_of(shading);
   uint count = wave.pixels * wave.samples;
   if (get_global_id(0) == 0u) counters[XI_COUNTER_RAYS(0)] = count;
-  xuint slot = (uint)get_global_id(0) * XI_LANES + XI_LANE_INDEX;
+  const uint first = (uint)get_global_id(0) * XI_LANES;
+  xuint slot = first + XI_LANE_INDEX;
   xmask active = slot < count;
   if (!XI_ANY(active)) return;
-  // The slot's frame pixel (WaveParams): column x of film row film_pixel / width. (Slots past the
-  // wave read the list at its last entry.)
-  xuint at = XI_WAVE_PIXEL(wave, slot >= count ? (xuint)(count - 1u) : slot);
+  // The slot's wave pixel and sample (XI_WAVE_PIXEL, XI_WAVE_SAMPLE), then its frame pixel: column x
+  // of film row film_pixel / width. The divisions go by xi_div. (Slots past the wave take its last.)
+  const XiDivisor by_samples = xi_divisor(wave.samples), by_width = xi_divisor(wave.width);
+  xuint item = slot >= count ? (xuint)(count - 1u) : slot;
+  xuint wave_pixel = xi_div(item, by_samples);
+  xuint at = wave.first_pixel + wave_pixel, sample_index = wave.first_sample + (item - wave_pixel * wave.samples);
   xuint film_pixel = wave.pixel_list ? xi_gather_uint(pixel_list, at) : at;
-  xuint x = film_pixel % wave.width, y = wave.first_row + film_pixel / wave.width * wave.row_stride;
-  xuint pixel = y * wave.width + x, sample_index = XI_WAVE_SAMPLE(wave, slot);
+  xuint row = xi_div(film_pixel, by_width);
+  xuint x = film_pixel - row * wave.width, y = wave.first_row + row * wave.row_stride;
+  xuint pixel = y * wave.width + x;
   xfloat2 u = xi_sample_2d(sampler_kind, sampler, pixel, sample_index, XI_PAIR_PIXEL);
   // Film coordinates in [-1, 1]², x to the right, y up; pixel (0, 0) is the top-left corner.
   xfloat sx = 2.0f * (xi_to_float(x) + u.x) / (float)cam.width - 1.0f;
@@ -42,14 +47,14 @@ __kernel void generate(XI_PATH_PARAMS __global uint* restrict queue, __global ui
     dir = xi_normalize3(xi_sub3(focus, org));
   }
   const xfloat zero = 0.0f;
-  xi_scatter4(ray_org, slot, org, zero, active);
-  xi_scatter4(ray_dir, slot, dir, zero, active);
+  xi_store4_from(ray_org, first, org, zero, active);
+  xi_store4_from(ray_dir, first, dir, zero, active);
   // (No throughput or radiance: shade starts a camera ray with its known 1 and 0, most of an asset
   // shot's camera rays escaping with no more than one lookup.)
   const xfloat3 none = xi_splat3(make_float3(0.0f, 0.0f, 0.0f));
-  xi_scatter_uint(item_pixel, slot, pixel, active);  // shade draws its samples for them without redoing the divisions
-  xi_scatter_uint(item_sample, slot, sample_index, active);
-  xi_scatter4(aov_albedo, slot, none, zero, active);
-  xi_scatter4(aov_normal, slot, none, zero, active);
-  xi_scatter_uint(queue, slot, slot, active);
+  xi_store_uint_from(item_pixel, first, pixel, active);  // shade draws its samples for them without redoing the divisions
+  xi_store_uint_from(item_sample, first, sample_index, active);
+  xi_store4_from(aov_albedo, first, none, zero, active);
+  xi_store4_from(aov_normal, first, none, zero, active);
+  xi_store_uint_from(queue, first, slot, active);
 }

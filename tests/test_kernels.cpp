@@ -479,6 +479,33 @@ TEST_F(Kernel, LaneBitsNameTheTrueLanes) {
   }
 }
 
+// xi_div (lanes.h), the division generate uses for lanes, against the integer division it
+// replaces: divisors of every form (1, powers of two, odd and even ones, those above 2^31, the
+// largest) and random ones; numerators at both sides of quotient steps, the largest, and random.
+TEST(LaneDivision, MatchesIntegerDivision) {
+  std::mt19937 rng(46);
+  std::vector<uint32_t> divisors = {1u,  2u,  3u,   4u,   5u,   6u,   7u,          8u,          11u,         37u,
+                                    64u, 97u, 511u, 512u, 513u, 641u, 6700417u,    0x7fffffffu, 0x80000000u, 0x80000001u,
+                                    0xfffffffeu, 0xffffffffu};
+  for (int k = 0; k < 500; ++k) divisors.push_back(std::max(1u, (uint32_t)rng() >> (rng() % 32)));
+  uint64_t checked = 0;
+  for (uint32_t d : divisors) {
+    const XiDivisor by = xi_divisor(d);
+    std::vector<uint32_t> numerators = {0u, 1u, 0xfffffffeu, 0xffffffffu};
+    for (uint64_t q : {1ull, 2ull, 3ull, 0xffffffffull / d, 0xffffffffull / d / 2 + 1}) {
+      const uint64_t n = q * d;  // the first numerator of quotient q, and the last of q - 1
+      if (n <= 0xffffffffull) numerators.insert(numerators.end(), {(uint32_t)n, (uint32_t)(n - 1)});
+      if (n + 1 <= 0xffffffffull) numerators.push_back((uint32_t)(n + 1));
+    }
+    for (int k = 0; k < 200; ++k) numerators.push_back(rng());
+    for (uint32_t n : numerators) {
+      ASSERT_EQ(xi_div(n, by), n / d) << n << " / " << d;
+      ++checked;
+    }
+  }
+  EXPECT_GT(checked, 500u * 200u);
+}
+
 // --- generate ------------------------------------------------------------------------------------
 
 TEST_F(Kernel, GenerateCameraRays) {

@@ -84,6 +84,8 @@ static inline float4 fmax(const float4& a, const float4& b) { return glm::max(a,
 static inline float3 fabs(const float3& a) { return glm::abs(a); }
 static inline float4 fabs(const float4& a) { return glm::abs(a); }
 static inline uint clz(uint x) { return x ? (uint)__builtin_clz(x) : 32u; }
+typedef uint64_t ulong;
+static inline uint mul_hi(uint a, uint b) { return (uint)(((uint64_t)a * b) >> 32); }
 static inline float clamp(float x, float lo, float hi) { return std::fmin(std::fmax(x, lo), hi); }
 static inline int clamp(int x, int lo, int hi) { return x < lo ? lo : x > hi ? hi : x; }
 static inline uint as_uint(float f) { uint u; std::memcpy(&u, &f, 4); return u; }
@@ -159,7 +161,7 @@ static inline uint xi_lane_bits16(int16 m) { return xi_lane_bits8(m.lo) | xi_lan
 #define XI_PREFETCH(p, rw) __builtin_prefetch((p), (rw))
 #else
 #define XI_HAS_PREFETCH 0
-#define XI_PREFETCH(p, rw) ((void)0)
+#define XI_PREFETCH(p, rw) ((void)(p))
 #endif
 
 // XI_TRANSPOSE4(W, a, b, c, d): rows of float4s to columns and back in vectors of W = 8 or 16 floats.

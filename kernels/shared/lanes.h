@@ -165,6 +165,26 @@ static inline XI_INLINE void xi_scatter4(__global float4* p, xuint i, xfloat3 v,
   XI_FOR_LANES(k) if (on[k]) p[idx[k]] = (float4)(x[k], y[k], z[k], ww[k]);
 #endif
 }
+// Stores (xyz, w) of lane k to element first + k, in the lanes where m is true: whole rows, without
+// a test per lane, where every lane is (the slots a generate work item starts).
+static inline XI_INLINE void xi_store4_from(__global float4* p, uint first, xfloat3 v, xfloat w, xmask m) {
+  if (!all(m)) {
+    xi_scatter4(p, first + XI_LANE_INDEX, v, w, m);
+    return;
+  }
+#if XI_HAS_SHUFFLE
+  xfloat a = v.x, b = v.y, c = v.z, d = w;
+  XI_TRANSPOSE4(XI_LANES, a, b, c, d)
+  XI_FOR_LANES(k) p[first + k] = XI_ROW(XI_LANES, a, b, c, d, k);
+#else
+  float x[XI_LANES], y[XI_LANES], z[XI_LANES], ww[XI_LANES];
+  XI_VSTORE(v.x, 0, x);
+  XI_VSTORE(v.y, 0, y);
+  XI_VSTORE(v.z, 0, z);
+  XI_VSTORE(w, 0, ww);
+  XI_FOR_LANES(k) p[first + k] = (float4)(x[k], y[k], z[k], ww[k]);
+#endif
+}
 // The number of lanes where m is true.
 static inline XI_INLINE uint xi_count(xmask m) {
 #if XI_LANES == 16
@@ -188,6 +208,13 @@ static inline XI_INLINE uint xi_count(xmask m) {
   }
 XI_SCATTER_UINT(xi_scatter_uint, __global)
 XI_SCATTER_UINT(xi_local_scatter_uint, __local)
+// Stores v of lane k to element first + k, in the lanes where m is true (as xi_store4_from).
+static inline XI_INLINE void xi_store_uint_from(__global uint* p, uint first, xuint v, xmask m) {
+  if (all(m))
+    XI_VSTORE(v, 0, p + first);
+  else
+    xi_scatter_uint(p, first + XI_LANE_INDEX, v, m);
+}
 // Where the lanes with m true go when appended, in lane order, to consecutive elements from `at`.
 static inline XI_INLINE xuint xi_compact_index(uint at, xmask m) {
   int on[XI_LANES];
@@ -261,6 +288,12 @@ static inline void xi_local_scatter_uint(__local uint* p, xuint i, xuint v, xmas
   if (m) p[i] = v;
 }
 static inline xuint xi_compact_index(uint at, xmask m) { return at; }
+static inline void xi_store4_from(__global float4* p, uint first, xfloat3 v, xfloat w, xmask m) {
+  if (m) p[first] = (float4)(v, w);
+}
+static inline void xi_store_uint_from(__global uint* p, uint first, xuint v, xmask m) {
+  if (m) p[first] = v;
+}
 #endif
 
 #else
@@ -272,6 +305,26 @@ static inline xfloat xi_max3(xfloat3 v) { return fmax(v.x, fmax(v.y, v.z)); }
 static inline xfloat3 xi_mix3(xfloat3 a, xfloat3 b, xfloat t) { return xi_add3(a, xi_scale3(xi_sub3(b, a), t)); }
 // sqrt of a value that rounding may have pushed slightly below zero.
 static inline xfloat xi_safe_sqrt(xfloat x) { return sqrt(fmax(x, (xfloat)0.0f)); }
+
+// Exact unsigned division by a divisor that is the same for every lane, by a multiply and two
+// shifts (Granlund and Montgomery 1994, "Division by invariant integers using multiplication",
+// fig. 4.1): vector units have no integer divide, so `/` on lanes is one scalar division per lane.
+// Right for every 32-bit n and every d ≥ 1.
+typedef struct {
+  uint multiplier, shift1, shift2;
+} XiDivisor;
+static inline XiDivisor xi_divisor(uint d) {
+  const uint l = d > 1u ? 32u - clz(d - 1u) : 0u;  // ceil(log2 d)
+  XiDivisor v;
+  v.multiplier = (uint)(((((ulong)1 << l) - d) << 32) / d + 1u);
+  v.shift1 = l > 0u ? 1u : 0u;
+  v.shift2 = l > 0u ? l - 1u : 0u;
+  return v;
+}
+static inline XI_INLINE xuint xi_div(xuint n, XiDivisor d) {
+  const xuint t = mul_hi(n, (xuint)d.multiplier);
+  return (t + ((n - t) >> d.shift1)) >> d.shift2;
+}
 
 // Field `field` of struct i of `buffer`, an array of layout.h's structs, in each lane: read at the
 // field's place in struct 0 with a stride of one struct, so no offset is counted by hand. (Every
