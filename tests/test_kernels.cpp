@@ -78,6 +78,14 @@ class Kernel : public ::testing::Test {
     hybrid16.packet_width = 16;
     hybrid8_.emplace(xi::build_program(*device_, {"extend.cl", "shadow.cl"}, hybrid8.defines()));
     hybrid16_.emplace(xi::build_program(*device_, {"extend.cl", "shadow.cl"}, hybrid16.defines()));
+    // 16 lanes and packets of 16, with the shuffles that move float4s between rows and lanes and with
+    // their value-by-value form (compat.h's XI_HAS_SHUFFLE), which must give the same bits.
+    xi::KernelConfig wide = packets16;
+    wide.lanes = 16;
+    std::vector<std::string> portable = wide.defines();
+    portable.push_back("XI_PORTABLE_SHUFFLES");
+    lanes16_.emplace(xi::build_program(*device_, {"generate.cl", "shade.cl"}, wide.defines()));
+    portable16_.emplace(xi::build_program(*device_, {"generate.cl", "shade.cl", "extend.cl", "shadow.cl"}, portable));
   }
   static void TearDownTestSuite() {  // release OpenCL objects before the driver unloads
     program_.reset();
@@ -87,7 +95,23 @@ class Kernel : public ::testing::Test {
     hybrid8_.reset();
     hybrid16_.reset();
     lanes8_.reset();
+    lanes16_.reset();
+    portable16_.reset();
     device_.reset();
+  }
+
+  // The programs holding generate and shade, by the paths each work item takes: 1, 8, 16, and 16
+  // moving values one by one instead of by shuffles.
+  struct ShadingProgram {
+    int lanes;
+    const xi::Program* program;
+    const char* form;
+  };
+  static std::vector<ShadingProgram> shading_programs() {
+    return {{1, &*program_, "1 lane"},
+            {8, &*lanes8_, "8 lanes"},
+            {16, &*lanes16_, "16 lanes"},
+            {16, &*portable16_, "16 lanes, no shuffles"}};
   }
 
   cl::Context& ctx() { return device_->context(); }
@@ -126,6 +150,14 @@ class Kernel : public ::testing::Test {
 #undef XI_FILL
     }
   };
+  // Every buffer of two path states holds the same bits.
+  static void expect_same_bits(const PathState& a, const PathState& b) {
+#define XI_COMPARE(type, name) \
+  EXPECT_EQ(std::memcmp(a.name.data(), b.name.data(), a.name.size() * sizeof(type)), 0) << #name " differs";
+    XI_PATH_STATE(XI_COMPARE)
+#undef XI_COMPARE
+  }
+
   struct PathBuffers {
 #define XI_FIELD(type, name) cl::Buffer name;
     XI_PATH_STATE(XI_FIELD)
@@ -157,13 +189,13 @@ class Kernel : public ::testing::Test {
   }
 
   static std::optional<xi::Device> device_;
-  static std::optional<xi::Program> program_, program8_, ray_packets8_, ray_packets16_, hybrid8_, hybrid16_, lanes8_;
+  static std::optional<xi::Program> program_, program8_, ray_packets8_, ray_packets16_, hybrid8_, hybrid16_, lanes8_,
+      lanes16_, portable16_;
   static uint32_t shading_word_;  // the programs' own (compiled in; the argument is read by generic programs)
 };
 std::optional<xi::Device> Kernel::device_;
 std::optional<xi::Program> Kernel::program_, Kernel::program8_, Kernel::ray_packets8_, Kernel::ray_packets16_,
-    Kernel::hybrid8_, Kernel::hybrid16_,
-    Kernel::lanes8_;
+    Kernel::hybrid8_, Kernel::hybrid16_, Kernel::lanes8_, Kernel::lanes16_, Kernel::portable16_;
 uint32_t Kernel::shading_word_ = 0;
 
 vec3 random_direction(std::mt19937& rng) {
@@ -400,9 +432,9 @@ TEST_F(Kernel, PacketsFindTheHitsOfSingleRays) {
     }
     EXPECT_GE(together, (size_t)packets / 2);  // most of the four kinds meant to share
 
-    // w rays per work item at bounce 0, at bounce 3 with ray packets and at bounce 1 with hybrid
-    // packets; one at bounce 1 without.
-    enum Program { kPlain, kPackets, kHybrid };
+    // w rays per work item at bounce 0, at bounce 3 with ray packets (and, 16 of them, without
+    // shuffles: kPortable) and at bounce 1 with hybrid packets; one at bounce 1 without.
+    enum Program { kPlain, kPackets, kHybrid, kPortable };
     auto trace = [&](uint32_t bounce, Program program) {
       PathBuffers b = upload(state);
       std::vector<uint32_t> counters(XI_COUNTER_COUNT(8), 7u);
@@ -412,11 +444,13 @@ TEST_F(Kernel, PacketsFindTheHitsOfSingleRays) {
       const xi::Program& packets = w == 16 ? *ray_packets16_ : *ray_packets8_;
       const xi::Program& hybrid = w == 16 ? *hybrid16_ : *hybrid8_;
       cl::Kernel k = program == kHybrid                               ? cl::Kernel(hybrid.program, "extend")
+                     : program == kPortable                            ? cl::Kernel(portable16_->program, "extend")
                      : program == kPackets || (w == 16 && bounce == 0) ? cl::Kernel(packets.program, "extend")
                                                                        : kernel("extend", 8);
       bind(k, b, qb, cb, bounce, nodes, blocks);
-      const int rays = XI_EXTEND_RAYS(8, bounce, program == kPackets ? 1 : 0, program == kHybrid ? 1 : 0);
-      EXPECT_EQ(rays, bounce == 0 || program == kPackets ? XI_RAYS_TOGETHER
+      const bool packets_always = program == kPackets || program == kPortable;
+      const int rays = XI_EXTEND_RAYS(8, bounce, packets_always ? 1 : 0, program == kHybrid ? 1 : 0);
+      EXPECT_EQ(rays, bounce == 0 || packets_always ? XI_RAYS_TOGETHER
                       : program == kHybrid               ? XI_RAYS_HYBRID
                                                          : XI_RAYS_ALONE);
       launch(k, slots / XI_RAYS_PER_ITEM(rays, w) + 1);
@@ -427,6 +461,11 @@ TEST_F(Kernel, PacketsFindTheHitsOfSingleRays) {
     for (uint32_t i = 0; i < slots; ++i)
       if (!same_bits(packet[i], bounce_packet[i]))
         ADD_FAILURE() << "slot " << i << ": a bounce packet's hit is not the camera packet's";
+    if (w == 16) {
+      const std::vector<vec4> portable = trace(3, kPortable);
+      EXPECT_EQ(std::memcmp(portable.data(), bounce_packet.data(), slots * sizeof(vec4)), 0)
+          << "packets without shuffles found other hits";
+    }
     for (const bool is_hybrid : {false, true}) {
       SCOPED_TRACE(is_hybrid ? "hybrid packets" : "packets");
       const std::vector<vec4>& together = is_hybrid ? hybrid : packet;
@@ -529,59 +568,63 @@ TEST_F(Kernel, GenerateCameraRays) {
   // every third row from row 2 (one process's share of a distributed render), two samples.
   // Last, a wave through a list of film pixels (adaptive sampling: the pixels still sampling), from
   // its entry 3 on.
-  // Each with one path per work item and with 8 (counts that are not multiples of 8 leave lanes off).
+  // Each with 1, 8 and 16 paths per work item (counts that are not multiples of 8 leave lanes off).
   const uint32_t share_pixels = W * 7;  // rows 2, 5, ..., 20 of 23
   std::vector<uint32_t> list(pixels);
   for (uint32_t i = 0; i < pixels; ++i) list[i] = (i * 7u) % pixels;  // every pixel once (7 and 851 are coprime)
   cl::Buffer list_b = buffer(list);
-  for (int lanes : {1, 8})
   for (WaveParams wave : {WaveParams{0, 500, sample, 1, W, 0, 1, 0}, WaveParams{500, pixels - 500, sample, 1, W, 0, 1, 0},
                           WaveParams{0, pixels, sample, 2, W, 0, 1, 0}, WaveParams{0, share_pixels, sample, 2, W, 2, 3, 0},
                           WaveParams{3, 301, sample, 3, W, 0, 1, 1}}) {
-    SCOPED_TRACE(testing::Message() << lanes << " lanes");
-    const uint32_t count = wave.pixels * wave.samples;
-    PathState state(slots);
-    PathBuffers b = upload(state);
-    cl::Buffer qb = buffer(garbage<uint32_t>(slots));
-    cl::Buffer cb = buffer(std::vector<uint32_t>(XI_COUNTER_COUNT(8), 7u));
-    cl::Kernel k((lanes == 8 ? lanes8_ : program_)->program, "generate");
-    bind(k, b, qb, cb, list_b, cam, sp, shading_word_, wave);
-    launch(k, (count + lanes - 1) / lanes);
-    PathState out = download(b, slots);
-    std::vector<uint32_t> q = read<uint32_t>(qb, slots);
-    EXPECT_EQ(read<uint32_t>(cb, XI_COUNTER_COUNT(8))[XI_COUNTER_RAYS(0)], count);  // the first queue's length
+    std::optional<PathState> shuffled;  // 16 lanes' outputs, which the form without shuffles must repeat
+    for (const ShadingProgram& shading : shading_programs()) {
+      SCOPED_TRACE(shading.form);
+      const uint32_t count = wave.pixels * wave.samples;
+      PathState state(slots);
+      PathBuffers b = upload(state);
+      cl::Buffer qb = buffer(garbage<uint32_t>(slots));
+      cl::Buffer cb = buffer(std::vector<uint32_t>(XI_COUNTER_COUNT(8), 7u));
+      cl::Kernel k(shading.program->program, "generate");
+      bind(k, b, qb, cb, list_b, cam, sp, shading_word_, wave);
+      launch(k, (count + shading.lanes - 1) / shading.lanes);
+      PathState out = download(b, slots);
+      if (shading.program == &*portable16_) expect_same_bits(out, *shuffled);
+      if (shading.program == &*lanes16_) shuffled = out;
+      std::vector<uint32_t> q = read<uint32_t>(qb, slots);
+      EXPECT_EQ(read<uint32_t>(cb, XI_COUNTER_COUNT(8))[XI_COUNTER_RAYS(0)], count);  // the first queue's length
 
-    for (uint32_t slot = 0; slot < count; ++slot) {
-      SCOPED_TRACE(testing::Message() << "slot " << slot << " of the wave at " << wave.first_pixel);
-      const uint32_t at = XI_WAVE_PIXEL(wave, slot), s = XI_WAVE_SAMPLE(wave, slot);
-      const uint32_t film_pixel = wave.pixel_list ? list[at] : at;
-      const uint32_t pixel = (wave.first_row + film_pixel / W * wave.row_stride) * W + film_pixel % W;  // in the frame
-      EXPECT_EQ(out.item_pixel[slot], pixel);  // what shade draws its samples for
-      EXPECT_EQ(out.item_sample[slot], s);
-      if (s != sample) {  // the second sample: a different jitter of the same pixel
-        const uint32_t first = XI_WAVE_SLOT(wave, at - wave.first_pixel, 0u);
-        EXPECT_GT(glm::length(vec3(out.ray_dir[slot]) - vec3(out.ray_dir[first])), 0.0f);
-        continue;
+      for (uint32_t slot = 0; slot < count; ++slot) {
+        SCOPED_TRACE(testing::Message() << "slot " << slot << " of the wave at " << wave.first_pixel);
+        const uint32_t at = XI_WAVE_PIXEL(wave, slot), s = XI_WAVE_SAMPLE(wave, slot);
+        const uint32_t film_pixel = wave.pixel_list ? list[at] : at;
+        const uint32_t pixel = (wave.first_row + film_pixel / W * wave.row_stride) * W + film_pixel % W;  // in the frame
+        EXPECT_EQ(out.item_pixel[slot], pixel);  // what shade draws its samples for
+        EXPECT_EQ(out.item_sample[slot], s);
+        if (s != sample) {  // the second sample: a different jitter of the same pixel
+          const uint32_t first = XI_WAVE_SLOT(wave, at - wave.first_pixel, 0u);
+          EXPECT_GT(glm::length(vec3(out.ray_dir[slot]) - vec3(out.ray_dir[first])), 0.0f);
+          continue;
+        }
+        // generate.cl's formula, evaluated on the host with the same sampler call.
+        float2 u = xi_sample_2d(XI_SAMPLER_RANDOM, sp, pixel, s, XI_PAIR_PIXEL);
+        float sx = 2.0f * ((float)(pixel % W) + u.x) / (float)W - 1.0f;
+        float sy = 1.0f - 2.0f * ((float)(pixel / W) + u.y) / (float)H;
+        vec3 want = glm::normalize(vec3(cam.forward) + sx * vec3(cam.right) + sy * vec3(cam.up));
+        org[pixel] = vec3(out.ray_org[slot]);
+        dir[pixel] = vec3(out.ray_dir[slot]);
+        EXPECT_LE(glm::length(org[pixel] - vec3(cam.position)), 1e-5f);  // a pinhole: every ray starts at the eye
+        EXPECT_LE(glm::length(dir[pixel] - want), 1e-5f);  // unit vectors; fused multiply-adds move a few ulps
+        // Throughput and radiance are left alone: shade knows a camera ray's (1 and 0).
+        EXPECT_EQ(as_uint(out.throughput[slot].x), kGarbage);
+        EXPECT_EQ(as_uint(out.radiance[slot].x), kGarbage);
+        EXPECT_TRUE(same_bits(out.aov_albedo[slot], vec4(0.0f)));
+        EXPECT_TRUE(same_bits(out.aov_normal[slot], vec4(0.0f)));
+        EXPECT_EQ(q[slot], slot);
       }
-      // generate.cl's formula, evaluated on the host with the same sampler call.
-      float2 u = xi_sample_2d(XI_SAMPLER_RANDOM, sp, pixel, s, XI_PAIR_PIXEL);
-      float sx = 2.0f * ((float)(pixel % W) + u.x) / (float)W - 1.0f;
-      float sy = 1.0f - 2.0f * ((float)(pixel / W) + u.y) / (float)H;
-      vec3 want = glm::normalize(vec3(cam.forward) + sx * vec3(cam.right) + sy * vec3(cam.up));
-      org[pixel] = vec3(out.ray_org[slot]);
-      dir[pixel] = vec3(out.ray_dir[slot]);
-      EXPECT_LE(glm::length(org[pixel] - vec3(cam.position)), 1e-5f);  // a pinhole: every ray starts at the eye
-      EXPECT_LE(glm::length(dir[pixel] - want), 1e-5f);  // unit vectors; fused multiply-adds move a few ulps
-      // Throughput and radiance are left alone: shade knows a camera ray's (1 and 0).
-      EXPECT_EQ(as_uint(out.throughput[slot].x), kGarbage);
-      EXPECT_EQ(as_uint(out.radiance[slot].x), kGarbage);
-      EXPECT_TRUE(same_bits(out.aov_albedo[slot], vec4(0.0f)));
-      EXPECT_TRUE(same_bits(out.aov_normal[slot], vec4(0.0f)));
-      EXPECT_EQ(q[slot], slot);
-    }
-    for (uint32_t slot = count; slot < slots; ++slot) {  // beyond `count`, nothing is written
-      EXPECT_EQ(as_uint(out.ray_dir[slot].x), kGarbage);
-      EXPECT_EQ(q[slot], kGarbage);
+      for (uint32_t slot = count; slot < slots; ++slot) {  // beyond `count`, nothing is written
+        EXPECT_EQ(as_uint(out.ray_dir[slot].x), kGarbage);
+        EXPECT_EQ(q[slot], kGarbage);
+      }
     }
   }
 
@@ -726,58 +769,76 @@ TEST_F(Kernel, ShadeFirstHitsFromTheCamera) {
   }
   std::vector<uint32_t> identity(slots);
   std::iota(identity.begin(), identity.end(), 0u);
-  for (int run = 0; run < 4; ++run) {  // a coloured and a black background, 1 and 8 lanes each
-    const vec4 background = run < 2 ? vec4(0.25f, 0.5f, 0.75f, 0.0f) : vec4(0.0f);
-    const int lanes = run % 2 ? 8 : 1;
-    SCOPED_TRACE(testing::Message() << lanes << " lanes, background " << background.x);
-    PathBuffers b = upload(state);
-    cl::Buffer queue_in = buffer(identity), queue_out = buffer(garbage<uint32_t>(slots));
-    cl::Buffer shadow_org = buffer(garbage<vec4>(slots)), shadow_dir = buffer(garbage<vec4>(slots)),
-               shadow_contrib = buffer(garbage<vec4>(slots));
-    std::vector<uint32_t> counters(XI_COUNTER_COUNT(8), 0u);
-    counters[XI_COUNTER_RAYS(0)] = count;
-    cl::Buffer cb = buffer(counters);
-    // (Kernel arguments do not keep buffers alive: each is named until the launch.)
+  for (const vec4 background : {vec4(0.25f, 0.5f, 0.75f, 0.0f), vec4(0.0f)}) {  // coloured and black
+    struct Outputs {
+      PathState paths;
+      std::vector<vec4> shadows;
+      std::vector<uint32_t> queue;
+    };
+    std::optional<Outputs> shuffled;  // as in GenerateCameraRays, with the shadow rays and the next queue
+    for (const ShadingProgram& shading : shading_programs()) {
+      SCOPED_TRACE(testing::Message() << shading.form << ", background " << background.x);
+      PathBuffers b = upload(state);
+      cl::Buffer queue_in = buffer(identity), queue_out = buffer(garbage<uint32_t>(slots));
+      cl::Buffer shadow_org = buffer(garbage<vec4>(slots)), shadow_dir = buffer(garbage<vec4>(slots)),
+                 shadow_contrib = buffer(garbage<vec4>(slots));
+      std::vector<uint32_t> counters(XI_COUNTER_COUNT(8), 0u);
+      counters[XI_COUNTER_RAYS(0)] = count;
+      cl::Buffer cb = buffer(counters);
+      // (Kernel arguments do not keep buffers alive: each is named until the launch.)
 #define XI_UPLOAD_SCENE_BUFFER(type, name) cl::Buffer name = buffer(cs.name);
-    XI_SCENE_BUFFERS(XI_UPLOAD_SCENE_BUFFER)
+      XI_SCENE_BUFFERS(XI_UPLOAD_SCENE_BUFFER)
 #undef XI_UPLOAD_SCENE_BUFFER
-    cl::Kernel k((lanes == 8 ? lanes8_ : program_)->program, "shade");
-    const uint32_t light_count = (uint32_t)cs.light_tri.size();
-    bind(k, b, queue_in, queue_out, shadow_org, shadow_dir, shadow_contrib, cb, 0u, XI_SCENE_BUFFERS(XI_ARG) light_count,
-         cs.environment, xi_make_sampler_params(3, 16), shading_word_, 8u, background);
-    launch(k, (count + lanes - 1) / lanes);
-    PathState out = download(b, slots);
-    const uint32_t next = read<uint32_t>(cb, XI_COUNTER_COUNT(8))[XI_COUNTER_RAYS(1)];
-    ASSERT_LE(next, count);
-    std::vector<uint32_t> queued = read<uint32_t>(queue_out, slots);
-    queued.resize(next);
-    int misses = 0, emitters = 0, continuing = 0;
-    for (uint32_t i = 0; i < count; ++i) {
-      SCOPED_TRACE(testing::Message() << "path " << i);
-      const bool goes_on = std::find(queued.begin(), queued.end(), i) != queued.end();
-      if (out.hit[i].x < 0.0f) {
-        misses++;
-        EXPECT_TRUE(same_bits(vec3(out.radiance[i]), vec3(background)));
-        EXPECT_TRUE(same_bits(out.aov_albedo[i], vec4(0.0f)));
-        EXPECT_TRUE(same_bits(out.aov_normal[i], vec4(0.0f)));
-        EXPECT_FALSE(goes_on);
-        continue;
+      cl::Kernel k(shading.program->program, "shade");
+      const uint32_t light_count = (uint32_t)cs.light_tri.size();
+      bind(k, b, queue_in, queue_out, shadow_org, shadow_dir, shadow_contrib, cb, 0u, XI_SCENE_BUFFERS(XI_ARG) light_count,
+           cs.environment, xi_make_sampler_params(3, 16), shading_word_, 8u, background);
+      launch(k, (count + shading.lanes - 1) / shading.lanes);
+      PathState out = download(b, slots);
+      const uint32_t next = read<uint32_t>(cb, XI_COUNTER_COUNT(8))[XI_COUNTER_RAYS(1)];
+      std::vector<vec4> shadows = read<vec4>(shadow_org, slots), dirs = read<vec4>(shadow_dir, slots),
+                        contribs = read<vec4>(shadow_contrib, slots);
+      shadows.insert(shadows.end(), dirs.begin(), dirs.end());
+      shadows.insert(shadows.end(), contribs.begin(), contribs.end());
+      const std::vector<uint32_t> next_queue = read<uint32_t>(queue_out, slots);
+      if (shading.program == &*portable16_) {
+        expect_same_bits(out, shuffled->paths);
+        EXPECT_EQ(std::memcmp(shadows.data(), shuffled->shadows.data(), shadows.size() * sizeof(vec4)), 0)
+            << "shadow rays differ";
+        EXPECT_EQ(next_queue, shuffled->queue);
       }
-      const uint32_t tri = as_uint(out.hit[i].w);
-      const MaterialData& m = cs.materials[cs.tri_material[tri]];
-      emitters += glm::length(vec3(m.emission)) > 0.0f;
-      EXPECT_TRUE(same_bits(vec3(out.radiance[i]), vec3(m.emission)));  // 0 + 1 · emission · weight 1
-      EXPECT_TRUE(same_bits(vec3(out.aov_albedo[i]), vec3(m.albedo)));
-      EXPECT_LE(glm::length(vec3(out.aov_normal[i]) - normal_of(tri)), 1e-6f);
-      if (goes_on) {
-        continuing++;
-        EXPECT_TRUE(same_bits(vec3(out.throughput[i]), vec3(m.albedo)));  // 1 · f · cos / pdf = albedo
-        EXPECT_GT(out.throughput[i].w, 0.0f);  // the pdf of its cosine-weighted direction
+      if (shading.program == &*lanes16_) shuffled = Outputs{out, shadows, next_queue};
+      std::vector<uint32_t> queued = next_queue;
+      ASSERT_LE(next, count);
+      queued.resize(next);
+      int misses = 0, emitters = 0, continuing = 0;
+      for (uint32_t i = 0; i < count; ++i) {
+        SCOPED_TRACE(testing::Message() << "path " << i);
+        const bool goes_on = std::find(queued.begin(), queued.end(), i) != queued.end();
+        if (out.hit[i].x < 0.0f) {
+          misses++;
+          EXPECT_TRUE(same_bits(vec3(out.radiance[i]), vec3(background)));
+          EXPECT_TRUE(same_bits(out.aov_albedo[i], vec4(0.0f)));
+          EXPECT_TRUE(same_bits(out.aov_normal[i], vec4(0.0f)));
+          EXPECT_FALSE(goes_on);
+          continue;
+        }
+        const uint32_t tri = as_uint(out.hit[i].w);
+        const MaterialData& m = cs.materials[cs.tri_material[tri]];
+        emitters += glm::length(vec3(m.emission)) > 0.0f;
+        EXPECT_TRUE(same_bits(vec3(out.radiance[i]), vec3(m.emission)));  // 0 + 1 · emission · weight 1
+        EXPECT_TRUE(same_bits(vec3(out.aov_albedo[i]), vec3(m.albedo)));
+        EXPECT_LE(glm::length(vec3(out.aov_normal[i]) - normal_of(tri)), 1e-6f);
+        if (goes_on) {
+          continuing++;
+          EXPECT_TRUE(same_bits(vec3(out.throughput[i]), vec3(m.albedo)));  // 1 · f · cos / pdf = albedo
+          EXPECT_GT(out.throughput[i].w, 0.0f);  // the pdf of its cosine-weighted direction
+        }
       }
+      EXPECT_EQ(misses, (int)count / 5);
+      EXPECT_GT(emitters, 0);
+      EXPECT_GT(continuing, (int)count / 2);
     }
-    EXPECT_EQ(misses, (int)count / 5);
-    EXPECT_GT(emitters, 0);
-    EXPECT_GT(continuing, (int)count / 2);
   }
 }
 

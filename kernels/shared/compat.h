@@ -170,8 +170,9 @@ static inline uint xi_lane_bits16(int16 m) { return xi_lane_bits8(m.lo) | xi_lan
 // in c, w in d, and back again (it is its own inverse). XI_COLUMNS(W, r, a, b, c, d): rows r[0..W-1]
 // into columns a, b, c, d; XI_ROW(W, a, b, c, d, k): row k of columns transposed back. Two rounds of
 // shuffles, where moving the values one by one took an extract and an insert each. Where clang
-// compiles (XI_HAS_SHUFFLE), with its __builtin_shufflevector.
-#if defined(__OPENCL_VERSION__) && defined(__clang__)
+// compiles (XI_HAS_SHUFFLE), with its __builtin_shufflevector; elsewhere value by value, the form a
+// test also builds with XI_PORTABLE_SHUFFLES.
+#if defined(__OPENCL_VERSION__) && defined(__clang__) && !defined(XI_PORTABLE_SHUFFLES)
 #define XI_HAS_SHUFFLE 1
 #define XI_CAT_(a, b) a##b
 #define XI_CAT(a, b) XI_CAT_(a, b)
