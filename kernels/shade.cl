@@ -366,7 +366,8 @@ static inline XI_INLINE ShadeResult xi_shade_paths(XI_PATH_PARAMS xuint slot, xm
     // Escaped: the background is not sampled as a light, so it has weight 1.
     L = xi_select3(escaped, xi_add3(L, xi_mul3(beta, xi_splat3(xyz(background)))), L);
   }
-  xmask at_surface = active && !escaped;
+  const xmask surface_hit = active && !escaped;  // (at_surface less the rays that pass through)
+  xmask at_surface = surface_hit;
   if (!XI_ANY(at_surface)) {
     xi_scatter4(radiance, slot, L, (xfloat)0.0f, active);
     return r;
@@ -422,9 +423,10 @@ static inline XI_INLINE ShadeResult xi_shade_paths(XI_PATH_PARAMS xuint slot, xm
 
   Bsdf bsdf = xi_surface_bsdf(XI_SCENE_ARGS, shading, m, mi, tri, corners, at_surface, front, ng, wo, h.y, h.z, uv0,
                                uv1);
-  if (d == 0u) {
-    xi_scatter4(aov_albedo, slot, bsdf.tint, (xfloat)0.0f, at_surface);
-    xi_scatter4(aov_normal, slot, bsdf.n, (xfloat)0.0f, at_surface);
+  if (d == 0u) {  // (0 where a ray passes through, as generate wrote it: stored by surface_hit, as below)
+    const xfloat3 none = xi_splat3(make_float3(0.0f, 0.0f, 0.0f));
+    xi_scatter4(aov_albedo, slot, xi_select3(at_surface, bsdf.tint, none), (xfloat)0.0f, surface_hit);
+    xi_scatter4(aov_normal, slot, xi_select3(at_surface, bsdf.n, none), (xfloat)0.0f, surface_hit);
   }
 
   // Direct light: one light sample, weighed against the BSDF's own density, as a shadow ray.
@@ -490,9 +492,12 @@ static inline XI_INLINE ShadeResult xi_shade_paths(XI_PATH_PARAMS xuint slot, xm
     xuint pushed = (media << XI_VOLUME_BITS) | volume;
     media_out = xi_as_float(bounds ? (front ? pushed : media >> XI_VOLUME_BITS) : media);
   }
-  xi_scatter4(ray_org, slot, xi_offset_ray_origin(p, p_error, bsdf.n_geo, wi), (xfloat)0.0f, goes_on);
-  xi_scatter4(ray_dir, slot, wi, media_out, goes_on);
-  xi_scatter4(throughput, slot, beta, pdf, goes_on);
+  // Stored wherever a surface was hit, not only where the path goes on: an ended path's ray is read
+  // by no one, and whether a lane hit a surface is what neighbouring lanes share (escaped rays are
+  // partitioned off), where the roulette's and the BSDF's outcomes are what no branch predictor learns.
+  xi_scatter4(ray_org, slot, xi_offset_ray_origin(p, p_error, bsdf.n_geo, wi), (xfloat)0.0f, surface_hit);
+  xi_scatter4(ray_dir, slot, wi, media_out, surface_hit);
+  xi_scatter4(throughput, slot, beta, pdf, surface_hit);
   r.next_ray = goes_on;
   return r;
 }
@@ -527,8 +532,8 @@ __kernel void shade(XI_PATH_PARAMS __global const uint* restrict queue_in, __glo
     uint surfaces = xi_count(surface), escapes = xi_count(escaped);
     uint front = surfaces ? atomic_add(&partition_count[0], surfaces) : 0u;
     uint back = escapes ? atomic_add(&partition_count[1], escapes) : 0u;
-    xi_local_scatter_uint(group_slots, xi_compact_index(front, surface), slot, surface);
-    xi_local_scatter_uint(group_slots, (xuint)(group_entries - 1u) - xi_compact_index(back, escaped), slot, escaped);
+    xuint at = surface ? xi_compact_index(front, surface) : (xuint)(group_entries - 1u) - xi_compact_index(back, escaped);
+    xi_local_scatter_uint(group_slots, at, slot, active);
   }
   barrier(CLK_LOCAL_MEM_FENCE);
   if (partitioned) {
@@ -568,8 +573,8 @@ __kernel void shade(XI_PATH_PARAMS __global const uint* restrict queue_in, __glo
   barrier(CLK_LOCAL_MEM_FENCE);
   xuint ray_at = xi_compact_index(group_base[0] + ray_index, r.next_ray);
   xuint shadow_at = xi_compact_index(group_base[1] + shadow_index, r.shadow);
-  xi_scatter_uint(queue_out, ray_at, slot, r.next_ray);
-  xi_scatter4(shadow_org, shadow_at, r.shadow_org, r.shadow_tmax, r.shadow);
-  xi_scatter4(shadow_dir, shadow_at, r.shadow_dir, (xfloat)0.0f, r.shadow);
-  xi_scatter4(shadow_contrib, shadow_at, r.shadow_contrib, xi_as_float(slot), r.shadow);
+  xi_append_uint(queue_out, ray_at, slot, r.next_ray);
+  xi_append4(shadow_org, shadow_at, r.shadow_org, r.shadow_tmax, r.shadow);
+  xi_append4(shadow_dir, shadow_at, r.shadow_dir, (xfloat)0.0f, r.shadow);
+  xi_append4(shadow_contrib, shadow_at, r.shadow_contrib, xi_as_float(slot), r.shadow);
 }

@@ -215,6 +215,43 @@ static inline XI_INLINE void xi_store_uint_from(__global uint* p, uint first, xu
   else
     xi_scatter_uint(p, first + XI_LANE_INDEX, v, m);
 }
+// Appends: stores to element i[k] of the lanes where m is true, i being xi_compact_index's. Every
+// lane up to the last one on is written, in lane order: a lane that is off writes where the next
+// lane on then writes its own (xi_compact_index gives it that element). So no lane waits on a test
+// of its own, whose outcome no branch predictor could learn.
+static inline XI_INLINE uint xi_last_lane(xmask m) {
+#if XI_LANES == 16
+  return 31u - clz(xi_lane_bits16(m));
+#else
+  return 31u - clz(xi_lane_bits8(m));
+#endif
+}
+static inline XI_INLINE void xi_append4(__global float4* p, xuint i, xfloat3 v, xfloat w, xmask m) {
+  if (!XI_ANY(m)) return;
+  const uint last = xi_last_lane(m);
+  uint idx[XI_LANES];
+  XI_VSTORE(i, 0, idx);
+#if XI_HAS_SHUFFLE
+  xfloat a = v.x, b = v.y, c = v.z, d = w;
+  XI_TRANSPOSE4(XI_LANES, a, b, c, d)
+  XI_FOR_LANES(k) if ((uint)k <= last) p[idx[k]] = XI_ROW(XI_LANES, a, b, c, d, k);
+#else
+  float x[XI_LANES], y[XI_LANES], z[XI_LANES], ww[XI_LANES];
+  XI_VSTORE(v.x, 0, x);
+  XI_VSTORE(v.y, 0, y);
+  XI_VSTORE(v.z, 0, z);
+  XI_VSTORE(w, 0, ww);
+  XI_FOR_LANES(k) if ((uint)k <= last) p[idx[k]] = (float4)(x[k], y[k], z[k], ww[k]);
+#endif
+}
+static inline XI_INLINE void xi_append_uint(__global uint* p, xuint i, xuint v, xmask m) {
+  if (!XI_ANY(m)) return;
+  const uint last = xi_last_lane(m);
+  uint idx[XI_LANES], vv[XI_LANES];
+  XI_VSTORE(i, 0, idx);
+  XI_VSTORE(v, 0, vv);
+  XI_FOR_LANES(k) if ((uint)k <= last) p[idx[k]] = vv[k];
+}
 // Where the lanes with m true go when appended, in lane order, to consecutive elements from `at`.
 static inline XI_INLINE xuint xi_compact_index(uint at, xmask m) {
   int on[XI_LANES];
@@ -288,6 +325,8 @@ static inline void xi_local_scatter_uint(__local uint* p, xuint i, xuint v, xmas
   if (m) p[i] = v;
 }
 static inline xuint xi_compact_index(uint at, xmask m) { return at; }
+#define xi_append4 xi_scatter4
+#define xi_append_uint xi_scatter_uint
 static inline void xi_store4_from(__global float4* p, uint first, xfloat3 v, xfloat w, xmask m) {
   if (m) p[first] = (float4)(v, w);
 }
