@@ -146,24 +146,30 @@ static inline XI_INLINE void xi_gather_uint4(__global const uint4* p, xuint i, x
   *x = XI_VLOAD(0, a), *y = XI_VLOAD(0, b), *z = XI_VLOAD(0, c), *w = XI_VLOAD(0, d);
 #endif
 }
-// Stores (xyz, w) to element i[k] of the lanes where m is true.
-static inline XI_INLINE void xi_scatter4(__global float4* p, xuint i, xfloat3 v, xfloat w, xmask m) {
-  uint idx[XI_LANES];
-  int on[XI_LANES];
-  XI_VSTORE(i, 0, idx);
-  XI_VSTORE(m, 0, on);
+// Lane k's (xyz, w) as one float4, rows[k], for every lane.
+static inline XI_INLINE void xi_lane_rows(xfloat3 v, xfloat w, float4* rows) {
 #if XI_HAS_SHUFFLE
   xfloat a = v.x, b = v.y, c = v.z, d = w;
   XI_TRANSPOSE4(XI_LANES, a, b, c, d)
-  XI_FOR_LANES(k) if (on[k]) p[idx[k]] = XI_ROW(XI_LANES, a, b, c, d, k);
+  XI_FOR_LANES(k) rows[k] = XI_ROW(XI_LANES, a, b, c, d, k);
 #else
   float x[XI_LANES], y[XI_LANES], z[XI_LANES], ww[XI_LANES];
   XI_VSTORE(v.x, 0, x);
   XI_VSTORE(v.y, 0, y);
   XI_VSTORE(v.z, 0, z);
   XI_VSTORE(w, 0, ww);
-  XI_FOR_LANES(k) if (on[k]) p[idx[k]] = (float4)(x[k], y[k], z[k], ww[k]);
+  XI_FOR_LANES(k) rows[k] = (float4)(x[k], y[k], z[k], ww[k]);
 #endif
+}
+// Stores (xyz, w) to element i[k] of the lanes where m is true.
+static inline XI_INLINE void xi_scatter4(__global float4* p, xuint i, xfloat3 v, xfloat w, xmask m) {
+  uint idx[XI_LANES];
+  int on[XI_LANES];
+  float4 rows[XI_LANES];
+  XI_VSTORE(i, 0, idx);
+  XI_VSTORE(m, 0, on);
+  xi_lane_rows(v, w, rows);
+  XI_FOR_LANES(k) if (on[k]) p[idx[k]] = rows[k];
 }
 // Stores (xyz, w) of lane k to element first + k, in the lanes where m is true: whole rows, without
 // a test per lane, where every lane is (the slots a generate work item starts).
@@ -172,18 +178,9 @@ static inline XI_INLINE void xi_store4_from(__global float4* p, uint first, xflo
     xi_scatter4(p, first + XI_LANE_INDEX, v, w, m);
     return;
   }
-#if XI_HAS_SHUFFLE
-  xfloat a = v.x, b = v.y, c = v.z, d = w;
-  XI_TRANSPOSE4(XI_LANES, a, b, c, d)
-  XI_FOR_LANES(k) p[first + k] = XI_ROW(XI_LANES, a, b, c, d, k);
-#else
-  float x[XI_LANES], y[XI_LANES], z[XI_LANES], ww[XI_LANES];
-  XI_VSTORE(v.x, 0, x);
-  XI_VSTORE(v.y, 0, y);
-  XI_VSTORE(v.z, 0, z);
-  XI_VSTORE(w, 0, ww);
-  XI_FOR_LANES(k) p[first + k] = (float4)(x[k], y[k], z[k], ww[k]);
-#endif
+  float4 rows[XI_LANES];
+  xi_lane_rows(v, w, rows);
+  XI_FOR_LANES(k) p[first + k] = rows[k];
 }
 // The number of lanes where m is true.
 static inline XI_INLINE uint xi_count(xmask m) {
@@ -230,19 +227,10 @@ static inline XI_INLINE void xi_append4(__global float4* p, xuint i, xfloat3 v, 
   if (!XI_ANY(m)) return;
   const uint last = xi_last_lane(m);
   uint idx[XI_LANES];
+  float4 rows[XI_LANES];
   XI_VSTORE(i, 0, idx);
-#if XI_HAS_SHUFFLE
-  xfloat a = v.x, b = v.y, c = v.z, d = w;
-  XI_TRANSPOSE4(XI_LANES, a, b, c, d)
-  XI_FOR_LANES(k) if ((uint)k <= last) p[idx[k]] = XI_ROW(XI_LANES, a, b, c, d, k);
-#else
-  float x[XI_LANES], y[XI_LANES], z[XI_LANES], ww[XI_LANES];
-  XI_VSTORE(v.x, 0, x);
-  XI_VSTORE(v.y, 0, y);
-  XI_VSTORE(v.z, 0, z);
-  XI_VSTORE(w, 0, ww);
-  XI_FOR_LANES(k) if ((uint)k <= last) p[idx[k]] = (float4)(x[k], y[k], z[k], ww[k]);
-#endif
+  xi_lane_rows(v, w, rows);
+  XI_FOR_LANES(k) if ((uint)k <= last) p[idx[k]] = rows[k];
 }
 static inline XI_INLINE void xi_append_uint(__global uint* p, xuint i, xuint v, xmask m) {
   if (!XI_ANY(m)) return;
