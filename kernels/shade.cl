@@ -366,7 +366,7 @@ static inline XI_INLINE ShadeResult xi_shade_paths(XI_PATH_PARAMS xuint slot, xm
     // Escaped: the background is not sampled as a light, so it has weight 1.
     L = xi_select3(escaped, xi_add3(L, xi_mul3(beta, xi_splat3(xyz(background)))), L);
   }
-  const xmask surface_hit = active && !escaped;  // (at_surface less the rays that pass through)
+  const xmask surface_hit = active && !escaped;  // at_surface, until it loses the rays that pass through
   xmask at_surface = surface_hit;
   if (!XI_ANY(at_surface)) {
     xi_scatter4(radiance, slot, L, (xfloat)0.0f, active);

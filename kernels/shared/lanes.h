@@ -212,10 +212,7 @@ static inline XI_INLINE void xi_store_uint_from(__global uint* p, uint first, xu
   else
     xi_scatter_uint(p, first + XI_LANE_INDEX, v, m);
 }
-// Appends: stores to element i[k] of the lanes where m is true, i being xi_compact_index's. Every
-// lane up to the last one on is written, in lane order: a lane that is off writes where the next
-// lane on then writes its own (xi_compact_index gives it that element). So no lane waits on a test
-// of its own, whose outcome no branch predictor could learn.
+// The last lane where m is true (one is).
 static inline XI_INLINE uint xi_last_lane(xmask m) {
 #if XI_LANES == 16
   return 31u - clz(xi_lane_bits16(m));
@@ -223,6 +220,10 @@ static inline XI_INLINE uint xi_last_lane(xmask m) {
   return 31u - clz(xi_lane_bits8(m));
 #endif
 }
+// Appends: stores to element i[k] of the lanes where m is true, i being xi_compact_index's. Every
+// lane up to the last one on is written, in lane order: a lane that is off writes where the next
+// lane on then writes its own (xi_compact_index gives it that element). So no lane waits on a test
+// of its own, whose outcome no branch predictor could learn.
 static inline XI_INLINE void xi_append4(__global float4* p, xuint i, xfloat3 v, xfloat w, xmask m) {
   if (!XI_ANY(m)) return;
   const uint last = xi_last_lane(m);
