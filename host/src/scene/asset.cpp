@@ -72,23 +72,19 @@ long long place_mesh(const Transform& xf, Mesh& mesh, size_t first_vertex, size_
   std::vector<Triangle>& tris = mesh.triangles;
   const size_t n = tris.size() - first_triangle;
   std::vector<uint8_t> keep(n);
-  std::vector<size_t> bad(std::max(1u, std::thread::hardware_concurrency()), SIZE_MAX);  // per part, its first out of range
-  in_parts(n, [&](size_t begin, size_t end, unsigned part) {
-    for (size_t i = begin; i < end; ++i) {
-      Triangle& t = tris[first_triangle + i];
-      if (!within_range(mesh, t)) {
-        bad[part] = i;
-        return;
-      }
-      keep[i] = !degenerate(mesh, t);  // common in real meshes and harmless to drop
-      for (int k = 0; k < 3 && t.has_normals; ++k) {
-        const glm::vec3& nv = mesh.normal(t, k);
-        t.has_normals = std::isfinite(nv.x + nv.y + nv.z) && glm::dot(nv, nv) > 0.0f;
-      }
+  // One pass: each triangle within range is checked as it is reached (a part stops at its first
+  // out of range, which is then the error).
+  const size_t bad = first_where(n, [&](size_t i) {
+    Triangle& t = tris[first_triangle + i];
+    if (!within_range(mesh, t)) return true;
+    keep[i] = !degenerate(mesh, t);  // common in real meshes and harmless to drop
+    for (int k = 0; k < 3 && t.has_normals; ++k) {
+      const glm::vec3& nv = mesh.normal(t, k);
+      t.has_normals = std::isfinite(nv.x + nv.y + nv.z) && glm::dot(nv, nv) > 0.0f;
     }
+    return false;
   });
-  for (size_t b : bad)
-    if (b != SIZE_MAX) return (long long)b;
+  if (bad != SIZE_MAX) return (long long)bad;
   size_t kept = first_triangle;
   for (size_t i = 0; i < n; ++i)
     if (keep[i]) {
