@@ -42,12 +42,8 @@ static inline void xi_extend_packet(__global const float4* ray_org, __global con
   PacketUint tri;
   if (hybrid)
     xi_trace_hybrid(nodes, tri_blocks, o, d, &t, &u, &v, &tri);
-  else {
-    PacketFloat ox, oy, oz, ow, dx, dy, dz, dw;
-    xi_packet_columns(o, &ox, &oy, &oz, &ow);
-    xi_packet_columns(d, &dx, &dy, &dz, &dw);
-    xi_trace_packet(nodes, tri_blocks, ox, oy, oz, dx, dy, dz, &t, &u, &v, &tri);
-  }
+  else
+    xi_trace_packet(nodes, tri_blocks, o, d, &t, &u, &v, &tri);
   const PacketInt miss = tri == (PacketUint)XI_NO_HIT;  // stored as xi_store_hit stores a miss
   xi_packet_store_rows(hit, slot, select(t, (PacketFloat)-1.0f, miss), select(u, (PacketFloat)0.0f, miss),
                        select(v, (PacketFloat)0.0f, miss), select(xi_as_packet_float(tri), (PacketFloat)0.0f, miss));

@@ -89,15 +89,8 @@ static inline void xi_shadow_packet(__global float4* radiance, __global const fl
     o[k] = shadow_org[first + k];
     d[k] = shadow_dir[first + k];
   }
-  uint occluded;
-  if (hybrid) {
-    occluded = xi_occluded_hybrid(nodes, tri_blocks, o, d);
-  } else {
-    PacketFloat ox, oy, oz, ow, dx, dy, dz, dw;
-    xi_packet_columns(o, &ox, &oy, &oz, &ow);
-    xi_packet_columns(d, &dx, &dy, &dz, &dw);
-    occluded = xi_occluded_packet(nodes, tri_blocks, ox, oy, oz, dx, dy, dz, ow);
-  }
+  const uint occluded =
+      hybrid ? xi_occluded_hybrid(nodes, tri_blocks, o, d) : xi_occluded_packet(nodes, tri_blocks, o, d);
   // Over the set bits of the unoccluded rays, not a test per ray: which rays a light reaches is
   // what no branch predictor learns.
   for (uint reached = ~occluded & ((1u << XI_PACKET_WIDTH) - 1u); reached != 0u; reached &= reached - 1u)

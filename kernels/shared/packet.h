@@ -92,6 +92,15 @@ static inline XI_INLINE void xi_packet_columns(const float4* r, PacketFloat* x, 
 #endif
 }
 
+// The packet of rays o[k], d[k] (lane k = ray k; origins and unit directions), with the origins' w
+// (a shadow ray's tmax) in *w.
+static inline XI_INLINE Packet xi_packet_of_rows(const float4* o, const float4* d, PacketFloat* w) {
+  PacketFloat ox, oy, oz, dx, dy, dz, dw;
+  xi_packet_columns(o, &ox, &oy, &oz, w);
+  xi_packet_columns(d, &dx, &dy, &dz, &dw);
+  return xi_packet(ox, oy, oz, dx, dy, dz);
+}
+
 // The inverse: rows x[k], y[k], z[k], w[k] of the packet's lanes stored to p[slot[k]].
 static inline XI_INLINE void xi_packet_store_rows(__global float4* p, const uint* slot, PacketFloat x, PacketFloat y,
                                                   PacketFloat z, PacketFloat w) {
@@ -212,35 +221,34 @@ static inline XI_INLINE void xi_packet_traverse(__global const BvhNode8* nodes, 
   }
 }
 
-// A packet's rays (origins o, unit directions d, lane k = ray k) as xi_trace takes one: the coherent or
-// the per-ray traversal, whichever the rays allow.
+// A packet's rays as xi_trace takes one: the coherent or the per-ray traversal, whichever the rays
+// allow.
 static inline XI_INLINE void xi_packet_query(__global const BvhNode8* nodes, __global const TriBlock* blocks,
-                                             PacketFloat ox, PacketFloat oy, PacketFloat oz, PacketFloat dx,
-                                             PacketFloat dy, PacketFloat dz, PacketFloat tmax, bool any_hit,
-                                             PacketFloat* t, PacketFloat* u, PacketFloat* v, PacketUint* tri) {
-  const Packet p = xi_packet(ox, oy, oz, dx, dy, dz);
-  if (p.coherent)
-    xi_packet_traverse(nodes, blocks, &p, true, any_hit, tmax, t, u, v, tri);
+                                             const Packet* p, PacketFloat tmax, bool any_hit, PacketFloat* t,
+                                             PacketFloat* u, PacketFloat* v, PacketUint* tri) {
+  if (p->coherent)
+    xi_packet_traverse(nodes, blocks, p, true, any_hit, tmax, t, u, v, tri);
   else
-    xi_packet_traverse(nodes, blocks, &p, false, any_hit, tmax, t, u, v, tri);
+    xi_packet_traverse(nodes, blocks, p, false, any_hit, tmax, t, u, v, tri);
 }
 
-// Closest hits of a packet's rays in (0, ∞): sets *t, *u, *v and *tri per lane as xi_trace would (tri
-// XI_NO_HIT for a miss).
-static inline void xi_trace_packet(__global const BvhNode8* nodes, __global const TriBlock* blocks, PacketFloat ox,
-                                   PacketFloat oy, PacketFloat oz, PacketFloat dx, PacketFloat dy, PacketFloat dz,
-                                   PacketFloat* t, PacketFloat* u, PacketFloat* v, PacketUint* tri) {
-  xi_packet_query(nodes, blocks, ox, oy, oz, dx, dy, dz, (PacketFloat)INFINITY, false, t, u, v, tri);
+// Closest hits of the rays o[k], d[k] in (0, ∞): sets *t, *u, *v and *tri per lane as xi_trace would
+// (tri XI_NO_HIT for a miss).
+static inline void xi_trace_packet(__global const BvhNode8* nodes, __global const TriBlock* blocks, const float4* o,
+                                   const float4* d, PacketFloat* t, PacketFloat* u, PacketFloat* v, PacketUint* tri) {
+  PacketFloat unused;
+  const Packet p = xi_packet_of_rows(o, d, &unused);
+  xi_packet_query(nodes, blocks, &p, (PacketFloat)INFINITY, false, t, u, v, tri);
 }
 
-// The rays of a packet (tmax per ray) that hit something before their tmax, as bits (lane k: bit k),
+// The rays o[k], d[k] (o[k].w: tmax) that hit something before their tmax, as bits (lane k: bit k),
 // each as xi_trace's any-hit query finds.
-static inline uint xi_occluded_packet(__global const BvhNode8* nodes, __global const TriBlock* blocks, PacketFloat ox,
-                                      PacketFloat oy, PacketFloat oz, PacketFloat dx, PacketFloat dy, PacketFloat dz,
-                                      PacketFloat tmax) {
-  PacketFloat t, u, v;
+static inline uint xi_occluded_packet(__global const BvhNode8* nodes, __global const TriBlock* blocks, const float4* o,
+                                      const float4* d) {
+  PacketFloat tmax, t, u, v;
   PacketUint tri;
-  xi_packet_query(nodes, blocks, ox, oy, oz, dx, dy, dz, tmax, true, &t, &u, &v, &tri);
+  const Packet p = xi_packet_of_rows(o, d, &tmax);
+  xi_packet_query(nodes, blocks, &p, tmax, true, &t, &u, &v, &tri);
   return xi_packet_bits(tri != (PacketUint)XI_NO_HIT);
 }
 
@@ -327,10 +335,8 @@ static inline XI_INLINE void xi_hybrid_traverse(__global const BvhNode8* nodes, 
 // Closest hits of the rays o[k], d[k] in (0, ∞), as xi_trace_packet's.
 static inline void xi_trace_hybrid(__global const BvhNode8* nodes, __global const TriBlock* blocks, const float4* o,
                                    const float4* d, PacketFloat* t, PacketFloat* u, PacketFloat* v, PacketUint* tri) {
-  PacketFloat ox, oy, oz, ow, dx, dy, dz, dw;
-  xi_packet_columns(o, &ox, &oy, &oz, &ow);
-  xi_packet_columns(d, &dx, &dy, &dz, &dw);
-  const Packet p = xi_packet(ox, oy, oz, dx, dy, dz);
+  PacketFloat unused;
+  const Packet p = xi_packet_of_rows(o, d, &unused);
   xi_hybrid_traverse(nodes, blocks, &p, false, false, o, d, (PacketFloat)INFINITY, t, u, v, tri);
 }
 
@@ -338,13 +344,10 @@ static inline void xi_trace_hybrid(__global const BvhNode8* nodes, __global cons
 // xi_occluded_packet's.
 static inline uint xi_occluded_hybrid(__global const BvhNode8* nodes, __global const TriBlock* blocks, const float4* o,
                                       const float4* d) {
-  PacketFloat ox, oy, oz, ow, dx, dy, dz, dw;
-  xi_packet_columns(o, &ox, &oy, &oz, &ow);
-  xi_packet_columns(d, &dx, &dy, &dz, &dw);
-  const Packet p = xi_packet(ox, oy, oz, dx, dy, dz);
-  PacketFloat t, u, v;
+  PacketFloat tmax, t, u, v;
   PacketUint tri;
-  xi_hybrid_traverse(nodes, blocks, &p, false, true, o, d, ow, &t, &u, &v, &tri);
+  const Packet p = xi_packet_of_rows(o, d, &tmax);
+  xi_hybrid_traverse(nodes, blocks, &p, false, true, o, d, tmax, &t, &u, &v, &tri);
   return xi_packet_bits(tri != (PacketUint)XI_NO_HIT);
 }
 
