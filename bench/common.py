@@ -80,18 +80,18 @@ _warm = set()
 
 
 def render(xi, scene, out, spp, seed=1, resolution=None, sampler=None, strategy=None, all_features=False,
-           reference=None, convergence=None, warm_up=True, device=None, max_depth=None):
-    """Renders SCENE to OUT (an .exr; xi writes a .png beside it). Returns a dict: seconds (render time, from
+           reference=None, convergence=None, warm_up=True, device=None, max_depth=None, args=()):
+    """Renders SCENE to OUT (an .exr; xi writes a .png beside it), with ARGS added to xi's command line. Returns a dict: seconds (render time, from
     the EXR's renderSeconds), msamples and mrays (per second), features, and with a reference rmse and relmse.
 
     Each (scene, resolution, sampler, strategy, kernel set) is first rendered once at 1 spp, untimed, unless
     warm_up is False, so that no timed render includes a kernel build (or, where PoCL's work-group
     specialisation is on, the work-group functions it compiles per launch size inside the first pass)."""
-    key = (str(xi), str(scene), resolution, sampler, strategy, all_features, device, max_depth)
+    key = (str(xi), str(scene), resolution, sampler, strategy, all_features, device, max_depth, tuple(args))
     if warm_up and key not in _warm:
         _warm.add(key)
         render(xi, scene, Path(out).with_name(Path(out).stem + "-warm-up.exr"), 1, seed, resolution, sampler,
-               strategy, all_features, warm_up=False, device=device, max_depth=max_depth)
+               strategy, all_features, warm_up=False, device=device, max_depth=max_depth, args=args)
     cmd = [xi, "render", scene_path(str(scene)), "-o", out, "--spp", spp, "--seed", seed]
     for flag, value in (("--resolution", resolution), ("--sampler", sampler), ("--strategy", strategy),
                         ("--reference", reference), ("--convergence", convergence), ("--device", device),
@@ -100,7 +100,7 @@ def render(xi, scene, out, spp, seed=1, resolution=None, sampler=None, strategy=
             cmd += [flag, value]
     if all_features:
         cmd.append("--all-features")
-    stdout = run(cmd)
+    stdout = run(cmd + list(args))
     m = SUMMARY.search(stdout)
     if not m:
         sys.exit(f"bench: no summary line in the output of {' '.join(map(str, cmd))}:\n{stdout}")

@@ -12,7 +12,12 @@ relMSE of the seeds and xi's over Mitsuba's, per map, which is how well each sam
 
 Mitsuba runs in bench/.venv (made by bench/setup-mitsuba.sh) in a worker process: this file, run by the
 venv's python with --worker. It loads each scene through bench/mitsuba_scene.py: xi's camera and materials
-from the JSON, xi's own triangles from `xi export`."""
+from the JSON, xi's own triangles from `xi export`.
+
+--isa avx2 compiles both for an AVX2 CPU (Haswell) on whatever x86 CPU runs the bench, to measure the code
+an AVX2 machine runs on an AVX-512 one: PoCL's avx2 kernel library and target, xi with its AVX2 defaults
+(8 lanes, packets of 8 rays), Dr.Jit's LLVM backend targeting Haswell with 8-wide vectors: the two
+renderers' AVX2 code on the same cores."""
 import argparse
 import json
 import math
@@ -50,6 +55,9 @@ MITSUBA_SAMPLERS = {"independent": lambda n: n > 0,
                     "stratified": lambda n: n > 0 and math.isqrt(n) ** 2 == n,
                     "multijitter": lambda n: n > 0 and math.isqrt(n) ** 2 == n,
                     "ldsampler": lambda n: n > 0 and n & (n - 1) == 0 and n.bit_length() % 2 == 1 and n >= 4}
+# --isa: what each renderer is given to compile for that instruction set.
+ISAS = {"avx2": dict(pocl_kernellib="avx2", xi_args=["--lanes", "8", "--packet-width", "8"],
+                     llvm_target="haswell:+avx,+avx2,+fma,+f16c,+bmi,+bmi2,+popcnt,+sse4.2,-avx512f:8")}
 MITSUBA_SAMPLER_SPP = {"independent": "any spp", "stratified": "a square spp", "multijitter": "a square spp",
                        "ldsampler": "a power-of-four spp (4, 16, 64, ...)"}
 
@@ -92,11 +100,26 @@ def time_rays(scene, path, shadow, runs):
                 hits=int(np.count_nonzero(np.array(hit))))
 
 
-def worker(variant):
+def set_llvm_target(dr, target):
+    """Dr.Jit's LLVM backend compiles for TARGET ('cpu:features:vector width') from here on. Its Python module
+    does not expose this; the C++ function is in libdrjit-core.so."""
+    import ctypes
+    cpu, features, width = target.split(":")
+    core = ctypes.CDLL(str(Path(dr.__file__).parent / "libdrjit-core.so"))
+    set_target = core._Z19jit_llvm_set_targetPKcS0_j  # jit_llvm_set_target(const char*, const char*, uint32_t)
+    set_target.argtypes = [ctypes.c_char_p, ctypes.c_char_p, ctypes.c_uint32]
+    set_target(cpu.encode(), features.encode(), int(width))
+    get_cpu, get_width = core._Z19jit_llvm_target_cpuv, core._Z21jit_llvm_vector_widthv
+    get_cpu.restype, get_width.restype = ctypes.c_char_p, ctypes.c_uint32
+    return f"{get_cpu().decode()}, {get_width()}-wide"
+
+
+def worker(variant, llvm_target):
     """Answers one JSON line per request on stdin: hello, load, render, compare, rays."""
     reply = os.fdopen(os.dup(1), "w", buffering=1)
     os.dup2(2, 1)  # whatever Mitsuba prints goes to stderr, not into the replies
     import drjit as dr
+    target = set_llvm_target(dr, llvm_target) if llvm_target else None
     import mitsuba as mi
     import numpy as np
     mi.set_variant(variant)
@@ -107,7 +130,8 @@ def worker(variant):
         cmd = req["cmd"]
         try:
             if cmd == "hello":
-                res = dict(version=mi.__version__, variant=variant, threads=dr.thread_count())
+                res = dict(version=mi.__version__, variant=variant + (f" ({target})" if target else ""),
+                           threads=dr.thread_count())
             elif cmd == "load":
                 scene = None
                 d, triangles = ms.convert(req["scene"], req["export"], req["width"], req["height"],
@@ -162,7 +186,7 @@ class Mitsuba:
     """The Mitsuba worker: this file run by the venv's python with --worker, kept for the whole run so that
     Dr.Jit's compiled kernels stay in memory between the warm-up and the timed renders."""
 
-    def __init__(self, venv, variant, timeout):
+    def __init__(self, venv, variant, timeout, llvm_target=None):
         self.timeout = timeout
         python = Path(venv) / "bin" / "python"
         if not python.exists():
@@ -170,7 +194,10 @@ class Mitsuba:
         env = dict(os.environ)
         if variant.startswith("llvm") and "DRJIT_LIBLLVM_PATH" not in env:
             env["DRJIT_LIBLLVM_PATH"] = libllvm()
-        self.proc = subprocess.Popen([python, __file__, "--worker", "--mitsuba-variant", variant],
+        cmd = [python, __file__, "--worker", "--mitsuba-variant", variant]
+        if llvm_target:
+            cmd += ["--llvm-target", llvm_target]
+        self.proc = subprocess.Popen(cmd,
                                      stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, env=env)
         self.info = self.ask(cmd="hello")
 
@@ -219,7 +246,7 @@ def load(a, xi, mitsuba, scene, resolution, depth, tmp):
 
 def xi_render(a, xi, scene, out, spp, seed, resolution):
     return c.render(xi, scene, out, spp, seed=seed, resolution=resolution, sampler=a.xi_sampler,
-                    device=a.xi_device, max_depth=a.max_depth)
+                    device=a.xi_device, max_depth=a.max_depth, args=a.xi_args)
 
 
 def measure(a, xi, mitsuba, scene, resolution, tmp):
@@ -361,10 +388,19 @@ def main():
                    help="seconds the Mitsuba worker may take to answer one request (start, load, render)")
     p.add_argument("--embree", action="store_true", help="also run the Embree ceiling tool, if built")
     p.add_argument("--ceiling", help="the xi_ceiling program (default: bench/xi_ceiling beside --xi)")
+    p.add_argument("--isa", choices=sorted(ISAS),
+                   help="compile both renderers for this instruction set instead of this CPU's (see above)")
     p.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
+    p.add_argument("--llvm-target", help=argparse.SUPPRESS)
     a = p.parse_args()
     if a.worker:
-        return worker(a.mitsuba_variant)
+        return worker(a.mitsuba_variant, a.llvm_target)
+    isa = ISAS.get(a.isa, {})
+    if isa and not a.mitsuba_variant.startswith("llvm"):
+        p.error("--isa is for CPUs: it needs an llvm_* --mitsuba-variant")
+    if isa:
+        os.environ["POCL_KERNELLIB_NAME"] = isa["pocl_kernellib"]  # read by every xi this script runs
+    a.xi_args = isa.get("xi_args", [])
     if a.env:
         a.error = True
         for key, value in ENV_DEFAULTS.items():
@@ -385,7 +421,7 @@ def main():
     xi, out_dir = c.find_xi(a.xi), Path(a.out)
     out_dir.mkdir(parents=True, exist_ok=True)
     scenes = [Path(c.scene_path(BENCH_SCENES.get(s, s))) for s in a.scenes]
-    mitsuba = Mitsuba(a.venv, a.mitsuba_variant, a.worker_timeout)
+    mitsuba = Mitsuba(a.venv, a.mitsuba_variant, a.worker_timeout, isa.get("llvm_target"))
     info = mitsuba.info
     print(f"xi: {xi} ({c.machine(xi)}; device {a.xi_device or 'default'}, {a.xi_sampler} sampler); "
           f"Mitsuba {info['version']} {info['variant']}, {a.mitsuba_sampler} sampler, {info['threads']} threads",
