@@ -81,8 +81,9 @@ _warm = set()
 
 def render(xi, scene, out, spp, seed=1, resolution=None, sampler=None, strategy=None, all_features=False,
            reference=None, convergence=None, warm_up=True, device=None, max_depth=None, args=()):
-    """Renders SCENE to OUT (an .exr; xi writes a .png beside it), with ARGS added to xi's command line. Returns a dict: seconds (render time, from
-    the EXR's renderSeconds), msamples and mrays (per second), features, and with a reference rmse and relmse.
+    """Renders SCENE to OUT (an .exr; xi writes a .png beside it), ARGS added to xi's command line. Returns a
+    dict: seconds (render time, from the EXR's renderSeconds), msamples and mrays (per second), features, and
+    with a reference rmse and relmse.
 
     Each (scene, resolution, sampler, strategy, kernel set) is first rendered once at 1 spp, untimed, unless
     warm_up is False, so that no timed render includes a kernel build (or, where PoCL's work-group

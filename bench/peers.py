@@ -396,9 +396,9 @@ def main():
     if a.worker:
         return worker(a.mitsuba_variant, a.llvm_target)
     isa = ISAS.get(a.isa, {})
-    if isa and not a.mitsuba_variant.startswith("llvm"):
-        p.error("--isa is for CPUs: it needs an llvm_* --mitsuba-variant")
     if isa:
+        if not a.mitsuba_variant.startswith("llvm"):
+            p.error("--isa is for CPUs: it needs an llvm_* --mitsuba-variant")
         os.environ["POCL_KERNELLIB_NAME"] = isa["pocl_kernellib"]  # read by every xi this script runs
     a.xi_args = isa.get("xi_args", [])
     if a.env:
