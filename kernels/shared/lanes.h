@@ -34,6 +34,7 @@ typedef int16 xmask;  // a comparison's result: −1 in a lane where true, 0 whe
 #define XI_LANE_INDEX ((uint16)(0u, 1u, 2u, 3u, 4u, 5u, 6u, 7u, 8u, 9u, 10u, 11u, 12u, 13u, 14u, 15u))
 #define XI_VLOAD vload16
 #define XI_VSTORE vstore16
+#define xi_mask_bits(m) xi_lane_bits16(m)  // bit k: lane k is true
 #else
 typedef float8 xfloat;
 typedef uint8 xuint;
@@ -48,6 +49,7 @@ typedef int8 xmask;  // a comparison's result: −1 in a lane where true, 0 wher
 #define XI_LANE_INDEX ((uint8)(0u, 1u, 2u, 3u, 4u, 5u, 6u, 7u))
 #define XI_VLOAD vload8
 #define XI_VSTORE vstore8
+#define xi_mask_bits(m) xi_lane_bits8(m)
 #endif
 typedef struct {
   xfloat x, y;
@@ -213,13 +215,7 @@ static inline XI_INLINE void xi_store_uint_from(__global uint* p, uint first, xu
     xi_scatter_uint(p, first + XI_LANE_INDEX, v, m);
 }
 // The last lane where m is true (one is).
-static inline XI_INLINE uint xi_last_lane(xmask m) {
-#if XI_LANES == 16
-  return 31u - clz(xi_lane_bits16(m));
-#else
-  return 31u - clz(xi_lane_bits8(m));
-#endif
-}
+static inline XI_INLINE uint xi_last_lane(xmask m) { return 31u - clz(xi_mask_bits(m)); }
 // Appends: stores to element i[k] of the lanes where m is true, i being xi_compact_index's. Every
 // lane up to the last one on is written, in lane order: a lane that is off writes where the next
 // lane on then writes its own (xi_compact_index gives it that element). So no lane waits on a test
