@@ -49,7 +49,7 @@
 // its bilinear weights; the host keeps every nonzero one at no less than 2^-20 of its CDF's total,
 // so that no lit patch rounds to a zero probability in float. Within the patch the density is its
 // bilinear weight over the mean of its four corners, and sampling and pdf read the very same numbers
-// (xi_env_patch_pdf), so they agree whatever the rounding. In solid angle dω = 2π² sin θ du dv.
+// (xi_env_patch_density), so they agree whatever the rounding. In solid angle dω = 2π² sin θ du dv.
 // A map that is black everywhere has no distribution (empty cdf) and the host gives it pick
 // probability 0: then neither xi_env_sample nor xi_env_pdf may be called.
 #ifndef XI_ENVIRONMENT_H
@@ -204,17 +204,13 @@ static inline xfloat xi_env_sample_linear(xfloat u, xfloat a, xfloat b) {
   return fmin(x, (xfloat)XI_ONE_MINUS_EPSILON);
 }
 
-// The solid-angle density at local coordinates (s, t) ∈ [0, 1)² of patch (x, k) whose direction
-// has sin θ = sin_theta: the patch's probability times its bilinear density, over the (u, v) area
-// and the Jacobian 2π² sin θ. 0 at the poles (measure zero) and in unlit patches.
-static inline xfloat xi_env_patch_pdf(__global const float* cdf, EnvironmentData env, xuint x, xuint k, xfloat s,
-                                      xfloat t, xfloat sin_theta) {
-  xfloat w00, w01, w10, w11, v0, dv;
-  xi_env_patch_corners(cdf, env, x, k, &w00, &w01, &w10, &w11);
-  xi_env_patch_rows(env, k, &v0, &dv);
+// The solid-angle density at local coordinates (s, t) ∈ [0, 1)² of a patch of probability p, height
+// dv and corner weights w.., whose direction has sin θ = sin_theta: p times the bilinear density,
+// over the (u, v) area and the Jacobian 2π² sin θ. 0 at the poles (measure zero) and in unlit patches.
+static inline xfloat xi_env_patch_density(EnvironmentData env, xfloat p, xfloat dv, xfloat w00, xfloat w01, xfloat w10,
+                                          xfloat w11, xfloat s, xfloat t, xfloat sin_theta) {
   xfloat corners = w00 + w01 + w10 + w11;
   xfloat bilinear = (1.0f - t) * ((1.0f - s) * w00 + s * w01) + t * ((1.0f - s) * w10 + s * w11);
-  xfloat p = xi_env_patch_probability(cdf, env, x, k);
   xfloat area = dv / (float)env.width;
   xmask lit = corners > 0.0f && sin_theta > 0.0f;
   return lit ? p * (4.0f * bilinear / corners) / (area * (2.0f * XI_PI * XI_PI) * sin_theta) : (xfloat)0.0f;
@@ -222,8 +218,9 @@ static inline xfloat xi_env_patch_pdf(__global const float* cdf, EnvironmentData
 
 // Samples a world direction from the map's distribution with u ∈ [0, 1)² (u.y picks the patch row,
 // u.x the column, each then reused to invert the bilinear density within the patch: first in v, then
-// in u given v). *pdf: its solid-angle density under this distribution alone; the caller
-// multiplies by the pick probability env.scale.w. *radiance: xi_env_radiance of the direction
+// in u given v). *pdf: its solid-angle density under this distribution alone, from the searches'
+// interval lengths (the differences xi_env_patch_probability takes) and the corners read here; the
+// caller multiplies by the pick probability env.scale.w. *radiance: xi_env_radiance of the direction
 // (strength included).
 static inline xfloat3 xi_env_sample(__global const float4* texels, __global const float* cdf, EnvironmentData env,
                                     xfloat2 u, xfloat* pdf, xfloat3* radiance) {
@@ -245,7 +242,7 @@ static inline xfloat3 xi_env_sample(__global const float4* texels, __global cons
   xfloat mv = fmin(v0 + t * dv, (xfloat)XI_ONE_MINUS_EPSILON);
   xfloat sin_theta;
   xfloat3 dl = xi_env_uv_to_direction(make_xfloat2(mu, mv), &sin_theta);
-  *pdf = xi_env_patch_pdf(cdf, env, x, k, s, t, sin_theta);
+  *pdf = xi_env_patch_density(env, pk * px, dv, w00, w01, w10, w11, s, t, sin_theta);
   *radiance = xi_env_lookup(texels, env, mu, mv);
   return xi_env_to_world(env, dl);
 }
@@ -264,7 +261,10 @@ static inline xfloat xi_env_pdf_local(__global const float* cdf, EnvironmentData
   xfloat v0, dv;
   xi_env_patch_rows(env, k, &v0, &dv);
   xfloat s = clamp(sx - fx, 0.0f, 1.0f), t = clamp((uv.y - v0) / dv, 0.0f, 1.0f);
-  return xi_env_patch_pdf(cdf, env, x, k, s, t, sqrt(l.x * l.x + l.z * l.z));
+  xfloat w00, w01, w10, w11;
+  xi_env_patch_corners(cdf, env, x, k, &w00, &w01, &w10, &w11);
+  return xi_env_patch_density(env, xi_env_patch_probability(cdf, env, x, k), dv, w00, w01, w10, w11, s, t,
+                              sqrt(l.x * l.x + l.z * l.z));
 }
 
 // The solid-angle density with which xi_env_sample returns the world direction d (unit).
