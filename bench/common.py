@@ -24,6 +24,20 @@ OUT = ROOT / "bench" / "out"
 REF_SEED = 7654321
 REF_SAMPLER, REF_STRATEGY = "random", "mis"
 
+# Short names for the bench's own scenes (--scenes material): textured floor, GGX metals, rough dielectric,
+# the sky as environment (bench/make_material_scene.py writes it); a product shot of a glTF asset, textured
+# and normal-mapped, under the sky, and the same camera turned to the sky alone, every camera ray escaping
+# (bench/make_product_scene.py); a textured glTF still life
+# (bench/make_asset_scene.py).
+BENCH_SCENES = {"engine": "bench/scenes/engine.json", "material": "bench/scenes/material.json",
+                "product": "bench/scenes/product.json", "product-sky": "bench/scenes/product-sky.json",
+                "textured": "bench/scenes/textured.json",
+                "env-sky": "bench/scenes/env-sky.json", "env-sun": "bench/scenes/env-sun.json"}
+# --isa (peers.py, widths.py): what each renderer is given to compile for that instruction set instead of this
+# CPU's: PoCL's kernel library (POCL_KERNELLIB_NAME), xi's defaults on such a CPU, Dr.Jit's LLVM target.
+ISAS = {"avx2": dict(pocl_kernellib="avx2", xi_args=["--lanes", "8", "--packet-width", "8"],
+                     llvm_target="haswell:+avx,+avx2,+fma,+f16c,+bmi,+bmi2,+popcnt,+sse4.2,-avx512f:8")}
+
 SUMMARY = re.compile(r"^(\d+)x(\d+), (\d+) spp, ([\d.]+) s, ([\d.]+) Msamples/s, ([\d.]+) Mrays/s$", re.M)
 
 
@@ -44,7 +58,10 @@ def find_xi(path):
 
 
 def scene_path(scene):
-    """'cornell-box' -> ROOT/scenes/cornell-box.json; a path is taken relative to the cwd, then to the repo."""
+    """'cornell-box' -> ROOT/scenes/cornell-box.json, 'engine' -> ROOT/bench/scenes/engine.json (BENCH_SCENES); a
+    path is taken relative to the cwd, then to the repo."""
+    if scene in BENCH_SCENES:
+        return ROOT / BENCH_SCENES[scene]
     if "/" not in scene and not scene.endswith(".json"):
         return ROOT / "scenes" / f"{scene}.json"
     for p in (Path(scene), ROOT / scene):

@@ -36,15 +36,6 @@ import common as c  # noqa: E402
 import mitsuba_scene as ms  # noqa: E402
 
 DEFAULT_SCENES = ["cornell-box", "bench/scenes/engine.json"]
-# Short names for the bench's own scenes (--scenes material): textured floor, GGX metals, rough dielectric,
-# the sky as environment (bench/make_material_scene.py writes it); a product shot of a glTF asset, textured
-# and normal-mapped, under the sky, and the same camera turned to the sky alone, every camera ray escaping
-# (bench/make_product_scene.py); a textured glTF still life
-# (bench/make_asset_scene.py).
-BENCH_SCENES = {"engine": "bench/scenes/engine.json", "material": "bench/scenes/material.json",
-                "product": "bench/scenes/product.json", "product-sky": "bench/scenes/product-sky.json",
-                "textured": "bench/scenes/textured.json",
-                "env-sky": "bench/scenes/env-sky.json", "env-sun": "bench/scenes/env-sun.json"}
 ENV_SCENES = ["env-sky", "env-sun"]  # --env's (bench/make_env_scenes.py writes them)
 # --env's defaults: the resolution, spp, reference spp and seeds its numbers are quoted at.
 ENV_DEFAULTS = dict(resolution="64x64", spp=256, ref_spp=32768, runs=3)
@@ -55,9 +46,6 @@ MITSUBA_SAMPLERS = {"independent": lambda n: n > 0,
                     "stratified": lambda n: n > 0 and math.isqrt(n) ** 2 == n,
                     "multijitter": lambda n: n > 0 and math.isqrt(n) ** 2 == n,
                     "ldsampler": lambda n: n > 0 and n & (n - 1) == 0 and n.bit_length() % 2 == 1 and n >= 4}
-# --isa: what each renderer is given to compile for that instruction set.
-ISAS = {"avx2": dict(pocl_kernellib="avx2", xi_args=["--lanes", "8", "--packet-width", "8"],
-                     llvm_target="haswell:+avx,+avx2,+fma,+f16c,+bmi,+bmi2,+popcnt,+sse4.2,-avx512f:8")}
 MITSUBA_SAMPLER_SPP = {"independent": "any spp", "stratified": "a square spp", "multijitter": "a square spp",
                        "ldsampler": "a power-of-four spp (4, 16, 64, ...)"}
 
@@ -362,8 +350,8 @@ def ceiling(a, xi, mitsuba, scenes, resolution, out_dir, tmp):
 def main():
     p = c.parser(__doc__)
     p.add_argument("--scenes", type=c.str_list, default=DEFAULT_SCENES,
-                   help="comma-separated: names in scenes/, engine or material (bench/scenes/), or paths to xi "
-                        "scene files")
+                   help="comma-separated: names in scenes/ or of the bench's own (engine, material, product, "
+                        "product-sky, textured in bench/scenes/), or paths to xi scene files")
     p.add_argument("--resolution", help="default 512x512; 256x256 with --error; 64x64 with --check")
     p.add_argument("--spp", type=int, help="default 64; 1024 with --check")
     p.add_argument("--max-depth", type=int, help="xi's bounces (Mitsuba gets one more); default: the scene's")
@@ -388,14 +376,14 @@ def main():
                    help="seconds the Mitsuba worker may take to answer one request (start, load, render)")
     p.add_argument("--embree", action="store_true", help="also run the Embree ceiling tool, if built")
     p.add_argument("--ceiling", help="the xi_ceiling program (default: bench/xi_ceiling beside --xi)")
-    p.add_argument("--isa", choices=sorted(ISAS),
+    p.add_argument("--isa", choices=sorted(c.ISAS),
                    help="compile both renderers for this instruction set instead of this CPU's (see above)")
     p.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
     p.add_argument("--llvm-target", help=argparse.SUPPRESS)
     a = p.parse_args()
     if a.worker:
         return worker(a.mitsuba_variant, a.llvm_target)
-    isa = ISAS.get(a.isa, {})
+    isa = c.ISAS.get(a.isa, {})
     if isa:
         if not a.mitsuba_variant.startswith("llvm"):
             p.error("--isa is for CPUs: it needs an llvm_* --mitsuba-variant")
@@ -408,7 +396,7 @@ def main():
                 setattr(a, key, value)
         if a.scenes == DEFAULT_SCENES:
             a.scenes = ENV_SCENES
-        if any(not (c.ROOT / BENCH_SCENES[s]).exists() for s in ENV_SCENES if s in a.scenes):
+        if any(not (c.ROOT / c.BENCH_SCENES[s]).exists() for s in ENV_SCENES if s in a.scenes):
             import make_env_scenes
             make_env_scenes.write()
     a.runs, a.ref_spp = a.runs or 3, a.ref_spp or 4096
@@ -420,7 +408,7 @@ def main():
     resolution = a.resolution or ("64x64" if a.check else "256x256" if a.error else "512x512")
     xi, out_dir = c.find_xi(a.xi), Path(a.out)
     out_dir.mkdir(parents=True, exist_ok=True)
-    scenes = [Path(c.scene_path(BENCH_SCENES.get(s, s))) for s in a.scenes]
+    scenes = [Path(c.scene_path(s)) for s in a.scenes]
     mitsuba = Mitsuba(a.venv, a.mitsuba_variant, a.worker_timeout, isa.get("llvm_target"))
     info = mitsuba.info
     print(f"xi: {xi} ({c.machine(xi)}; device {a.xi_device or 'default'}, {a.xi_sampler} sampler); "

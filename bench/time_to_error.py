@@ -53,7 +53,6 @@ except ImportError:
 
 BENCH = c.ROOT / "bench"
 DEFAULT_SCENES = ["cornell-box", "textured", "engine"]
-BENCH_SCENES = {"engine": "bench/scenes/engine.json", "textured": "bench/scenes/textured.json"}
 MITSUBA_VENV, CYCLES_VENV = BENCH / ".venv", BENCH / ".venv-bpy"
 TARGETS = [1e-2, 3e-3, 1e-3]
 # Peer references are K renders of ref_spp / K each: their spread gives the reference's own error, and no
@@ -573,7 +572,7 @@ def main():
         p.error(f"unknown renderers {', '.join(unknown)} (xi, mitsuba, cycles)")
     xi, out_dir = c.find_xi(a.xi), Path(a.out)
     out_dir.mkdir(parents=True, exist_ok=True)
-    scenes = [Path(c.scene_path(BENCH_SCENES.get(s, s))) for s in a.scenes]
+    scenes = [Path(c.scene_path(s)) for s in a.scenes]
 
     with tempfile.TemporaryDirectory(prefix="xi-time-to-error-") as tmp:
         xi_status = xi_modes(xi, tmp, a.min_spp) if "xi" in a.renderers else {}
