@@ -35,7 +35,7 @@ BENCH_SCENES = {"engine": "bench/scenes/engine.json", "material": "bench/scenes/
                 "env-sky": "bench/scenes/env-sky.json", "env-sun": "bench/scenes/env-sun.json"}
 # --isa (peers.py, widths.py): what each renderer is given to compile for that instruction set instead of this
 # CPU's: PoCL's kernel library (POCL_KERNELLIB_NAME), xi's defaults on such a CPU, Dr.Jit's LLVM target.
-ISAS = {"avx2": dict(pocl_kernellib="avx2", xi_args=["--lanes", "8", "--packet-width", "8"],
+ISAS = {"avx2": dict(pocl_kernellib="avx2", xi_args=["--lanes", "16", "--packet-width", "8"],
                      llvm_target="haswell:+avx,+avx2,+fma,+f16c,+bmi,+bmi2,+popcnt,+sse4.2,-avx512f:8")}
 
 SUMMARY = re.compile(r"^(\d+)x(\d+), (\d+) spp, ([\d.]+) s, ([\d.]+) Msamples/s, ([\d.]+) Mrays/s$", re.M)

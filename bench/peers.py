@@ -16,7 +16,7 @@ from the JSON, xi's own triangles from `xi export`.
 
 --isa avx2 compiles both for an AVX2 CPU (Haswell) on whatever x86 CPU runs the bench, to measure the code
 an AVX2 machine runs on an AVX-512 one: PoCL's avx2 kernel library and target, xi with its AVX2 defaults
-(8 lanes, packets of 8 rays), Dr.Jit's LLVM backend targeting Haswell with 8-wide vectors: the two
+(16 lanes, packets of 8 rays), Dr.Jit's LLVM backend targeting Haswell with 8-wide vectors: the two
 renderers' AVX2 code on the same cores."""
 import argparse
 import json

@@ -8,7 +8,7 @@ the default's (mse 0: the same image, bit for bit; the packet width may change a
 triangles at exactly the same distance, as in the engine's coincident faces).
 
 --isa avx2 measures the code an AVX2 CPU runs, on whatever x86 CPU runs the bench (PoCL's avx2 kernel library,
-as peers.py --isa avx2); the default is then an AVX2 CPU's, 8 lanes and packets of 8."""
+as peers.py --isa avx2); the default is then an AVX2 CPU's, 16 lanes and packets of 8."""
 import itertools
 import os
 import re

@@ -678,14 +678,29 @@ TEST(TransportFeatures, KernelConfigFollowsDeviceSceneAndOptions) {
   ASSERT_EQ(xi::KernelConfig::bvh_width_for(cpu, opt), 8);
   ASSERT_EQ(xi::KernelConfig::bvh_width_for(gpu, opt), 4);
   const xi::CompiledScene wide = xi::compile_scene(cornell, 8), narrow = xi::compile_scene(cornell, 4);
+  // A CPU device's lanes and packets follow its CPU's vectors: 16 lanes with AVX2 or AVX-512, packets
+  // of 16 rays with 512-bit vectors, else 8; a GPU's do not.
+  struct Widths {
+    xi::CpuVectors cpu;
+    int lanes, packet_width;
+  };
+  for (const Widths& w : {Widths{{false, false}, 8, 8}, Widths{{true, false}, 16, 8}, Widths{{true, true}, 16, 16}}) {
+    SCOPED_TRACE(testing::Message() << "avx2 " << w.cpu.avx2 << ", avx512 " << w.cpu.avx512);
+    EXPECT_EQ(xi::KernelConfig::make(cpu, wide, opt, w.cpu).lanes, w.lanes);
+    EXPECT_EQ(xi::KernelConfig::make(cpu, wide, opt, w.cpu).packet_width, w.packet_width);
+    EXPECT_EQ(xi::KernelConfig::make(gpu, narrow, opt, w.cpu).lanes, 1);
+    EXPECT_EQ(xi::KernelConfig::make(gpu, narrow, opt, w.cpu).packet_width, 8);
+  }
+  // By default the CPU this runs on, whose AVX2 needs FMA too.
   const xi::KernelConfig on_cpu = xi::KernelConfig::make(cpu, wide, opt);
-  // A CPU device runs on this CPU: 16 lanes and packets of 16 rays where it has 512-bit vectors.
 #if defined(__x86_64__) || defined(__i386__)
-  const int cpu_width = __builtin_cpu_supports("avx512f") ? 16 : 8;
+  const bool avx512 = __builtin_cpu_supports("avx512f");
+  const int cpu_lanes = avx512 || (__builtin_cpu_supports("avx2") && __builtin_cpu_supports("fma")) ? 16 : 8;
+  const int cpu_width = avx512 ? 16 : 8;
 #else
-  const int cpu_width = 8;
+  const int cpu_lanes = 8, cpu_width = 8;
 #endif
-  EXPECT_EQ(on_cpu.lanes, cpu_width);
+  EXPECT_EQ(on_cpu.lanes, cpu_lanes);
   EXPECT_EQ(on_cpu.bvh_width, 8);
   EXPECT_TRUE(on_cpu.cpu_device);
   EXPECT_TRUE(on_cpu.ray_packets);  // the Cornell box's tree is one or two nodes

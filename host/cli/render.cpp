@@ -89,7 +89,7 @@ const Command kRender = {
         {"--local-size", "N", "work-group size, at most 1024 (default 64; 0: the largest the kernel allows)"},
         {"--lanes", "N",
          "paths per generate and shade work item, 1, 8 or 16 (default: 16\n"
-         "on a CPU with 512-bit vectors, 8 on another CPU, 1 on a GPU)"},
+         "on a CPU with AVX2 or AVX-512, 8 on another CPU, 1 on a GPU)"},
         {"--bvh-width", "N",
          "children per BVH node, 4 or 8 (default: 8 on a CPU, 4 on a\n"
          "GPU)"},

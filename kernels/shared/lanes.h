@@ -1,6 +1,6 @@
 // Lane types for the sampling and shading code. generate and shade take XI_LANES paths per work
-// item: 8 on CPU devices, where PoCL runs work items one after another and only float8 arithmetic
-// fills the vector units, 16 (float16) on CPUs with 512-bit vectors; 1 on GPUs, whose hardware
+// item on CPU devices, where PoCL runs work items one after another and only vector arithmetic
+// fills the vector units: 16 (float16) on CPUs with AVX2 or AVX-512, else 8; 1 on GPUs, whose hardware
 // already gives each path its own lane. The sampler, camera, warps, BSDFs, light sampling and spawn
 // offsets they call are written once on these types: with XI_LANES 1 (GPU builds, the tool
 // kernels, the host's tests) they are float, uint, bool, float2 and float3; with 8, float8, uint8,

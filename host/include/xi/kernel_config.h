@@ -24,6 +24,13 @@ const char* sampler_name(int sampler);
 // patterns are only complete at the spp they were made for.
 bool sampler_is_progressive(int sampler);
 
+// The vector units of the CPU a CPU device runs on, which set its default lanes and packet width.
+struct CpuVectors {
+  bool avx2 = false;    // 256-bit vectors with fused multiply-add, or wider
+  bool avx512 = false;  // 512-bit vectors
+  static CpuVectors of_this_cpu();
+};
+
 // Each field maps to -D flags, so a feature the scene does not use compiles no code. The flags are
 // part of the binary cache's key (build_program hashes its options). A render builds two programs:
 // the tracing stages (extend, shadow, accumulate), whose flags do not depend on the scene's
@@ -45,9 +52,10 @@ struct KernelConfig {
   // (8 on a CPU, whose vector registers test eight boxes as cheaply as four; 4 elsewhere). Needed
   // before the scene is compiled, since the tree is built for it.
   static int bvh_width_for(const DeviceInfo& device, const RenderOptions& options);
-  // The configuration of a render: the scene (compiled for bvh_width_for), the device, the options.
-  // Throws xi::Error for an option out of range.
-  static KernelConfig make(const DeviceInfo& device, const CompiledScene& scene, const RenderOptions& options);
+  // The configuration of a render: the scene (compiled for bvh_width_for), the device, the options;
+  // `cpu` is the CPU a CPU device runs on. Throws xi::Error for an option out of range.
+  static KernelConfig make(const DeviceInfo& device, const CompiledScene& scene, const RenderOptions& options,
+                           CpuVectors cpu = CpuVectors::of_this_cpu());
 
   // The shading word: features, strategy and sampler (kernels/shared/shading.h).
   uint32_t shading_word() const;

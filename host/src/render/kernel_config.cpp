@@ -14,16 +14,16 @@ constexpr size_t kRayPacketNodes = 8;
 
 bool is_cpu(const DeviceInfo& device) { return device.type == "CPU"; }
 
-// Whether this CPU has 512-bit vector registers (AVX-512), as a CPU device's kernels then do.
-bool cpu_has_512_bit_vectors() {
-#if defined(__x86_64__) || defined(__i386__)
-  return __builtin_cpu_supports("avx512f");
-#else
-  return false;
-#endif
-}
-
 }  // namespace
+
+CpuVectors CpuVectors::of_this_cpu() {
+  CpuVectors v;
+#if defined(__x86_64__) || defined(__i386__)
+  v.avx512 = __builtin_cpu_supports("avx512f");
+  v.avx2 = v.avx512 || (__builtin_cpu_supports("avx2") && __builtin_cpu_supports("fma"));
+#endif
+  return v;
+}
 
 Strategy parse_strategy(const std::string& name) {
   if (name == "mis") return Strategy::Mis;
@@ -60,7 +60,8 @@ int KernelConfig::bvh_width_for(const DeviceInfo& device, const RenderOptions& o
   return width;
 }
 
-KernelConfig KernelConfig::make(const DeviceInfo& device, const CompiledScene& scene, const RenderOptions& options) {
+KernelConfig KernelConfig::make(const DeviceInfo& device, const CompiledScene& scene, const RenderOptions& options,
+                                CpuVectors cpu) {
   KernelConfig c;
   c.features = options.all_features ? Features::everything() : scene.features;
   c.features.multiple_scattering = scene.features.multiple_scattering;
@@ -68,11 +69,10 @@ KernelConfig KernelConfig::make(const DeviceInfo& device, const CompiledScene& s
   c.sampler = options.sampler;
   c.strategy = options.strategy;
   c.cpu_device = is_cpu(device);
-  // A CPU device runs on this CPU: its vector width sets the lanes and the packets below.
-  const int cpu_vector_floats = c.cpu_device ? (cpu_has_512_bit_vectors() ? 16 : 8) : 0;
-  // On a CPU, float8 arithmetic across eight paths is what fills the vector units (float16 across
-  // sixteen where the CPU has 512-bit vectors).
-  c.lanes = options.lanes ? options.lanes : (c.cpu_device ? cpu_vector_floats : 1);
+  // A CPU device runs on this CPU: its vectors set the lanes and the packets below, as measured by
+  // bench/widths.py. Sixteen paths per work item fill 512-bit vectors; with AVX2, as two 256-bit
+  // operations each, they ran faster than eight as well.
+  c.lanes = options.lanes ? options.lanes : !c.cpu_device ? 1 : cpu.avx2 ? 16 : 8;
   if (c.lanes != 1 && c.lanes != 8 && c.lanes != 16)
     throw Error("lanes must be 1, 8 or 16, not " + std::to_string(c.lanes), "--lanes");
   c.bvh_width = scene.bvh.width;
@@ -86,7 +86,7 @@ KernelConfig KernelConfig::make(const DeviceInfo& device, const CompiledScene& s
   c.hybrid_packets = packets && choice == RayPackets::Hybrid;
   // With 512-bit vectors a packet of sixteen rays tests a box or a triangle in one instruction, as
   // eight do with 256-bit ones.
-  c.packet_width = options.packet_width ? options.packet_width : (cpu_vector_floats == 16 ? 16 : 8);
+  c.packet_width = options.packet_width ? options.packet_width : (c.cpu_device && cpu.avx512 ? 16 : 8);
   if (c.packet_width != 8 && c.packet_width != 16)
     throw Error("packet width must be 8 or 16, not " + std::to_string(c.packet_width), "--packet-width");
   return c;
