@@ -61,10 +61,9 @@ def main():
     combos = list(itertools.product(WIDTHS, WIDTHS))
     rows, runs, summary = [], [], []
     with tempfile.TemporaryDirectory(prefix="xi-widths-") as tmp:
-        default = None
+        default = default_widths(xi, a.scenes[0], Path(tmp) / "options.exr", a.resolution, a.sampler, isa)
         for scene in a.scenes:
             name = Path(c.scene_path(scene)).stem
-            default = default or default_widths(xi, scene, Path(tmp) / "options.exr", a.resolution, a.sampler, isa)
             images = {w: Path(tmp) / f"{name}-{w[0]}-{w[1]}.exr" for w in combos}
             seconds = {w: [] for w in combos}
             for i in range(a.runs):

@@ -26,6 +26,7 @@
 
 #include "cli.h"
 #include "cli_test.h"
+#include "xi/kernel_config.h"
 #include "xi/device.h"
 #include "xi/error.h"
 #include "xi/image.h"
@@ -179,13 +180,8 @@ TEST_F(CliRender, KernelBuildsPrintNothing) {
   std::error_code no_folder;
   for (const auto& f : fs::directory_iterator("/usr/share/pocl", no_folder))
     avx2_library |= f.path().filename().string().ends_with("-avx2.bc");
-#if defined(__x86_64__)
-  const bool avx2_cpu = __builtin_cpu_supports("avx2");
-#else
-  const bool avx2_cpu = false;
-#endif
-  if (!avx2_library || !avx2_cpu)
-    GTEST_SKIP() << "PoCL has no AVX2 kernel library in /usr/share/pocl, or this CPU has no AVX2";
+  if (!avx2_library || !xi::CpuVectors::of_this_cpu().avx2)
+    GTEST_SKIP() << "PoCL has no AVX2 kernel library in /usr/share/pocl, or this CPU has no AVX2 and FMA";
   const std::string avx2 = "export POCL_KERNELLIB_NAME=avx2";
   const Outcome devices = run_xi({"devices"}, avx2);
   ASSERT_NE(devices.out.find("haswell"), std::string::npos) << "PoCL did not take the Haswell target:\n" << devices.out;
