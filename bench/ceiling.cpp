@@ -1,12 +1,12 @@
 // The ceiling: xi's extend and shadow kernels against Embree on the same rays, same scene, same
-// run. Rays: camera rays, first-bounce rays and the shadow rays of both bounces, recorded from a
+// run. Rays: camera rays, the rays of bounces 1 and 2 and the shadow rays of all three, recorded from a
 // wave of a real render of the scene holding --spp samples of every pixel (4 by default, as a
 // 512×512 render's waves do, each pixel's samples side by side), traced as the renderer traces them
 // at that bounce (in packets, hybrid packets or alone: layout.h's XI_EXTEND_RAYS, XI_SHADOW_RAYS).
 // Embree traces them one at a time (rtcIntersect1, rtcOccluded1) and in packets of 16 consecutive
 // rays (rtcIntersect16, rtcOccluded16), which is how Mitsuba 3's LLVM variant calls the same Embree
-// (its wheel links Embree 3.13.4). Prints Mrays/s (medians of several timed runs) and how often the
-// answers agree.
+// (its wheel links Embree 3.13.4). Prints Mrays/s (medians of several timed runs), how often the
+// answers agree, and how many rays xi found a hit for.
 // --rays-out DIR also writes the rays (float32 origin xyz, tmax, direction xyz, 0) for bench/peers.py
 // to time Mitsuba's own ray queries on them.
 // --build instead times the two builds alone on the scene's triangles, no device needed: xi's
@@ -216,10 +216,12 @@ void write_rays(const std::filesystem::path& file, const xi::RayBatch& rays) {
   if (!out) throw xi::Error("cannot write the rays", file.string());
 }
 
+// `hits`: the rays xi found a hit for (a shadow ray: occluded), which peers.py holds Mitsuba's count to.
 void print_row(const char* what, size_t count, double xi_rate, int rays, double embree_rate, double embree16_rate,
-               double same) {
-  std::printf("%-13s %9zu rays  xi %7.2f Mrays/s (%s)  embree %7.2f Mrays/s  embree x16 %7.2f Mrays/s  same %.3f%%\n",
-              what, count, xi_rate, rays_kind(rays), embree_rate, embree16_rate, same);
+               double same, size_t hits) {
+  std::printf("%-13s %9zu rays  xi %7.2f Mrays/s (%s)  embree %7.2f Mrays/s  embree x16 %7.2f Mrays/s  same %.3f%%"
+              "  hits %zu\n",
+              what, count, xi_rate, rays_kind(rays), embree_rate, embree16_rate, same, hits);
 }
 
 // --build: both builders on the scene's triangles, RUNS times each, interleaved.
@@ -291,7 +293,11 @@ int main(int argc, char** argv) {
                 "quality %s\n",
                 args[0].c_str(), scene.triangles.size(), scene.width, scene.height, spp, device.info().name.c_str(),
                 std::thread::hardware_concurrency(), quality.c_str());
-    for (int bounce : {0, 1}) {
+    for (int bounce : {0, 1, 2}) {
+      // Row names and --rays-out files: camera rays, bounce rays 1, shadow rays 0, ...; camera.f32, bounce1.f32, ...
+      const std::string depth = std::to_string(bounce);
+      const std::string closest = bounce == 0 ? "camera rays" : "bounce rays " + depth, shadow = "shadow rays " + depth;
+      const std::string closest_file = bounce == 0 ? "camera.f32" : "bounce" + depth + ".f32";
       xi::RenderOptions opt;
       opt.spp = spp;
       opt.paths_in_flight = (size_t)scene.width * scene.height * spp;  // one wave: trace_closest takes them all
@@ -317,15 +323,16 @@ int main(int argc, char** argv) {
         em_s.push_back(embree.trace(rays, &prim));
         em16_s.push_back(embree.trace16(rays, bounce == 0, &prim16));
       }
-      size_t agree = 0;
+      size_t agree = 0, hit_count = 0;
       for (size_t i = 0; i < rays.org.size(); ++i) {
         int ours = hits[i].x < 0.0f ? -1 : (int)as_uint(hits[i].w);
         agree += ours == prim[i] && prim[i] == prim16[i];
+        hit_count += ours >= 0;
       }
       const double n = (double)rays.org.size();
-      print_row(bounce == 0 ? "camera rays" : "bounce rays", rays.org.size(), n / median(xi_s) * 1e-6,
+      print_row(closest.c_str(), rays.org.size(), n / median(xi_s) * 1e-6,
                 XI_EXTEND_RAYS(k.bvh_width, bounce, k.ray_packets, k.hybrid_packets), n / median(em_s) * 1e-6,
-                n / median(em16_s) * 1e-6, 100.0 * agree / n);
+                n / median(em16_s) * 1e-6, 100.0 * agree / n, hit_count);
 
       const xi::RayBatch& shadow_rays = probe.recorded_shadow();
       if (!shadow_rays.org.empty()) {
@@ -337,17 +344,19 @@ int main(int argc, char** argv) {
           es.push_back(embree.occluded(shadow_rays, &em_occ));
           e16s.push_back(embree.occluded16(shadow_rays, &em16_occ));
         }
-        size_t same = 0;
-        for (size_t i = 0; i < shadow_rays.org.size(); ++i)
+        size_t same = 0, occluded = 0;
+        for (size_t i = 0; i < shadow_rays.org.size(); ++i) {
           same += xi_occ[i] == (bool)em_occ[i] && em_occ[i] == em16_occ[i];
+          occluded += xi_occ[i];
+        }
         const double m = (double)shadow_rays.org.size();
-        print_row(bounce == 0 ? "shadow rays 0" : "shadow rays 1", shadow_rays.org.size(), m / median(xs) * 1e-6,
+        print_row(shadow.c_str(), shadow_rays.org.size(), m / median(xs) * 1e-6,
                   XI_SHADOW_RAYS(k.bvh_width, bounce, k.ray_packets, k.hybrid_packets), m / median(es) * 1e-6,
-                  m / median(e16s) * 1e-6, 100.0 * same / m);
+                  m / median(e16s) * 1e-6, 100.0 * same / m, occluded);
       }
       if (!rays_out.empty()) {
-        write_rays(rays_out / (bounce == 0 ? "camera.f32" : "bounce.f32"), rays);
-        write_rays(rays_out / (bounce == 0 ? "shadow0.f32" : "shadow1.f32"), shadow_rays);
+        write_rays(rays_out / closest_file, rays);
+        write_rays(rays_out / ("shadow" + depth + ".f32"), shadow_rays);
       }
     }
   } catch (const std::exception& e) {

@@ -303,12 +303,16 @@ def check(a, xi, mitsuba, scene, resolution, out_dir, tmp):
     return [row + [r["relmse"]] for row in rows]
 
 
-CEILING = re.compile(r"^(camera rays|bounce rays|shadow rays 0|shadow rays 1)\s+(\d+) rays\s+xi\s+([\d.]+) Mrays/s "
+CEILING = re.compile(r"^(camera rays|bounce rays \d|shadow rays \d)\s+(\d+) rays\s+xi\s+([\d.]+) Mrays/s "
                      r"\(([a-z ]+)\)\s+embree\s+([\d.]+) Mrays/s\s+embree x16\s+([\d.]+) Mrays/s\s+"
-                     r"same ([\d.]+)%", re.M)
-# The files `xi_ceiling --rays-out` writes, by row.
-CEILING_RAYS = {"camera rays": "camera.f32", "bounce rays": "bounce.f32", "shadow rays 0": "shadow0.f32",
-                "shadow rays 1": "shadow1.f32"}
+                     r"same ([\d.]+)%\s+hits (\d+)", re.M)
+
+
+def ceiling_rays_file(row):
+    """The file `xi_ceiling --rays-out` writes a row's rays to: camera.f32, bounce1.f32, shadow0.f32, ..."""
+    return "camera.f32" if row == "camera rays" else row.split()[0] + row.split()[-1] + ".f32"
+
+
 # Samples of every pixel in the one wave the ceiling records: as many as a 512x512 render's waves hold.
 CEILING_SPP = 4
 
@@ -327,23 +331,25 @@ def ceiling(a, xi, mitsuba, scenes, resolution, out_dir, tmp):
         text = c.run([tool, scene, a.runs, resolution, "--spp", CEILING_SPP, "--rays-out", rays_dir])
         loaded = load(a, xi, mitsuba, scene, resolution, scene_depth(scene), tmp)
         for m in CEILING.finditer(text):
-            mi_rate = None
+            mi_rate = mi_hits = None
             if loaded:
-                r = mitsuba.ask(cmd="rays", file=str(rays_dir / CEILING_RAYS[m[1]]), shadow=m[1].startswith("shadow"),
+                r = mitsuba.ask(cmd="rays", file=str(rays_dir / ceiling_rays_file(m[1])), shadow=m[1].startswith("shadow"),
                                 runs=a.runs)
-                mi_rate = r.get("mrays")
+                mi_rate, mi_hits = r.get("mrays"), r.get("hits")
             xi_rate, em, em16 = float(m[3]), float(m[5]), float(m[6])
             rows.append([scene.stem, resolution, m[1], int(m[2]), m[4], xi_rate, em, xi_rate / em, em16, xi_rate / em16,
-                         mi_rate, xi_rate / mi_rate if mi_rate else None, float(m[7])])
+                         mi_rate, xi_rate / mi_rate if mi_rate else None, float(m[7]), int(m[8]), mi_hits])
     headers = ["scene", "resolution", "rays", "count", "xi traces them", "xi Mrays/s", "Embree Mrays/s", "xi / Embree",
-               "Embree x16 Mrays/s", "xi / x16", "Mitsuba Mrays/s", "xi / Mitsuba", "same %"]
+               "Embree x16 Mrays/s", "xi / x16", "Mitsuba Mrays/s", "xi / Mitsuba", "same %", "xi hits", "Mitsuba hits"]
     print(f"\nThe ceiling: xi's extend and shadow kernels on rays recorded from one wave of a render ({CEILING_SPP} samples of every pixel), against Embree's "
           f"rtcIntersect1/rtcOccluded1, its 16-ray packets (as Mitsuba's LLVM variant calls it) and Mitsuba's own "
           f"ray_intersect_preliminary/ray_test on the same rays ({tool.name}, medians of {a.runs}; ratio > 1: xi is "
-          f"faster; same: xi's and Embree's answers agree)")
+          f"faster; same: xi's and Embree's answers agree; hits: the rays that hit something, a shadow ray: occluded, "
+          f"by xi and by Mitsuba, which should agree but for ties at shared edges)")
     c.print_table(headers, [[s, r, k, n, how, c.fmt(x, ".2f"), c.fmt(e, ".2f"), c.fmt(q, ".3f"), c.fmt(e16, ".2f"),
-                             c.fmt(q16, ".3f"), c.fmt(m, ".2f"), c.fmt(qm, ".3f"), c.fmt(same, ".3f")]
-                            for s, r, k, n, how, x, e, q, e16, q16, m, qm, same in rows])
+                             c.fmt(q16, ".3f"), c.fmt(m, ".2f"), c.fmt(qm, ".3f"), c.fmt(same, ".3f"), xh,
+                             c.fmt(mh, "d")]
+                            for s, r, k, n, how, x, e, q, e16, q16, m, qm, same, xh, mh in rows])
     c.write_csv(out_dir / "peers-embree.csv", headers, rows)
 
 
