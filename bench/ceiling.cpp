@@ -315,6 +315,10 @@ int main(int argc, char** argv) {
       Embree embree(positions, ordered.tri_vertices, embree_quality);
 
       const xi::RayBatch& rays = probe.recorded();
+      if (rays.org.empty()) {  // every path ended before this bounce (all escaped, say): so do later ones
+        std::printf("%-13s: no rays, every path has ended\n", closest.c_str());
+        break;
+      }
       std::vector<double> xi_s, em_s, em16_s;
       std::vector<glm::vec4> hits;
       std::vector<int> prim, prim16;

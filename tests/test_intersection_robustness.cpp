@@ -330,3 +330,21 @@ TEST(IntersectionRobustness, RecordedShadowRaysAreOccludedAsBruteForceFinds) {
     EXPECT_LT(blocked, rays.org.size() - unclear);
   }
 }
+
+// A bounce that no path reaches (every camera ray escaped, say) hands the probe an empty batch: it
+// traces nothing and says so, where an empty OpenCL transfer would be an error.
+TEST(IntersectionRobustness, ProbeOfAnEmptyBatchTracesNothing) {
+  xi::Scene scene = xi::load_scene(fs::path(XI_SCENE_DIR) / "cornell-box.json");
+  scene.width = scene.height = 16;
+  xi::RenderOptions o;
+  o.spp = 1;
+  xi::Renderer renderer(device(), scene, o);
+  xi::RayProbe probe(renderer);
+  const xi::RayBatch none;
+  std::vector<glm::vec4> hits(3);
+  std::vector<bool> occluded(3);
+  EXPECT_EQ(probe.trace_closest(none, &hits, 1), 0.0);
+  EXPECT_TRUE(hits.empty());
+  EXPECT_EQ(probe.trace_shadow(none, &occluded, 1), 0.0);
+  EXPECT_TRUE(occluded.empty());
+}

@@ -46,6 +46,10 @@ double RayProbe::trace_closest(const RayBatch& rays, std::vector<glm::vec4>* hit
   const size_t n = rays.org.size();
   if (n > r.paths_ || rays.dir.size() != n) throw Error("ray batch larger than the paths in flight or malformed");
   if (bounce < 0 || bounce > r.options_.max_depth) throw Error("trace_closest: no bounce " + std::to_string(bounce));
+  if (n == 0) {  // nothing to trace (OpenCL has no empty transfers)
+    hits->clear();
+    return 0.0;
+  }
   cl::CommandQueue& q = r.device_.queue();
   std::vector<uint32_t> identity(n);
   for (size_t i = 0; i < n; ++i) identity[i] = (uint32_t)i;
@@ -70,6 +74,10 @@ double RayProbe::trace_shadow(const RayBatch& rays, std::vector<bool>* occluded,
   const size_t n = rays.org.size();
   if (n > r.paths_ || rays.dir.size() != n) throw Error("ray batch larger than the paths in flight or malformed");
   if (bounce < 0 || bounce > r.options_.max_depth) throw Error("trace_shadow: no bounce " + std::to_string(bounce));
+  if (n == 0) {
+    occluded->clear();
+    return 0.0;
+  }
   cl::CommandQueue& q = r.device_.queue();
   // Ray i adds 1 to path i's radiance if unoccluded.
   std::vector<glm::vec4> contrib(n);

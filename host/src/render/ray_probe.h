@@ -28,10 +28,10 @@ class RayProbe {
   // Runs the extend stage alone on the given rays (at most the paths in flight) as it runs at
   // `bounce`: in packets of consecutive rays where XI_EXTEND_RAYS says so, else one by one.
   // Returns the kernel's time in seconds and the hits (t or −1, u, v, triangle in BVH order as
-  // float bits).
+  // float bits). An empty batch traces nothing: no hits, 0 s.
   double trace_closest(const RayBatch& rays, std::vector<glm::vec4>* hits, int bounce);
   // Runs the shadow stage alone on the given rays (org.w: tmax) as it runs at `bounce`. Returns the
-  // kernel's time in seconds and, per ray, whether it is occluded.
+  // kernel's time in seconds and, per ray, whether it is occluded (none for an empty batch).
   double trace_shadow(const RayBatch& rays, std::vector<bool>* occluded, int bounce);
 
  private:
