@@ -333,8 +333,8 @@ def ceiling(a, xi, mitsuba, scenes, resolution, out_dir, tmp):
         for m in CEILING.finditer(text):
             mi_rate = mi_hits = None
             if loaded:
-                r = mitsuba.ask(cmd="rays", file=str(rays_dir / ceiling_rays_file(m[1])), shadow=m[1].startswith("shadow"),
-                                runs=a.runs)
+                r = mitsuba.ask(cmd="rays", file=str(rays_dir / ceiling_rays_file(m[1])),
+                                shadow=m[1].startswith("shadow"), runs=a.runs)
                 mi_rate, mi_hits = r.get("mrays"), r.get("hits")
             xi_rate, em, em16 = float(m[3]), float(m[5]), float(m[6])
             rows.append([scene.stem, resolution, m[1], int(m[2]), m[4], xi_rate, em, xi_rate / em, em16, xi_rate / em16,

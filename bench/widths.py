@@ -89,8 +89,9 @@ def main():
     c.print_table(["scene", "lanes / packet", "seconds", "range", "ratio", "fastest", "mse"], rows)
     print()
     for name, best, ratio, overlap in summary:
-        verdict = "the default" if best == default else (f"{best[0]} lanes, packets of {best[1]}: {ratio:.3f} of the "
-                                                         f"default's time{' (within noise: the ranges overlap)' if overlap else ''}")
+        noise = " (within noise: the ranges overlap)" if overlap else ""
+        verdict = ("the default" if best == default
+                   else f"{best[0]} lanes, packets of {best[1]}: {ratio:.3f} of the default's time{noise}")
         print(f"{name}: fastest {verdict}")
     c.write_csv(out / "widths.csv", ["scene", "lanes", "packet_width", "run", "seconds"], runs)
     print(f"\nwrote {out / 'widths.csv'} (every run)")

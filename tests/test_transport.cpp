@@ -686,10 +686,12 @@ TEST(TransportFeatures, KernelConfigFollowsDeviceSceneAndOptions) {
   };
   for (const Widths& w : {Widths{{false, false}, 8, 8}, Widths{{true, false}, 16, 8}, Widths{{true, true}, 16, 16}}) {
     SCOPED_TRACE(testing::Message() << "avx2 " << w.cpu.avx2 << ", avx512 " << w.cpu.avx512);
-    EXPECT_EQ(xi::KernelConfig::make(cpu, wide, opt, w.cpu).lanes, w.lanes);
-    EXPECT_EQ(xi::KernelConfig::make(cpu, wide, opt, w.cpu).packet_width, w.packet_width);
-    EXPECT_EQ(xi::KernelConfig::make(gpu, narrow, opt, w.cpu).lanes, 1);
-    EXPECT_EQ(xi::KernelConfig::make(gpu, narrow, opt, w.cpu).packet_width, 8);
+    const xi::KernelConfig for_cpu = xi::KernelConfig::make(cpu, wide, opt, w.cpu),
+                           for_gpu = xi::KernelConfig::make(gpu, narrow, opt, w.cpu);
+    EXPECT_EQ(for_cpu.lanes, w.lanes);
+    EXPECT_EQ(for_cpu.packet_width, w.packet_width);
+    EXPECT_EQ(for_gpu.lanes, 1);
+    EXPECT_EQ(for_gpu.packet_width, 8);
   }
   // By default the CPU this runs on, whose AVX2 needs FMA too.
   const xi::KernelConfig on_cpu = xi::KernelConfig::make(cpu, wide, opt);
